@@ -1,0 +1,98 @@
+"""Command line: ``gcodeplan <command> ...``.
+
+Each command lives in the stage package it belongs to and exposes
+``add_arguments(parser)`` and ``run(args) -> int``. Modules are imported only
+when their command runs, so ``--help`` stays fast.
+
+Exit codes: 0 success, 2 bad input or usage (one line on stderr, ``file:line:``
+where it applies), 1 internal error.
+"""
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+from . import __version__
+
+# name -> (module, one-line help)
+COMMANDS: dict[str, tuple[str, str]] = {
+    "estimate": ("gcodeplan.report.estimate_cmd", "plan a G-code file and print its time (the main job)"),
+    "parse": ("gcodeplan.gcode.parse_cmd", "parse a G-code file and print what it contains"),
+    "profile": ("gcodeplan.profiles.profile_cmd", "solve and print (or plot) one 1-D velocity profile"),
+    "steps": ("gcodeplan.stepper.steps_cmd", "write exact per-stepper step times for a G-code file"),
+    "plot": ("gcodeplan.report.plot_cmd", "draw velocity / axes / toolpath / layer plots"),
+    "report": ("gcodeplan.report.report_cmd", "write a self-contained HTML report"),
+}
+
+
+def add_machine_arguments(p: argparse.ArgumentParser) -> None:
+    """Options every command that reads G-code shares."""
+    g = p.add_argument_group("machine")
+    src = g.add_mutually_exclusive_group()
+    src.add_argument("--machine", metavar="M.toml",
+                     help="machine description in gcodeplan's TOML format, or a preset name "
+                          "(klipper, marlin, grbl); default: the klipper preset")
+    src.add_argument("--klipper-config", metavar="printer.cfg",
+                     help="read the machine from a Klipper printer.cfg (G-code then has Klipper's meanings)")
+    g.add_argument("--flavor", choices=("marlin", "klipper", "reprap", "grbl", "linuxcnc"),
+                   help="G-code dialect, overriding the machine's (G4 P units, M204 meaning, G0 rate)")
+    g.add_argument("--strict", action="store_true",
+                   help="unknown commands are an error instead of being counted")
+
+
+def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="gcodeplan",
+        description="Motion planner for G-code machines: honest print/cut times, velocity profiles, "
+                    "exact step timing and plots.",
+    )
+    parser.add_argument("--version", action="version", version=f"gcodeplan {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    argv = sys.argv[1:] if argv is None else argv
+    wanted = argv[0] if argv else None
+    for name, (module, help_text) in COMMANDS.items():
+        sp = sub.add_parser(name, help=help_text, description=help_text)
+        # Import only the module of the command that runs (or all of them for the top-level --help).
+        if wanted in (name, None, "-h", "--help"):
+            try:
+                mod = importlib.import_module(module)
+            except ImportError:
+                continue
+            mod.add_arguments(sp)
+            sp.set_defaults(_run=mod.run)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    from .errors import GcodeplanError
+
+    argv = sys.argv[1:] if argv is None else list(argv)
+    parser = build_parser(argv)
+    args = parser.parse_args(argv)
+    if not getattr(args, "_run", None):
+        parser.print_help(sys.stderr)
+        return 2
+    try:
+        return int(args._run(args) or 0)
+    except GcodeplanError as err:
+        print(f"gcodeplan: {err}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("gcodeplan: interrupted", file=sys.stderr)
+        return 130
+    except BrokenPipeError:
+        return 0
+    except MemoryError:
+        print("gcodeplan: out of memory", file=sys.stderr)
+        return 1
+    except Exception as err:  # an internal error: say so, keep the traceback for a bug report
+        import traceback
+
+        traceback.print_exc()
+        print(f"gcodeplan: internal error: {err!r} (please report this with the file)", file=sys.stderr)
+        return 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

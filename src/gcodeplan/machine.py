@@ -1,0 +1,109 @@
+"""The machine description: kinematics, limits, junction policy, dialect.
+
+Units: mm, s, mm/s, mm/s², mm/s³. ``inf`` means "no limit".
+
+The fields are the contract between the loaders (our TOML format, Klipper's
+printer.cfg, presets) and the stages that use them (parser, planner, stepper).
+Loaders live in :mod:`gcodeplan.config`.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .schema import LIMITS_DTYPE
+
+INF = math.inf
+
+KINEMATICS = ("cartesian", "corexy")
+FLAVORS = ("marlin", "klipper", "reprap", "grbl", "linuxcnc")
+POLICIES = ("klipper", "junction-deviation", "classic-jerk", "blend", "exact-stop")
+AXES = ("x", "y", "z", "e")
+
+
+@dataclass
+class Axis:
+    max_velocity: float = INF     # mm/s (M203 / grbl $110..)
+    max_accel: float = INF        # mm/s² (M201 / grbl $120..)
+    jerk: float = 0.0             # mm/s classic jerk (M205 X/Y/Z/E); 0 = not set
+    steps_per_mm: float = 80.0    # full steps × microsteps / rotation distance
+    home: float = 0.0             # mm, position taken at G28 (modelled as instant)
+
+
+@dataclass
+class Machine:
+    name: str = "generic"
+    kinematics: str = "cartesian"
+    # G-code dialect: G4 P unit, M204 meaning, whether M201/M203/M205 apply, G0 rapid rate
+    flavor: str = "marlin"
+
+    # toolhead
+    max_velocity: float = 300.0          # mm/s
+    max_accel: float = 3000.0            # mm/s²; the accel used when M204 has not spoken
+    accel_print: float | None = None     # mm/s² M204 P default (Marlin); None = max_accel
+    accel_travel: float | None = None    # mm/s² M204 T default (Marlin); None = max_accel
+    accel_retract: float | None = None   # mm/s² M204 R default (Marlin); None = max_accel
+    rapid_velocity: float | None = None  # mm/s G0 rate on CNC flavors; None = max_velocity
+
+    # junctions
+    junction_policy: str = "klipper"
+    square_corner_velocity: float = 5.0  # mm/s (Klipper)
+    minimum_cruise_ratio: float = 0.5    # Klipper (max_accel_to_decel = max_accel·(1 − mcr))
+    junction_deviation: float = 0.013    # mm (grbl $11, Marlin JUNCTION_DEVIATION_MM)
+    blend_tolerance: float = 0.0         # mm, path tolerance for the blend policy (G64 P default)
+    max_jerk: float = INF                # mm/s³ path jerk for S-curves; inf = trapezoids
+
+    axes: dict[str, Axis] = field(default_factory=lambda: {a: Axis() for a in AXES})
+
+    # extruder (Klipper's names)
+    nozzle_diameter: float = 0.4
+    filament_diameter: float = 1.75
+    max_extrude_only_velocity: float = INF   # mm/s of filament
+    max_extrude_only_accel: float = INF      # mm/s² of filament
+    instantaneous_corner_velocity: float = 1.0  # mm/s
+    max_extrude_ratio: float = INF           # mm filament per mm path; above is an error (Klipper)
+
+    # arcs: chord tolerance (max sagitta, mm); when arc_resolution > 0 Klipper's rule is used instead
+    arc_tolerance: float = 0.002
+    arc_resolution: float = 0.0              # mm per segment (Klipper [gcode_arcs] resolution)
+
+    # firmware retraction (G10/G11)
+    retract_length: float = 0.0              # mm
+    retract_speed: float = 20.0              # mm/s
+    unretract_extra_length: float = 0.0      # mm
+    unretract_speed: float = 10.0            # mm/s
+
+    # time not spent moving
+    homing_time: float = 0.0                 # s per G28 (reported with the waits)
+    heat_wait_time: float = 0.0              # s per M109/M190 (reported with the waits)
+
+    max_step_rate: float = INF               # steps/s per stepper: above it the stepper warns
+
+    # ------------------------------------------------------------------ derived
+    def limits_row(self) -> np.ndarray:
+        """Row 0 of the LIMITS table: the limits in force before the G-code changes any."""
+        row = np.zeros(1, dtype=LIMITS_DTYPE)
+        r = row[0]
+        r["max_v"] = self.max_velocity
+        r["max_a"] = self.max_accel
+        r["scv"] = self.square_corner_velocity
+        r["mcr"] = self.minimum_cruise_ratio
+        r["junction_dev"] = self.junction_deviation
+        for a in AXES:
+            ax = self.axes[a]
+            r["jerk_" + a] = ax.jerk
+            r["axis_v_" + a] = ax.max_velocity
+            r["axis_a_" + a] = ax.max_accel
+        r["extrude_only_v"] = self.max_extrude_only_velocity
+        r["extrude_only_a"] = self.max_extrude_only_accel
+        r["icv"] = self.instantaneous_corner_velocity
+        r["min_feed_v"] = 0.0
+        r["min_travel_v"] = 0.0
+        r["max_jerk"] = self.max_jerk
+        return row
+
+    @property
+    def is_cnc(self) -> bool:
+        return self.flavor in ("grbl", "linuxcnc")

@@ -1,0 +1,141 @@
+"""The arrays that travel between stages.
+
+Every stage speaks NumPy structured arrays with the dtypes below, so that numba
+kernels can loop over them without Python objects. Units inside: mm, s, mm/s,
+mm/s², mm/s³, whatever the G-code file said (G20 inches are converted by the
+parser).
+
+Data flow (see DESIGN.md)::
+
+    gcode/   text  -> MOVE rows   (+ LIMITS table, layer/feature names, events)
+    planner/ MOVE  -> PLAN rows   (one per MOVE row: speeds, phase times, start time)
+    planner/ PLAN  -> SEGMENT rows (per-axis cubic pieces in time; what the stepper,
+                                    the sampler and the plots consume)
+"""
+from __future__ import annotations
+
+import numpy as np
+
+# --------------------------------------------------------------------------- moves
+# MOVE.kind
+KIND_TRAVEL = 0        # XYZ motion, no extrusion (or E not increasing with XYZ: see PRINT)
+KIND_PRINT = 1         # XYZ motion with E increasing
+KIND_EXTRUDE_ONLY = 2  # E only (retract / unretract / prime), move_d = |dE|
+KIND_DWELL = 3         # G4: full stop, then dwell_t seconds (counted as motion time, as Klipper does)
+KIND_WAIT = 4          # full stop + dwell_t seconds that are *not* motion: M109/M190 waits,
+                       # G28 homing time, M400/M0/M1/tool change (dwell_t = 0). Reported as waits.
+KIND_NAMES = ("travel", "print", "extrude_only", "dwell", "wait")
+
+# MOVE.flags (bit set)
+FLAG_RAPID = 1         # G0 (on CNC flavors: runs at the machine's rapid rate, feed_v = inf)
+FLAG_ARC = 2           # a chord of a G2/G3 arc
+FLAG_RETRACT = 4       # E decreasing (retraction, with or without XYZ)
+FLAG_HOMING = 8        # KIND_WAIT row made by G28
+FLAG_CANNED = 16       # a move expanded from a canned cycle (G73/G81/G82/G83...)
+FLAG_FIRMWARE_RETRACT = 32  # made by G10/G11
+
+MOVE_DTYPE = np.dtype(
+    [
+        ("line", "i8"),        # 1-based source line number
+        ("kind", "u1"),        # KIND_*
+        ("flags", "u1"),       # FLAG_*
+        ("feature", "i2"),     # index into the feature-name list, -1 = none yet
+        ("layer", "i4"),       # layer index, -1 = before the first layer change
+        ("limits", "i4"),      # row of the LIMITS table in force for this move
+        ("x0", "f8"), ("y0", "f8"), ("z0", "f8"), ("e0", "f8"),   # start (mm, machine coordinates)
+        ("x1", "f8"), ("y1", "f8"), ("z1", "f8"), ("e1", "f8"),   # end
+        ("move_d", "f8"),      # mm: XYZ length; |dE| for extrude-only; 0 for dwell/wait
+        ("feed_v", "f8"),      # mm/s requested (F/60 × M220 factor); inf = as fast as allowed (rapids)
+        ("accel", "f8"),       # mm/s² acceleration in force (M204 resolved for this move's kind and dialect)
+        ("dwell_t", "f8"),     # s, for KIND_DWELL / KIND_WAIT rows
+        ("blend_p", "f8"),     # mm, path tolerance in force (G64 P); 0 = exact path; nan = machine default
+        ("exact_stop", "u1"),  # 1 when G61/G61.1 (exact stop) is in force: this move ends at rest
+    ],
+    align=True,
+)
+
+# --------------------------------------------------------------------------- limits
+# One row per distinct limit state. Row 0 comes from the machine; the parser adds
+# a row each time the G-code changes a limit (SET_VELOCITY_LIMIT, M201, M203,
+# M205, ...). inf means "no limit".
+LIMITS_DTYPE = np.dtype(
+    [
+        ("max_v", "f8"),        # mm/s toolhead velocity limit (Klipper max_velocity)
+        ("max_a", "f8"),        # mm/s² toolhead accel limit (the default accel when M204 has not spoken)
+        ("scv", "f8"),          # mm/s square corner velocity (Klipper)
+        ("mcr", "f8"),          # minimum cruise ratio (Klipper), 0..1
+        ("junction_dev", "f8"), # mm junction deviation (grbl $11 / Marlin M205 J)
+        ("jerk_x", "f8"), ("jerk_y", "f8"), ("jerk_z", "f8"), ("jerk_e", "f8"),   # mm/s classic jerk (M205 XYZE)
+        ("axis_v_x", "f8"), ("axis_v_y", "f8"), ("axis_v_z", "f8"), ("axis_v_e", "f8"),  # mm/s per-axis (M203)
+        ("axis_a_x", "f8"), ("axis_a_y", "f8"), ("axis_a_z", "f8"), ("axis_a_e", "f8"),  # mm/s² per-axis (M201)
+        ("extrude_only_v", "f8"),  # mm/s of filament for extrude-only moves and retractions (Klipper)
+        ("extrude_only_a", "f8"),  # mm/s² of filament, same moves
+        ("icv", "f8"),          # mm/s extruder instantaneous corner velocity (Klipper)
+        ("min_feed_v", "f8"),   # mm/s Marlin M205 S (printing moves), 0 = none
+        ("min_travel_v", "f8"), # mm/s Marlin M205 T (travel moves), 0 = none
+        ("max_jerk", "f8"),     # mm/s³ path jerk limit for S-curves; inf/0 = trapezoids
+    ],
+    align=True,
+)
+
+# --------------------------------------------------------------------------- plan
+# PLAN.limit: what bounded the cruise speed of the move
+LIMIT_FEED = 0          # the requested feed rate
+LIMIT_MAX_V = 1         # toolhead max velocity
+LIMIT_AXIS = 2          # a per-axis velocity limit (incl. Z)
+LIMIT_EXTRUDER = 3      # extruder limits
+LIMIT_ACCEL = 4         # too short to reach the speed under the acceleration limit (incl. junctions)
+LIMIT_MCR = 5           # Klipper minimum_cruise_ratio smoothing
+LIMIT_JUNCTION = 6      # corner speed at both ends (the move cannot speed up)
+LIMIT_NONE = 7          # dwell / wait rows
+LIMIT_NAMES = ("feed", "max_velocity", "axis", "extruder", "accel", "cruise_ratio", "junction", "none")
+
+PLAN_DTYPE = np.dtype(
+    [
+        ("t_start", "f8"),     # s, absolute start time of the move (0 = start of the first move)
+        ("start_v", "f8"),     # mm/s at the start
+        ("cruise_v", "f8"),    # mm/s peak / cruise
+        ("end_v", "f8"),       # mm/s at the end
+        ("accel", "f8"),       # mm/s² used while accelerating
+        ("decel", "f8"),       # mm/s² used while decelerating
+        ("jerk", "f8"),        # mm/s³ (0 = trapezoid)
+        ("accel_t", "f8"),     # s
+        ("cruise_t", "f8"),    # s
+        ("decel_t", "f8"),     # s
+        ("duration", "f8"),    # s (incl. dwell_t for dwell/wait rows)
+        ("limit", "u1"),       # LIMIT_*
+    ],
+    align=True,
+)
+
+# --------------------------------------------------------------------------- segments
+# Per-axis polynomial pieces in time: for t in [t0, t0+dt],
+#   q(t) = p + v·τ + a·τ²/2 + j·τ³/6 with τ = t − t0, for each of x, y, z, e.
+# Straight moves, blends (parabolas) and S-curve phases all fit.
+PHASE_ACCEL = 0
+PHASE_CRUISE = 1
+PHASE_DECEL = 2
+PHASE_BLEND = 3
+PHASE_DWELL = 4
+PHASE_NAMES = ("accel", "cruise", "decel", "blend", "dwell")
+
+SEGMENT_DTYPE = np.dtype(
+    [
+        ("t0", "f8"), ("dt", "f8"),
+        ("px", "f8"), ("py", "f8"), ("pz", "f8"), ("pe", "f8"),
+        ("vx", "f8"), ("vy", "f8"), ("vz", "f8"), ("ve", "f8"),
+        ("ax", "f8"), ("ay", "f8"), ("az", "f8"), ("ae", "f8"),
+        ("jx", "f8"), ("jy", "f8"), ("jz", "f8"), ("je", "f8"),
+        ("move", "i8"),        # row index of the MOVE this piece belongs to (global, 0-based)
+        ("phase", "u1"),       # PHASE_*
+    ],
+    align=True,
+)
+
+
+def empty_moves(n: int = 0) -> np.ndarray:
+    return np.zeros(n, dtype=MOVE_DTYPE)
+
+
+def empty_limits(n: int = 0) -> np.ndarray:
+    return np.zeros(n, dtype=LIMITS_DTYPE)
