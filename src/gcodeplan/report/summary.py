@@ -1,0 +1,130 @@
+"""Time accounting over a plan, chunk by chunk.
+
+``TimeSummary.add(moves, plan)`` folds one planned chunk into running totals
+with vectorised NumPy (bincount), so a 1.8-million-move file costs a handful of
+array operations per 64k-move chunk and nothing per move in Python.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..schema import (
+    KIND_DWELL,
+    KIND_EXTRUDE_ONLY,
+    KIND_NAMES,
+    KIND_PRINT,
+    KIND_TRAVEL,
+    KIND_WAIT,
+    LIMIT_NAMES,
+)
+
+
+def _grow_add(acc: np.ndarray, idx: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """acc[idx] += weights, growing acc as needed (idx ≥ 0)."""
+    if idx.size == 0:
+        return acc
+    add = np.bincount(idx, weights=weights)
+    if add.size > acc.size:
+        acc = np.concatenate([acc, np.zeros(add.size - acc.size)])
+    acc[: add.size] += add
+    return acc
+
+
+@dataclass
+class TimeSummary:
+    """Running totals of a plan. All times in seconds."""
+
+    end_t: float = 0.0                 # end of the last planned move (= total time)
+    moves_planned: int = 0
+    by_kind: np.ndarray = field(default_factory=lambda: np.zeros(len(KIND_NAMES)))
+    by_limit: np.ndarray = field(default_factory=lambda: np.zeros(len(LIMIT_NAMES)))
+    accel_t: float = 0.0
+    cruise_t: float = 0.0
+    decel_t: float = 0.0
+    # index = layer + 1 (slot 0 holds moves before the first layer change)
+    by_layer: np.ndarray = field(default_factory=lambda: np.zeros(1))
+    # index = feature + 1 (slot 0 holds moves with no feature tag)
+    by_feature: np.ndarray = field(default_factory=lambda: np.zeros(1))
+    peak_v: float = 0.0                # mm/s highest planned cruise speed
+    peak_v_line: int = 0
+    stops: int = 0                     # moves ending at rest
+    line_end_t_last: tuple[int, float] = (0, 0.0)
+
+    def add(self, moves: np.ndarray, plan: np.ndarray) -> None:
+        if moves.size == 0:
+            return
+        dur = plan["duration"]
+        self.moves_planned += moves.size
+        end = plan["t_start"] + dur
+        self.end_t = max(self.end_t, float(end.max()))
+        kind = moves["kind"].astype(np.intp)
+        self.by_kind += np.bincount(kind, weights=dur, minlength=len(KIND_NAMES))[: len(KIND_NAMES)]
+        self.by_limit += np.bincount(plan["limit"].astype(np.intp), weights=dur,
+                                     minlength=len(LIMIT_NAMES))[: len(LIMIT_NAMES)]
+        self.accel_t += float(plan["accel_t"].sum())
+        self.cruise_t += float(plan["cruise_t"].sum())
+        self.decel_t += float(plan["decel_t"].sum())
+        self.by_layer = _grow_add(self.by_layer, np.maximum(moves["layer"], -1).astype(np.intp) + 1, dur)
+        self.by_feature = _grow_add(self.by_feature, np.maximum(moves["feature"], -1).astype(np.intp) + 1, dur)
+        i = int(np.argmax(plan["cruise_v"]))
+        if plan["cruise_v"][i] > self.peak_v:
+            self.peak_v = float(plan["cruise_v"][i])
+            self.peak_v_line = int(moves["line"][i])
+        motion = (kind != KIND_DWELL) & (kind != KIND_WAIT)
+        self.stops += int(np.count_nonzero(motion & (plan["end_v"] == 0.0)))
+
+    # ------------------------------------------------------------------ views
+    @property
+    def total_time_s(self) -> float:
+        return self.end_t
+
+    @property
+    def waits_s(self) -> float:
+        return float(self.by_kind[KIND_WAIT])
+
+    @property
+    def dwell_s(self) -> float:
+        return float(self.by_kind[KIND_DWELL])
+
+    @property
+    def print_time_s(self) -> float:
+        return float(self.by_kind[KIND_PRINT])
+
+    @property
+    def travel_time_s(self) -> float:
+        return float(self.by_kind[KIND_TRAVEL])
+
+    @property
+    def extrude_only_time_s(self) -> float:
+        return float(self.by_kind[KIND_EXTRUDE_ONLY])
+
+    def layers(self, layer_z: list[float]) -> list[dict]:
+        out = []
+        for slot in range(1, self.by_layer.size):
+            idx = slot - 1
+            z = float(layer_z[idx]) if idx < len(layer_z) else None
+            out.append({"index": idx, "z": z, "time_s": float(self.by_layer[slot])})
+        return out
+
+    def features(self, names: list[str]) -> dict[str, float]:
+        out: dict[str, float] = {}
+        if self.by_feature[0] > 0:
+            out["(untagged)"] = float(self.by_feature[0])
+        for slot in range(1, self.by_feature.size):
+            name = names[slot - 1] if slot - 1 < len(names) else f"feature {slot - 1}"
+            if self.by_feature[slot] > 0:
+                out[name] = out.get(name, 0.0) + float(self.by_feature[slot])
+        return out
+
+    def limits(self) -> dict[str, float]:
+        return {LIMIT_NAMES[i]: float(t) for i, t in enumerate(self.by_limit) if t > 0}
+
+
+def hms(seconds: float) -> str:
+    """Seconds as h:mm:ss (rounded to the second), the way slicers print times."""
+    if not np.isfinite(seconds):
+        return str(seconds)
+    s = int(round(seconds))
+    return f"{s // 3600}:{s % 3600 // 60:02d}:{s % 60:02d}"
