@@ -1,0 +1,216 @@
+"""Drilling canned cycles (G73, G81, G82, G83, G85, G86, G89) expanded into plain moves.
+
+Semantics are LinuxCNC's (G-code manual "Canned Cycles", interpreter interp_cycles.cc), XY plane (G17) only:
+
+* Sticky words: R, Z (as written), Q, P. R and Z must be on the first line of a cycle (any line whose cycle
+  code differs from the previous line's); Q on the first G73/G83 line; P on the first G82/G86/G89 line.
+  L (repeats, default 1) is not sticky, as in LinuxCNC.
+* G90: X, Y, R, Z absolute. G91: X, Y are increments applied once per repeat, R is relative to the initial
+  level (the Z when the cycle series started, ``initial_z``; LinuxCNC 2.8+), Z is relative to R.
+* Preliminary motion: if the tool is below R, a rapid straight up to R. Then, for each repeat, a rapid in XY
+  at the current height (the first repeat) or at the clear height (later repeats), and a rapid down to R if
+  above it. LinuxCNC tests the initial level rather than the current Z for the first step; the two differ
+  only when R is raised between G99 lines, where going up first is the safe reading of the manual.
+* Clear height after each hole: G99 → R; G98 → the initial level if it is above R, else R.
+* G73 and G83 peck from R downwards by Q (depths R−Q, R−2Q, … while above the bottom, then the bottom).
+  G73 backs off ``peck_retract_mm`` after each peck (chip break); G83 rapids out to R and back down to
+  ``peck_retract_mm`` above the last depth (LinuxCNC's G83_RAPID_DELTA, 0.010 inch = 0.254 mm).
+* G85 feeds out to R then rapids to the clear height; G86 dwells P at the bottom and rapids out (the spindle
+  stop is not motion); G89 dwells P and feeds out to the clear height (both as LinuxCNC).
+
+Moves of zero length are left out; a dwell row is written only when P > 0.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+__all__ = ["CycleError", "CycleState", "expand_cycle", "CYCLE_CODES", "MOTION_RAPID", "MOTION_FEED",
+           "MOTION_DWELL", "MAX_CYCLE_ROWS"]
+
+CYCLE_CODES = (73, 81, 82, 83, 85, 86, 89)
+PECK_CODES = (73, 83)
+DWELL_CODES = (82, 86, 89)
+
+# Column "motion" of the rows expand_cycle returns.
+MOTION_RAPID = 0
+MOTION_FEED = 1
+MOTION_DWELL = 2
+
+# A cycle needing more rows than this is a typo (Q of a micron over a metre, L of a million), not a part.
+MAX_CYCLE_ROWS = 10_000_000
+
+# Two depths closer than this are one: stops r − k·Q landing a rounding error above the bottom from making
+# a sliver of a peck.
+DEPTH_EPS_MM = 1e-9
+
+
+class CycleError(ValueError):
+    """A canned-cycle line that cannot be executed. No file:line in the message: the parser adds it."""
+
+
+@dataclass
+class CycleState:
+    """Where the tool is and what the cycle words are, carried from one cycle line to the next.
+
+    Create it with :meth:`enter` when a cycle series starts (the first G73/G8x line after another motion mode
+    or G80); after each line pass the returned state back, with ``retract_mode``/``incremental`` updated if
+    the line changed them. NaN in r/q/p/z_word means "not given yet".
+    """
+
+    x: float                    # mm, current position (absolute, work frame)
+    y: float
+    z: float
+    initial_z: float            # mm, Z when the cycle series started (the G98 level)
+    retract_mode: int           # 98 or 99
+    incremental: bool           # G91 in force
+    r: float                    # sticky R word as written (mm; relative to initial_z under G91)
+    q: float                    # sticky Q word (mm, peck depth)
+    p: float                    # sticky P word (s, dwell)
+    l: int                      # L of the last line (not sticky: a line without L does one hole)
+    z_word: float = math.nan    # sticky Z word as written (mm; relative to R under G91)
+    code: int = 0               # cycle code of the last line (0 = none yet): a change requires R and Z again
+
+    @classmethod
+    def enter(cls, x: float, y: float, z: float, retract_mode: int = 98, incremental: bool = False
+              ) -> "CycleState":
+        """State at the start of a cycle series, the tool at (x, y, z)."""
+        nan = math.nan
+        return cls(x=float(x), y=float(y), z=float(z), initial_z=float(z), retract_mode=retract_mode,
+                   incremental=incremental, r=nan, q=nan, p=nan, l=1)
+
+
+def _word(words: dict, key: str) -> float | None:
+    """The line's value for a word (upper or lower case), None when absent; non-finite is an error."""
+    value = words.get(key, words.get(key.lower()))
+    if value is None:
+        return None
+    value = float(value)
+    if not math.isfinite(value):
+        raise CycleError(f"canned cycle word {key} is not a finite number ({value})")
+    return value
+
+
+def _sticky(line_value: float | None, state_value: float, key: str, code: int, first: bool,
+            required: bool) -> float:
+    if line_value is not None:
+        return line_value
+    if (first and required) or (required and math.isnan(state_value)):
+        raise CycleError(f"G{code} needs {key} on the first line of the cycle")
+    return state_value
+
+
+def _peck_depths(r_abs: float, bottom: float, q: float) -> int:
+    """Number of intermediate peck depths r − k·q (k ≥ 1) strictly above the bottom (+ DEPTH_EPS_MM)."""
+    span = r_abs - bottom
+    if span <= DEPTH_EPS_MM:
+        return 0
+    k = math.ceil(span / q) - 1
+    # Settle rounding at the boundary: r − k·q must stay above the bottom, r − (k+1)·q must not.
+    while k > 0 and r_abs - k * q <= bottom + DEPTH_EPS_MM:
+        k -= 1
+    while r_abs - (k + 1) * q > bottom + DEPTH_EPS_MM:
+        k += 1
+    return k
+
+
+def expand_cycle(code: int, words: dict[str, float], state: CycleState, peck_retract_mm: float = 0.254,
+                 *, plane: int = 17) -> tuple[np.ndarray, CycleState]:
+    """Moves of one canned-cycle line, and the state after it.
+
+    ``code`` ∈ {73, 81, 82, 83, 85, 86, 89}; ``words`` the line's X Y Z R Q P L values (absent keys absent;
+    mm and seconds, already converted from inches). Returns rows (N, 5) float64 ``[x, y, z, motion, dwell_s]``
+    in order: motion 0 = rapid, 1 = feed, 2 = dwell (xyz unchanged, dwell_s seconds). Raises
+    :class:`CycleError`.
+    """
+    if code not in CYCLE_CODES:
+        raise CycleError(f"G{code} is not a supported canned cycle (G73, G81, G82, G83, G85, G86, G89)")
+    if plane != 17:
+        raise CycleError(f"canned cycles only in G17 (XY plane); G{plane} is in force")
+    if state.retract_mode not in (98, 99):
+        raise CycleError(f"canned cycle retract mode must be G98 or G99, got {state.retract_mode}")
+    if not (math.isfinite(peck_retract_mm) and peck_retract_mm >= 0.0):
+        raise CycleError(f"peck retract must be a finite distance >= 0 mm, got {peck_retract_mm}")
+    first = state.code != code
+    x_word, y_word = _word(words, "X"), _word(words, "Y")
+    r_word = _sticky(_word(words, "R"), state.r, "R", code, first, True)
+    z_word = _sticky(_word(words, "Z"), state.z_word, "Z", code, first, True)
+    q_word = _sticky(_word(words, "Q"), state.q, "Q", code, first, code in PECK_CODES)
+    p_word = _sticky(_word(words, "P"), state.p, "P", code, first, code in DWELL_CODES)
+    l_word = _word(words, "L")
+    repeats = 1 if l_word is None else l_word
+    if repeats != int(repeats) or repeats < 1:
+        raise CycleError(f"canned cycle repeat count L must be a whole number >= 1, got {l_word:g}")
+    repeats = int(repeats)
+    if code in PECK_CODES and not q_word > 0.0:
+        raise CycleError(f"G{code} peck depth Q must be > 0 mm, got {q_word:g}")
+    if code in DWELL_CODES and not p_word >= 0.0:
+        raise CycleError(f"G{code} dwell P must be >= 0 s, got {p_word:g}")
+
+    if state.incremental:
+        r_abs = state.initial_z + r_word
+        bottom = r_abs + z_word
+        step_x = 0.0 if x_word is None else x_word
+        step_y = 0.0 if y_word is None else y_word
+        hole_x, hole_y = state.x, state.y
+    else:
+        r_abs = r_word
+        bottom = z_word
+        step_x = step_y = 0.0
+        hole_x = state.x if x_word is None else x_word
+        hole_y = state.y if y_word is None else y_word
+    if r_abs < bottom:
+        raise CycleError(f"G{code}: the R plane ({r_abs:.4f} mm) is below the hole bottom Z ({bottom:.4f} mm)")
+    clear_z = r_abs if state.retract_mode == 99 else max(state.initial_z, r_abs)
+
+    pecks = _peck_depths(r_abs, bottom, q_word) if code in PECK_CODES else 0
+    rows_per_hole = 6 + (3 if code == 83 else 2) * pecks
+    if rows_per_hole * repeats + 1 > MAX_CYCLE_ROWS:
+        raise CycleError(f"G{code} would make {rows_per_hole * repeats + 1:.4g} moves "
+                         f"(limit {MAX_CYCLE_ROWS}): check Q and L")
+
+    rows = np.empty((rows_per_hole * repeats + 1, 5), dtype=np.float64)
+    count = 0
+    x, y, z = state.x, state.y, state.z
+
+    def add(nx: float, ny: float, nz: float, motion: int, dwell_s: float = 0.0) -> None:
+        nonlocal count, x, y, z
+        if motion != MOTION_DWELL and nx == x and ny == y and nz == z:
+            return
+        rows[count] = (nx, ny, nz, motion, dwell_s)
+        count += 1
+        x, y, z = nx, ny, nz
+
+    if z < r_abs:
+        add(x, y, r_abs, MOTION_RAPID)
+    for _ in range(repeats):
+        hole_x += step_x
+        hole_y += step_y
+        add(hole_x, hole_y, z, MOTION_RAPID)   # z is the current height, then the clear height
+        if z > r_abs:
+            add(hole_x, hole_y, r_abs, MOTION_RAPID)
+        if code in PECK_CODES:
+            for k in range(1, pecks + 1):
+                depth = r_abs - k * q_word
+                add(x, y, depth, MOTION_FEED)
+                if code == 83:
+                    add(x, y, r_abs, MOTION_RAPID)
+                    add(x, y, min(depth + peck_retract_mm, r_abs), MOTION_RAPID)
+                else:
+                    add(x, y, min(depth + peck_retract_mm, r_abs), MOTION_RAPID)
+        add(x, y, bottom, MOTION_FEED)
+        if code in DWELL_CODES and p_word > 0.0:
+            add(x, y, z, MOTION_DWELL, p_word)
+        if code == 85:
+            add(x, y, r_abs, MOTION_FEED)
+            add(x, y, clear_z, MOTION_RAPID)
+        elif code == 89:
+            add(x, y, clear_z, MOTION_FEED)
+        else:
+            add(x, y, clear_z, MOTION_RAPID)
+
+    new_state = replace(state, x=x, y=y, z=z, r=r_word, q=q_word, p=p_word, l=repeats, z_word=z_word,
+                        code=code)
+    return rows[:count].copy(), new_state

@@ -1,0 +1,208 @@
+"""Canned cycles → moves: full point lists worked by hand from LinuxCNC's documented cycle steps."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from gcodeplan.gcode.cycles import (
+    MOTION_DWELL,
+    MOTION_FEED,
+    MOTION_RAPID,
+    CycleError,
+    CycleState,
+    expand_cycle,
+)
+
+R, F, D = MOTION_RAPID, MOTION_FEED, MOTION_DWELL
+
+
+def rows_of(*moves):
+    """Expected rows from (x, y, z, motion[, dwell_s]) tuples."""
+    return np.array([m + (0.0,) if len(m) == 4 else m for m in moves], dtype=float)
+
+
+def check(rows, expected):
+    assert rows.shape == expected.shape, f"\n{rows}\n!=\n{expected}"
+    np.testing.assert_allclose(rows, expected, rtol=0, atol=1e-12)
+
+
+# ----------------------------------------------------------------------------- one hole of each cycle
+# Common case: tool at (0, 0, 5), G98, hole at X10 Y0, R2, bottom Z−10.
+START = CycleState.enter(0.0, 0.0, 5.0, retract_mode=98)
+
+
+def test_g81_drill():
+    rows, state = expand_cycle(81, {"X": 10, "Y": 0, "Z": -10, "R": 2}, START)
+    check(rows, rows_of((10, 0, 5, R),       # rapid XY at the current height (above R)
+                        (10, 0, 2, R),       # rapid down to R
+                        (10, 0, -10, F),     # feed to the bottom
+                        (10, 0, 5, R)))      # G98: back to the initial level
+    assert (state.x, state.y, state.z) == (10, 0, 5)
+    assert (state.r, state.z_word, state.code) == (2, -10, 81)
+
+
+def test_g81_g99_retracts_to_r():
+    rows, state = expand_cycle(81, {"X": 10, "Z": -10, "R": 2}, CycleState.enter(0, 0, 5, retract_mode=99))
+    check(rows, rows_of((10, 0, 5, R), (10, 0, 2, R), (10, 0, -10, F), (10, 0, 2, R)))
+    assert state.z == 2
+
+
+def test_g82_dwells_at_the_bottom():
+    rows, state = expand_cycle(82, {"X": 10, "Z": -10, "R": 2, "P": 0.5}, START)
+    check(rows, rows_of((10, 0, 5, R), (10, 0, 2, R), (10, 0, -10, F), (10, 0, -10, D, 0.5),
+                        (10, 0, 5, R)))
+    assert state.p == 0.5
+
+
+def test_g83_full_retract_pecks():
+    # Pecks go down from R by Q: R−Q = −2, R−2Q = −6, then the bottom −10 (R−3Q = −10 is the bottom itself).
+    # After each peck: rapid out to R, rapid back to 0.254 mm above the depth just reached.
+    rows, _ = expand_cycle(83, {"X": 10, "Y": 0, "Z": -10, "R": 2, "Q": 4}, START)
+    check(rows, rows_of((10, 0, 5, R), (10, 0, 2, R),
+                        (10, 0, -2, F), (10, 0, 2, R), (10, 0, -2 + 0.254, R),
+                        (10, 0, -6, F), (10, 0, 2, R), (10, 0, -6 + 0.254, R),
+                        (10, 0, -10, F),
+                        (10, 0, 5, R)))
+
+
+def test_g73_chip_break_pecks():
+    rows, _ = expand_cycle(73, {"X": 10, "Z": -10, "R": 2, "Q": 4}, START, peck_retract_mm=0.5)
+    check(rows, rows_of((10, 0, 5, R), (10, 0, 2, R),
+                        (10, 0, -2, F), (10, 0, -1.5, R),
+                        (10, 0, -6, F), (10, 0, -5.5, R),
+                        (10, 0, -10, F),
+                        (10, 0, 5, R)))
+
+
+def test_peck_depth_not_a_multiple_of_q():
+    # R0 Z−5 Q2: pecks −2, −4, then −5.
+    rows, _ = expand_cycle(83, {"Z": -5, "R": 0, "Q": 2}, CycleState.enter(0, 0, 0, retract_mode=99))
+    feeds = rows[rows[:, 3] == F][:, 2]
+    assert feeds.tolist() == [-2, -4, -5]
+    # Decimal Q whose multiples do not land exactly on the bottom in floating point: no sliver peck.
+    rows, _ = expand_cycle(83, {"Z": -0.3, "R": 0, "Q": 0.1}, CycleState.enter(0, 0, 0, retract_mode=99))
+    assert rows[rows[:, 3] == F][:, 2] == pytest.approx([-0.1, -0.2, -0.3], abs=1e-12)
+
+
+def test_g85_feeds_out_to_r_then_rapids_to_clear():
+    rows, _ = expand_cycle(85, {"X": 10, "Z": -10, "R": 2}, START)
+    check(rows, rows_of((10, 0, 5, R), (10, 0, 2, R), (10, 0, -10, F), (10, 0, 2, F), (10, 0, 5, R)))
+    rows, _ = expand_cycle(85, {"X": 10, "Z": -10, "R": 2}, CycleState.enter(0, 0, 5, retract_mode=99))
+    check(rows, rows_of((10, 0, 5, R), (10, 0, 2, R), (10, 0, -10, F), (10, 0, 2, F)))
+
+
+def test_g86_dwell_then_rapid_out():
+    rows, _ = expand_cycle(86, {"X": 10, "Z": -10, "R": 2, "P": 1.5}, START)
+    check(rows, rows_of((10, 0, 5, R), (10, 0, 2, R), (10, 0, -10, F), (10, 0, -10, D, 1.5), (10, 0, 5, R)))
+
+
+def test_g89_dwell_then_feed_out():
+    rows, _ = expand_cycle(89, {"X": 10, "Z": -10, "R": 2, "P": 2}, START)
+    check(rows, rows_of((10, 0, 5, R), (10, 0, 2, R), (10, 0, -10, F), (10, 0, -10, D, 2.0), (10, 0, 5, F)))
+
+
+# ----------------------------------------------------------------------------- modes, sticky words, repeats
+
+def test_below_r_rapids_up_first_and_g98_clears_to_r():
+    # Tool at Z0 below R2: straight up to R before any XY motion; the initial level (0) is below R, so G98
+    # retracts to R.
+    rows, state = expand_cycle(81, {"X": 10, "Y": 3, "Z": -4, "R": 2}, CycleState.enter(1, 1, 0))
+    check(rows, rows_of((1, 1, 2, R), (10, 3, 2, R), (10, 3, -4, F), (10, 3, 2, R)))
+    assert state.z == 2
+
+
+def test_sticky_words_second_hole_g98_vs_g99():
+    pecks = [(20, 0, -2, F), (20, 0, 2, R), (20, 0, -1.746, R), (20, 0, -3, F)]
+    # G98: the first hole ends at the initial level 5; the second travels there, then rapids down to R.
+    _, state = expand_cycle(83, {"X": 10, "Z": -3, "R": 2, "Q": 4}, CycleState.enter(0, 0, 5, 98))
+    rows, state = expand_cycle(83, {"X": 20}, state)  # R, Z, Q are sticky
+    check(rows, rows_of((20, 0, 5, R), (20, 0, 2, R), *pecks, (20, 0, 5, R)))
+    assert (state.x, state.z, state.q) == (20, 5, 4)
+    # G99: the first hole ends at R; the second travels at R and needs no move down to it.
+    _, state = expand_cycle(83, {"X": 10, "Z": -3, "R": 2, "Q": 4}, CycleState.enter(0, 0, 5, 99))
+    rows, state = expand_cycle(83, {"X": 20}, state)
+    check(rows, rows_of((20, 0, 2, R), *pecks, (20, 0, 2, R)))
+    assert (state.x, state.z) == (20, 2)
+
+
+def test_incremental_with_l3_repeats():
+    # G91 G98 G81 X10 Y5 Z−5 R−2 L3 from (0, 0, 10): R = 10 − 2 = 8, bottom = R − 5 = 3, holes at
+    # (10, 5), (20, 10), (30, 15); G98 retracts to the initial level 10 between holes.
+    rows, state = expand_cycle(81, {"X": 10, "Y": 5, "Z": -5, "R": -2, "L": 3},
+                               CycleState.enter(0, 0, 10, retract_mode=98, incremental=True))
+    def hole(x, y):
+        return [(x, y, 10, R), (x, y, 8, R), (x, y, 3, F), (x, y, 10, R)]
+
+    check(rows, rows_of(*hole(10, 5), *hole(20, 10), *hole(30, 15)))
+    assert (state.x, state.y, state.z, state.l) == (30, 15, 10, 3)
+    # G99: retract to R and travel there.
+    rows, state = expand_cycle(81, {"X": 10, "Z": -5, "R": -2, "L": 3},
+                               CycleState.enter(0, 0, 10, retract_mode=99, incremental=True))
+    check(rows, rows_of((10, 0, 10, R), (10, 0, 8, R), (10, 0, 3, F), (10, 0, 8, R),
+                        (20, 0, 8, R), (20, 0, 3, F), (20, 0, 8, R),
+                        (30, 0, 8, R), (30, 0, 3, F), (30, 0, 8, R)))
+    # A following incremental line keeps R relative to the initial level (LinuxCNC 2.8+), not to the
+    # current Z (8), so the hole bottom stays at 3.
+    rows, state = expand_cycle(81, {"X": 10}, state)
+    check(rows, rows_of((40, 0, 8, R), (40, 0, 3, F), (40, 0, 8, R)))
+
+
+def test_absolute_l2_repeats_the_same_hole():
+    rows, _ = expand_cycle(81, {"X": 10, "Z": -1, "R": 1, "L": 2}, CycleState.enter(0, 0, 5))
+    check(rows, rows_of((10, 0, 5, R), (10, 0, 1, R), (10, 0, -1, F), (10, 0, 5, R),
+                        (10, 0, 1, R), (10, 0, -1, F), (10, 0, 5, R)))
+
+
+def test_invariants_over_many_cases():
+    """No XY motion below R, feeds only along Z, the last row at the clear height."""
+    for code in (73, 81, 82, 83, 85, 86, 89):
+        for mode in (98, 99):
+            for z0 in (-1.0, 1.0, 7.0):
+                words = {"X": 3, "Y": -4, "Z": -7.3, "R": 1.5, "Q": 1.1, "P": 0.2}
+                rows, state = expand_cycle(code, words, CycleState.enter(0, 0, z0, mode))
+                prev = np.array([0.0, 0.0, z0])
+                for x, y, z, motion, _ in rows:
+                    if (x, y) != tuple(prev[:2]):
+                        assert motion == R and z == prev[2] >= 1.5
+                    if motion == F:
+                        assert (x, y) == tuple(prev[:2])
+                    prev = np.array([x, y, z])
+                clear = 1.5 if mode == 99 else max(z0, 1.5)
+                assert rows[-1, 2] == state.z == clear
+                assert rows[:, 2].min() == -7.3
+
+
+# ----------------------------------------------------------------------------- errors
+
+@pytest.mark.parametrize(
+    "code, words, state, message",
+    [
+        (81, {"X": 1, "Z": -1}, START, "G81 needs R"),
+        (81, {"X": 1, "R": 1}, START, "G81 needs Z"),
+        (83, {"Z": -1, "R": 1}, START, "G83 needs Q"),
+        (83, {"Z": -1, "R": 1, "Q": 0}, START, "Q must be > 0"),
+        (73, {"Z": -1, "R": 1, "Q": -2}, START, "Q must be > 0"),
+        (82, {"Z": -1, "R": 1}, START, "G82 needs P"),
+        (89, {"Z": -1, "R": 1, "P": -1}, START, "P must be >= 0"),
+        (81, {"Z": 3, "R": 1}, START, r"R plane \(1\.0000 mm\) is below the hole bottom Z \(3\.0000 mm\)"),
+        (81, {"Z": -1, "R": 1, "L": 0}, START, "L must be a whole number >= 1"),
+        (81, {"Z": -1, "R": 1, "L": 2.5}, START, "L must be a whole number >= 1"),
+        (84, {"Z": -1, "R": 1}, START, "not a supported canned cycle"),
+        (81, {"Z": float("nan"), "R": 1}, START, "not a finite number"),
+        (83, {"Z": -100, "R": 0, "Q": 1e-6}, START, r"would make .* moves"),
+    ],
+)
+def test_errors(code, words, state, message):
+    with pytest.raises(CycleError, match=message):
+        expand_cycle(code, words, state)
+
+
+def test_changing_cycle_needs_r_and_z_again_and_plane_must_be_g17():
+    _, state = expand_cycle(81, {"Z": -1, "R": 1}, START)
+    with pytest.raises(CycleError, match="G82 needs"):
+        expand_cycle(82, {"P": 1}, state)
+    with pytest.raises(CycleError, match="canned cycles only in G17"):
+        expand_cycle(81, {"Z": -1, "R": 1}, START, plane=18)
+    assert math.isnan(START.r)  # the caller's state is not modified
