@@ -1,1 +1,97 @@
-"""kinematics stage."""
+"""Kinematics: from toolhead axes (x, y, z, e) to stepper positions.
+
+Each kinematics is one module in this package exposing ``NAME`` and
+``rails(machine, klipper_names) -> list[Rail]``. A *rail* is one stepper: its
+name, its steps per mm and how its position follows from the toolhead axes.
+
+Cartesian and corexy are *linear*: a stepper position is a fixed weighted sum of
+the axes, ``s = w_x·x + w_y·y + w_z·z + w_e·e``. A linear sum of cubic pieces is
+again a cubic piece, so :func:`stepper_pieces` turns the planner's SEGMENT rows
+into the stepper's own polynomial pieces exactly and the step kernel never sees
+the kinematics. A non-linear kinematics (delta: ``s = z + √(L² − (x−x_t)² −
+(y−y_t)²)``) will set ``Rail.weights = None`` and ship its own position
+callback and kernel entry; the step convention and the output layout stay the
+same.
+"""
+from __future__ import annotations
+
+import importlib
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import ConfigError
+
+# name -> module inside this package
+KINEMATICS_MODULES = {
+    "cartesian": "cartesian",
+    "corexy": "corexy",
+}
+
+AXIS_FIELDS = ("x", "y", "z", "e")
+
+
+@dataclass(frozen=True)
+class Rail:
+    """One stepper motor.
+
+    ``weights``: stepper position (mm of the stepper's own travel) as
+    Σ weights[i]·axis[i] over (x, y, z, e); ``None`` for non-linear kinematics.
+    """
+
+    name: str
+    steps_per_mm: float
+    weights: tuple[float, float, float, float] | None
+
+    @property
+    def step_dist(self) -> float:
+        """mm of stepper travel per step (Klipper's ``step_dist``)."""
+        return 1.0 / self.steps_per_mm
+
+
+def kinematics_module(name: str):
+    """The module implementing kinematics ``name`` (ConfigError when unknown)."""
+    mod = KINEMATICS_MODULES.get(name)
+    if mod is None:
+        raise ConfigError(f"kinematics: unknown value {name!r} "
+                          f"(known: {', '.join(sorted(KINEMATICS_MODULES))})")
+    return importlib.import_module(f"{__name__}.{mod}")
+
+
+def rails_for(machine, klipper_names: bool = False) -> list[Rail]:
+    """The machine's steppers, in output order. Klipper section names when ``klipper_names``."""
+    rails = kinematics_module(machine.kinematics).rails(machine, klipper_names)
+    for r in rails:
+        if not (r.steps_per_mm > 0 and np.isfinite(r.steps_per_mm)):
+            raise ConfigError(f"{r.name}: steps_per_mm must be a positive number, got {r.steps_per_mm!r}")
+    return rails
+
+
+def axis_steps_per_mm(machine, axis: str) -> float:
+    return float(machine.axes[axis].steps_per_mm)
+
+
+def stepper_pieces(segments: np.ndarray, rail: Rail) -> tuple[np.ndarray, ...]:
+    """(t0, dt, p, v, a, j) of the rail's position for every SEGMENT row.
+
+    s(τ) = p + v·τ + a·τ²/2 + j·τ³/6 with τ = t − t0 (the SEGMENT convention).
+    Zero weights are skipped and unit weights copy, so a cartesian stepper gets
+    the planner's coefficients bit for bit.
+    """
+    if rail.weights is None:
+        raise NotImplementedError(f"{rail.name}: non-linear kinematics need their own kernel")
+    t0 = np.ascontiguousarray(segments["t0"], dtype=np.float64)
+    dt = np.ascontiguousarray(segments["dt"], dtype=np.float64)
+    out = []
+    for prefix in ("p", "v", "a", "j"):
+        acc = None
+        for w, ax in zip(rail.weights, AXIS_FIELDS):
+            if w == 0.0:
+                continue
+            col = segments[prefix + ax]
+            term = col if w == 1.0 else (-col if w == -1.0 else w * col)
+            acc = np.array(term, dtype=np.float64) if acc is None else acc + term
+        if acc is None:
+            acc = np.zeros(len(segments), dtype=np.float64)
+        out.append(np.ascontiguousarray(acc))
+    return (t0, dt, *out)

@@ -1,0 +1,156 @@
+"""``gcodeplan steps FILE -o steps.npz``: exact per-stepper step times of a G-code file.
+
+Writes, for every stepper, ``<stepper>`` (float64 step times, s from the start
+of the first move) and ``<stepper>_dir`` (int8 ±1), the layout of Klipper's
+reference files, plus ``steppers``, ``steps_per_mm`` and ``kinematics``. Stepper
+names are Klipper's sections (``stepper_x`` … ``extruder``) when the machine
+comes from a printer.cfg, otherwise ``x y z e`` (cartesian) / ``a b z e``
+(corexy, A = X + Y, B = X − Y). The step convention is documented in
+:mod:`gcodeplan.stepper.kernel`.
+"""
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import sys
+
+import numpy as np
+
+from ..errors import GcodeplanError
+from . import DEFAULT_CLOCK_HZ, DEFAULT_MAX_ERROR_S, KLIPPER_SDS_FILTER_T
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    from ..cli import add_machine_arguments
+    from ..machine import POLICIES
+
+    p.add_argument("file", help="G-code file")
+    add_machine_arguments(p)
+    p.add_argument("--policy", choices=POLICIES, help="junction policy (default: the machine's)")
+    out = p.add_argument_group("output")
+    out.add_argument("-o", "--output", required=True, metavar="steps.npz",
+                     help="step times per stepper (.npz, written atomically)")
+    out.add_argument("--csv", metavar="DIR", help="also write DIR/<stepper>.csv (time_s,dir per step)")
+    out.add_argument("--compress", action="store_true",
+                     help="also store Klipper-style queue_step runs <stepper>_runs (interval, count, add, dir) "
+                          "in clock ticks")
+    out.add_argument("--clock-hz", type=float, default=DEFAULT_CLOCK_HZ, metavar="HZ",
+                     help="MCU clock for --compress (default 50e6, Klipper's Linux MCU)")
+    out.add_argument("--max-error", type=float, default=DEFAULT_MAX_ERROR_S, metavar="S",
+                     help="--compress: a step may be this much early, never late (default 25e-6 s, "
+                          "Klipper's max_stepcompress_error)")
+    out.add_argument("--sds-filter", nargs="?", type=float, const=KLIPPER_SDS_FILTER_T, default=None,
+                     metavar="S",
+                     help="drop a step and its immediate reversal when closer than S "
+                          f"(Klipper's step+dir+step filter; default S = {KLIPPER_SDS_FILTER_T * 1e6:g} µs)")
+    out.add_argument("--max-step-rate", type=float, metavar="STEPS_PER_S",
+                     help="warn when a stepper exceeds this rate (default: the machine's max_step_rate)")
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress bar, no summary")
+
+
+def _check_args(args) -> None:
+    if not (args.clock_hz > 0 and math.isfinite(args.clock_hz)):
+        raise GcodeplanError(f"--clock-hz must be a positive number, got {args.clock_hz:g}")
+    if not (args.max_error >= 0 and math.isfinite(args.max_error)):
+        raise GcodeplanError(f"--max-error must be ≥ 0 s, got {args.max_error:g}")
+    if args.sds_filter is not None and not (args.sds_filter > 0 and math.isfinite(args.sds_filter)):
+        raise GcodeplanError(f"--sds-filter must be a positive time in s, got {args.sds_filter:g}")
+    if args.max_step_rate is not None and not (args.max_step_rate > 0):
+        raise GcodeplanError(f"--max-step-rate must be > 0, got {args.max_step_rate:g}")
+    if not os.path.isfile(args.file):
+        raise GcodeplanError("no such file", file=args.file)
+
+
+def _progress_bar(path: str, quiet: bool):
+    """A bytes progress bar on stderr, only on a terminal and only for runs longer than a second."""
+    if quiet or not sys.stderr.isatty():
+        return None
+    from tqdm import tqdm
+
+    return tqdm(total=os.path.getsize(path), unit="B", unit_scale=True, delay=1.0,
+                desc=os.path.basename(path), file=sys.stderr, leave=False)
+
+
+def summary_line(name: str, st: np.ndarray) -> str:
+    """One line per stepper from a :func:`kernel.step_stats` vector."""
+    count = int(st[0])
+    if count == 0:
+        return f"{name}: 0 steps"
+    peak = 1.0 / st[5] if st[5] > 0 and math.isfinite(st[5]) else 0.0
+    shortest = f"{st[4] * 1e6:.3f} µs" if math.isfinite(st[4]) else "-"
+    return (f"{name}: {count} steps (net {int(st[7]):+d}), peak {peak:,.0f} steps/s, "
+            f"shortest interval {shortest}, {int(st[1])} direction changes")
+
+
+def run(args) -> int:
+    from ..config import machine_from_args
+    from ..kinematics import rails_for
+    from . import compress as cmp
+    from .export import CsvStepWriter, NpzStreamWriter
+    from .generate import StepGenerator
+    from .source import segment_batches
+
+    _check_args(args)
+    machine = machine_from_args(args)
+    rails = rails_for(machine, klipper_names=bool(getattr(args, "klipper_config", None)))
+    names = [r.name for r in rails]
+    max_rate = args.max_step_rate if args.max_step_rate is not None else machine.max_step_rate
+
+    writer = NpzStreamWriter(args.output)       # fails early on an unwritable place
+    csv = None
+    bar = None
+    try:
+        csv = CsvStepWriter(args.csv, names) if args.csv else None
+        for name in names:
+            writer.declare(name, np.float64)
+            writer.declare(name + "_dir", np.int8)
+        compressors = None
+        if args.compress:
+            compressors = [cmp.Compressor(args.clock_hz, args.max_error) for _ in rails]
+            for name in names:
+                writer.declare(name + "_runs", cmp.RUN_DTYPE)
+
+        def sink(si: int, times: np.ndarray, dirs: np.ndarray) -> None:
+            name = names[si]
+            writer.append(name, times)
+            writer.append(name + "_dir", dirs)
+            if csv is not None:
+                csv.append(si, times, dirs)
+            if compressors is not None:
+                writer.append(name + "_runs", compressors[si].feed(times, dirs))
+
+        gen = StepGenerator(rails, sink, sds_filter_t=args.sds_filter)
+        bar = _progress_bar(args.file, args.quiet)
+        progress = (lambda done: bar.update(done - bar.n)) if bar is not None else None
+        for segments, reset in segment_batches(args.file, machine, policy=args.policy, strict=args.strict,
+                                               progress=progress):
+            gen.feed(segments, reset)
+        gen.finish()
+
+        writer.put("steppers", np.array(names))
+        writer.put("steps_per_mm", np.array([r.steps_per_mm for r in rails], np.float64))
+        writer.put("kinematics", np.array(machine.kinematics))
+        writer.put("sds_filter_s", np.array(args.sds_filter if args.sds_filter is not None else 0.0))
+        if args.compress:
+            writer.put("clock_hz", np.array(args.clock_hz))
+            writer.put("max_error_s", np.array(args.max_error))
+        writer.commit()
+        if csv is not None:
+            csv.commit()
+    except BaseException:
+        writer.abort()
+        if csv is not None:
+            csv.abort()
+        raise
+    finally:
+        if bar is not None:
+            bar.close()
+
+    for rail, st in zip(rails, gen.stats):
+        if not args.quiet:
+            print(summary_line(rail.name, st))
+        if math.isfinite(max_rate) and st[5] > 0 and 1.0 / st[5] > max_rate:
+            print(f"gcodeplan: warning: {rail.name} reaches {1.0 / st[5]:,.0f} steps/s at t = {st[6]:.6f} s, "
+                  f"above the maximum step rate {max_rate:,.0f} steps/s", file=sys.stderr)
+    return 0
