@@ -117,9 +117,9 @@ def _estimate_job(job):
         return path, None, str(err)
 
 
-def print_text(est: Estimate, out=sys.stdout) -> None:
+def print_text(est: Estimate, out=None) -> None:
     t, s = est.time, est.parse
-    w = out.write
+    w = (out or sys.stdout).write
     w(f"{est.path}\n")
     w(f"  machine {est.machine_name}, policy {est.policy}\n")
     w(f"  total time      {hms(t.total_time_s):>10}  ({t.total_time_s:.3f} s)\n")
