@@ -1,6 +1,8 @@
 """Errors a user can act on. The CLI prints ``str(err)`` on one line and exits 2."""
 from __future__ import annotations
 
+from contextlib import contextmanager
+
 
 class GcodeplanError(Exception):
     """Bad input or usage. ``file``/``line`` point at the offending place when known."""
@@ -15,6 +17,8 @@ class GcodeplanError(Exception):
         where = ""
         if self.file is not None:
             where = f"{self.file}:{self.line}: " if self.line is not None else f"{self.file}: "
+        elif self.line is not None:
+            where = f"line {self.line}: "
         return where + self.message
 
 
@@ -24,3 +28,14 @@ class ConfigError(GcodeplanError):
 
 class GcodeError(GcodeplanError):
     """A G-code file cannot be read or has a bad line: names file:line."""
+
+
+@contextmanager
+def located(path: str):
+    """Give errors raised by stages that only know line numbers (the planner) the file's name."""
+    try:
+        yield
+    except GcodeplanError as err:
+        if err.file is None:
+            err.file = str(path)
+        raise

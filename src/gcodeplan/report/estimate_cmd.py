@@ -8,7 +8,7 @@ import sys
 from dataclasses import dataclass
 
 from ..cli import add_machine_arguments
-from ..errors import GcodeplanError
+from ..errors import GcodeplanError, located
 from ..machine import POLICIES
 from .summary import TimeSummary, hms
 
@@ -81,19 +81,20 @@ def estimate_file(path: str, machine, policy: str | None, jerk: float | None, st
 
     policy = policy or machine.junction_policy
     reader = GcodeReader(path, machine, strict=strict)
-    planner = StreamPlanner(machine, policy=policy, jerk=jerk) if jerk else StreamPlanner(machine, policy=policy)
+    planner = StreamPlanner(machine, policy=policy, jerk=jerk)
     time = TimeSummary()
     bar = _progress(path, quiet)
     try:
-        for moves in reader.batches():
-            for m, p in planner.feed(moves, reader.limits):
+        with located(path):
+            for moves in reader.batches():
+                for m, p in planner.feed(moves, reader.limits):
+                    time.add(m, p)
+                if bar is not None:
+                    done = getattr(reader, "bytes_read", None)
+                    if done is not None:
+                        bar.update(done - bar.n)
+            for m, p in planner.finish():
                 time.add(m, p)
-            if bar is not None:
-                done = getattr(reader, "bytes_read", None)
-                if done is not None:
-                    bar.update(done - bar.n)
-        for m, p in planner.finish():
-            time.add(m, p)
     finally:
         if bar is not None:
             bar.close()

@@ -41,7 +41,8 @@ def homing_resets(moves: np.ndarray, segments: np.ndarray, first_move: int,
     return reset, bool(homing[-1] >= seg_move[-1])
 
 
-def segment_batches(path: str, machine, *, policy: str | None = None, strict: bool = False,
+def segment_batches(path: str, machine, *, policy: str | None = None, jerk: float | None = None,
+                    strict: bool = False,
                     progress: Callable[[int], None] | None = None) -> Iterator[tuple[np.ndarray, np.ndarray]]:
     """(SEGMENT rows, reset flags) per planner emission, with bounded memory.
 
@@ -52,14 +53,15 @@ def segment_batches(path: str, machine, *, policy: str | None = None, strict: bo
 
     policy = policy or machine.junction_policy
     reader = GcodeReader(path, machine, strict=strict)
-    planner = StreamPlanner(machine, policy=policy)
+    planner = StreamPlanner(machine, policy=policy, jerk=jerk)
     first_move = 0
     pending = False
 
     def emit(pairs):
         nonlocal first_move, pending
         for moves, plan in pairs:
-            segs = to_segments(moves, plan)
+            # blends and S-curves: the planner's own pieces (to_segments only rebuilds trapezoids)
+            segs = planner.segments_for(moves, plan, first_move)
             reset, pending = homing_resets(moves, segs, first_move, pending)
             yield segs, reset
             first_move += len(moves)

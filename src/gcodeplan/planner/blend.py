@@ -1,0 +1,490 @@
+"""Blend mode: parabolic blends at corners under a path tolerance (G64 P).
+
+Model (DESIGN.md "Parabolic blends", seed trapezoidal-and-parabolic-blends.es "ajuste parabólico"):
+the toolhead follows each segment along its straight line; around the via point between move j−1 and
+move j it leaves the line at speed v_c, changes its velocity vector from V_in = v_c·u_in to
+V_out = v_c·u_out under the constant acceleration a = (V_out − V_in)/(2τ) for 2τ seconds, and joins the
+next line at speed v_c. The parabola misses the via point by e = |ΔV|·τ/4.
+
+Corner speed. With a toolhead acceleration limit A, per-axis limits A_ax and the tolerance P:
+
+* τ is the least half-time the limits allow: τ = c·v_c with the corner constant
+  c = max(k/(2A), max_ax |Δu_ax|/(2·A_ax)) s²/mm, k = |u_out − u_in| (XYZ). A shorter τ both saves time and
+  lowers the deviation, so the least τ is the best one.
+* deviation: e = |ΔV_xyz|·τ/4 = k·c·v_c²/4 ≤ P  →  v_c² ≤ 4P/(k·c)   (= 8AP/k² when the toolhead limit binds)
+* the blend fits in half of each neighbour: v_c·τ = c·v_c² ≤ L/2  →  v_c² ≤ L/(2c)
+* v_c ≤ both neighbours' cruise speeds (so every axis speed in the blend, a convex mix of two allowed
+  velocities, is allowed too);
+* a reversal (u_out = −u_in), a move that is not an XYZ move (extrude-only, dwell, wait), an exact-stop
+  move (G61) and the first/last points stop.
+
+Every bound above is linear in w = v_c² (mm²/s²), and so is the distance the blend takes from each
+neighbour (c·w). The straight part of move i, between its two blend zones, is
+S_i = L_i − c_i·w_i − c_{i+1}·w_{i+1}, and its trapezoid (acceleration A_i) can join the two corner speeds iff
+|w_{i+1} − w_i| ≤ 2·A_i·S_i: still linear in (w_i, w_{i+1}). The passes use it in that form (see
+:func:`blend_passes_kernel`).
+
+Choice of corner speed: each corner starts at the largest v_c its bounds allow; the passes then lower
+corner speeds until every straight part joins its two corners. When a side's straight part may accelerate more
+than twice as hard as the blend (α = 2·A_i·c > 2: neighbours with different M204 accelerations, or a per-axis
+limit such as a slow Z), a slow blend can lose more time than a stop (:func:`corner_loss`): such corners stop.
+Known limit: when α > 1, a higher corner speed shortens the neighbour's straight part more than it helps it,
+so the greedy "highest first" choice is not always the fastest; with one acceleration for the whole path and no
+per-axis limits a larger tolerance was never slower (100 000 random comparisons), with per-move accelerations
+drawn from 100–10 000 mm/s² it was up to 1.5 % slower in 0.15 % of 100 000 random comparisons.
+
+Time attribution: a blend is split at its middle (the instant closest to the via point). Its first half
+belongs to the incoming move, its second half to the outgoing move; so a move's PLAN row runs from the middle
+of its first blend to the middle of its last one. PLAN.start_v / end_v are the corner speeds (where the
+straight part begins and ends), accel_t / cruise_t / decel_t are those of the straight part, and
+duration = τ_in + accel_t + cruise_t + decel_t + τ_out. SEGMENT rows of a blend carry PHASE_BLEND.
+
+The extruder axis E is part of the velocity vector (E per mm of path times the path speed): inside a blend
+its rate moves linearly from the incoming ratio to the outgoing one, under the E acceleration limit if one
+is set. With no E limit and collinear XYZ segments whose E ratios differ, E changes rate at once (τ = 0).
+"""
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+
+from ..errors import ConfigError, GcodeError
+from ..schema import (
+    KIND_DWELL,
+    KIND_WAIT,
+    LIMIT_ACCEL,
+    LIMIT_JUNCTION,
+    LIMIT_NONE,
+    PHASE_ACCEL,
+    PHASE_BLEND,
+    PHASE_CRUISE,
+    PHASE_DECEL,
+    PHASE_DWELL,
+    PLAN_DTYPE,
+    SEGMENT_DTYPE,
+)
+
+# Directions closer to opposite than this (cos of the turn > 1 − REVERSAL_COS) are a reversal: full stop.
+REVERSAL_COS = 1e-12
+# Relative change below which the passes have settled (see blend_passes_kernel).
+SETTLE_RTOL = 1e-12
+
+
+# --------------------------------------------------------------------------- kernels
+@numba.njit(cache=True)
+def blend_corners_kernel(move_d, axes_r, xyz, stop_after, max_cruise_v2, path_a, toolhead_a, axis_a, tolerance):
+    """Corner constants and corner-speed caps for the n+1 junctions of n moves.
+
+    Junction j joins move j−1 to move j (junction 0 is the start, n the end: both at rest).
+    Returns (corner_c, max_corner_v2): τ_j = corner_c[j]·v_j (s²/mm → s per mm/s), and the largest
+    v_j² the deviation, half-segment and cruise bounds allow (module docstring).
+    path_a: per-move acceleration of the straight part (mm/s²); toolhead_a: per-move toolhead accel (M204);
+    axis_a: (n, 4) per-axis accel limits (inf = none); tolerance: per-move path tolerance P (mm); the corner
+    uses the smaller of its two moves' P. A corner where blending at its cap loses more time than
+    stopping (see :func:`corner_loss`) gets cap 0.
+    """
+    n = move_d.shape[0]
+    corner_c = np.zeros(n + 1)
+    max_corner_v2 = np.zeros(n + 1)
+    for j in range(1, n):
+        i_in = j - 1
+        i_out = j
+        if not xyz[i_in] or not xyz[i_out] or stop_after[i_in]:
+            continue
+        cos_turn = 0.0
+        k2 = 0.0
+        for ax in range(3):
+            cos_turn += axes_r[i_in, ax] * axes_r[i_out, ax]
+            du = axes_r[i_out, ax] - axes_r[i_in, ax]
+            k2 += du * du
+        if cos_turn < -1.0 + REVERSAL_COS:
+            continue
+        k = math.sqrt(k2)
+        a_tool = min(toolhead_a[i_in], toolhead_a[i_out])
+        c = 0.0
+        if k > 0.0 and a_tool > 0.0 and a_tool < np.inf:
+            c = k / (2.0 * a_tool)
+        for ax in range(4):
+            a_ax = min(axis_a[i_in, ax], axis_a[i_out, ax])
+            du = abs(axes_r[i_out, ax] - axes_r[i_in, ax])
+            if du > 0.0 and a_ax < np.inf:
+                c = max(c, du / (2.0 * a_ax))
+        cap = min(max_cruise_v2[i_in], max_cruise_v2[i_out])
+        if c > 0.0:
+            cap = min(cap, 0.5 * move_d[i_in] / c, 0.5 * move_d[i_out] / c)
+            if k > 0.0:
+                p = min(tolerance[i_in], tolerance[i_out])
+                cap = min(cap, 4.0 * p / (k * c))
+        cap = max(cap, 0.0)
+        if cap > 0.0 and corner_loss(cap, c, move_d, max_cruise_v2, path_a, i_in, i_out) > \
+                corner_loss(0.0, c, move_d, max_cruise_v2, path_a, i_in, i_out):
+            cap = 0.0
+        corner_c[j] = c
+        max_corner_v2[j] = cap
+    return corner_c, max_corner_v2
+
+
+@numba.njit(cache=True)
+def corner_loss(corner_v2, c, move_d, max_cruise_v2, path_a, i_in, i_out):
+    """Time lost at a corner taken at v = √corner_v2, against running its neighbours at their speed V (s).
+
+    Per side, with the side's acceleration A and α = 2A·c: braking from V to v costs (V − v)²/(2AV) and the
+    half-blend (time c·v over c·v² mm) costs c·v·(V − v)/V; together ((V − v)² + α·v·(V − v))/(2AV).
+    This is concave in v for α > 1, so over [0, cap] its least value is at 0 or at the cap; for α ≤ 2 it
+    decreases all the way and the cap wins. For α > 2 (the blend's acceleration, toolhead or per-axis, is
+    less than half of what the straight part may use) a slow blend can lose more than a stop. V is the
+    side's cruise speed, or √(A·L) when the side is too short to reach it (a stand-in for the unknown
+    neighbours).
+    """
+    v = math.sqrt(corner_v2)
+    loss = 0.0
+    for side in range(2):
+        i = i_in if side == 0 else i_out
+        a = path_a[i]
+        if not (a > 0.0 and a < np.inf):
+            continue
+        v_side = max(math.sqrt(min(max_cruise_v2[i], a * move_d[i])), v)
+        if v_side <= 0.0:
+            continue
+        alpha = 2.0 * a * c
+        loss += ((v_side - v) ** 2 + alpha * v * (v_side - v)) / (2.0 * a * v_side)
+    return loss
+
+
+@numba.njit(cache=True)
+def blend_passes_kernel(move_d, accel, corner_c, corner_v2):
+    """Lower the corner speeds² (in place) until every straight part can join its two corners.
+
+    Move i joins w_a = corner_v2[i] to w_b = corner_v2[i+1] on S_i = L_i − c_i·w_a − c_{i+1}·w_b, which needs
+    |w_b − w_a| ≤ 2·A_i·S_i. With α = 2A_i·c_i, β = 2A_i·c_{i+1}, D = 2A_i·L_i:
+      (B) decelerating  w_a ≤ (D + (1 − β)·w_b)/(1 + α)   — the backward pass lowers w_a to this;
+      (F) accelerating  w_b ≤ (D + (1 − α)·w_a)/(1 + β)   — the forward pass lowers w_b to this.
+    Termination: values only decrease and stay ≥ 0. The caps already keep each blend within half of its
+    segments (c·w ≤ L/2), so S_i ≥ 0, and at the point where (F) is tight w_b − w_a = 2A_i·S_i ≥ 0, which
+    leaves (B) true; lowering w_b never breaks move i+1's (B) (its start gets lower). So after one backward
+    and one forward pass every (B) and (F) hold, and a second round changes nothing but rounding: the loop
+    stops at the first round that moves no value by more than SETTLE_RTOL (at most a few rounds; bounded
+    by 16 in any case).
+    """
+    n = move_d.shape[0]
+    for _ in range(16):
+        changed = False
+        for i in range(n - 1, -1, -1):
+            two_a = 2.0 * accel[i]
+            bound = (two_a * move_d[i] + (1.0 - two_a * corner_c[i + 1]) * corner_v2[i + 1]) / (
+                1.0 + two_a * corner_c[i])
+            if bound < corner_v2[i]:
+                if corner_v2[i] - max(bound, 0.0) > SETTLE_RTOL * corner_v2[i]:
+                    changed = True
+                corner_v2[i] = max(bound, 0.0)
+        for i in range(n):
+            two_a = 2.0 * accel[i]
+            bound = (two_a * move_d[i] + (1.0 - two_a * corner_c[i]) * corner_v2[i]) / (
+                1.0 + two_a * corner_c[i + 1])
+            if bound < corner_v2[i + 1]:
+                if corner_v2[i + 1] - max(bound, 0.0) > SETTLE_RTOL * corner_v2[i + 1]:
+                    changed = True
+                corner_v2[i + 1] = max(bound, 0.0)
+        if not changed:
+            break
+    return corner_v2
+
+
+@numba.njit(cache=True)
+def blend_speeds_kernel(move_d, path_a, max_cruise_v2, corner_c, corner_v2):
+    """Passes, then stop at corners the passes pushed into a losing blend (corner_loss); repeat.
+
+    The passes can leave a corner below its cap, where a slow blend may lose more than a stop. Such
+    corners are set to 0 and the passes rerun. Speeds only decrease and each corner flips to 0 at most
+    once, so this ends after at most n + 1 rounds (in practice one or two).
+    """
+    n = move_d.shape[0]
+    for _ in range(n + 1):
+        blend_passes_kernel(move_d, path_a, corner_c, corner_v2)
+        flipped = False
+        for j in range(1, n):
+            if corner_v2[j] > 0.0 and corner_c[j] > 0.0 and \
+                    corner_loss(corner_v2[j], corner_c[j], move_d, max_cruise_v2, path_a, j - 1, j) > \
+                    corner_loss(0.0, corner_c[j], move_d, max_cruise_v2, path_a, j - 1, j):
+                corner_v2[j] = 0.0
+                flipped = True
+        if not flipped:
+            break
+    return corner_v2
+
+
+@numba.njit(cache=True)
+def blend_timing_kernel(move_d, accel, max_cruise_v2, corner_c, corner_v2, dwell_t):
+    """Per-move trapezoid on the straight part and the blend half-times around it.
+
+    Returns an (n, 9) array: start_v, cruise_v, end_v, accel_t, cruise_t, decel_t, tau_in, tau_out, duration.
+    Peak of the straight part (equal accel and decel, DESIGN.md trapezoid with v0, v1):
+    v_p² = min(V², (w_a + w_b)/2 + A·S).
+    """
+    n = move_d.shape[0]
+    out = np.zeros((n, 9))
+    for i in range(n):
+        if move_d[i] <= 0.0:
+            out[i, 8] = dwell_t[i]
+            continue
+        a = accel[i]
+        w_a = corner_v2[i]
+        w_b = corner_v2[i + 1]
+        v_a = math.sqrt(w_a)
+        v_b = math.sqrt(w_b)
+        tau_in = corner_c[i] * v_a
+        tau_out = corner_c[i + 1] * v_b
+        straight_d = max(move_d[i] - corner_c[i] * w_a - corner_c[i + 1] * w_b, 0.0)
+        peak_v2 = min(max_cruise_v2[i], 0.5 * (w_a + w_b) + a * straight_d)
+        peak_v2 = max(peak_v2, w_a, w_b)  # rounding only: the passes made both ends reachable
+        v_p = math.sqrt(peak_v2)
+        accel_t = (v_p - v_a) / a
+        decel_t = (v_p - v_b) / a
+        accel_d = (peak_v2 - w_a) / (2.0 * a)
+        decel_d = (peak_v2 - w_b) / (2.0 * a)
+        cruise_d = max(straight_d - accel_d - decel_d, 0.0)
+        cruise_t = cruise_d / v_p if v_p > 0.0 else 0.0
+        out[i, 0] = v_a
+        out[i, 1] = v_p
+        out[i, 2] = v_b
+        out[i, 3] = accel_t
+        out[i, 4] = cruise_t
+        out[i, 5] = decel_t
+        out[i, 6] = tau_in
+        out[i, 7] = tau_out
+        out[i, 8] = tau_in + accel_t + cruise_t + decel_t + tau_out
+    return out
+
+
+@numba.njit(cache=True)
+def _put(rows, k, t0, dt, p, v, a, move, phase, moves_out, phases_out):
+    rows[k, 0] = t0
+    rows[k, 1] = dt
+    for ax in range(4):
+        rows[k, 2 + ax] = p[ax]
+        rows[k, 6 + ax] = v[ax]
+        rows[k, 10 + ax] = a[ax]
+    moves_out[k] = move
+    phases_out[k] = phase
+
+
+@numba.njit(cache=True)
+def blend_segments_kernel(p0, p1, move_d, axes_r, accel, corner_c, timing, t_start, row_index, first_move):
+    """SEGMENT pieces (as a float table + move and phase columns) for the planned moves.
+
+    p0, p1: (n, 4) start/end points (x, y, z, e). Per move: second half of its first blend, accel,
+    cruise, decel, first half of its last blend; pieces of zero duration are left out. A dwell/wait row
+    (move_d = 0) gives one PHASE_DWELL piece at rest. Columns of the table: t0, dt, p(4), v(4), a(4).
+    """
+    n = p0.shape[0]
+    count = 0
+    for i in range(n):
+        if move_d[i] <= 0.0:
+            if timing[i, 8] > 0.0:
+                count += 1
+            continue
+        for col in range(3, 8):
+            if timing[i, col] > 0.0:
+                count += 1
+    rows = np.zeros((count, 14))
+    moves_out = np.zeros(count, np.int64)
+    phases_out = np.zeros(count, np.uint8)
+    zero = np.zeros(4)
+    p = np.zeros(4)
+    v = np.zeros(4)
+    acc = np.zeros(4)
+    k = 0
+    for i in range(n):
+        t = t_start[i]
+        move = first_move + row_index[i]
+        v_a = timing[i, 0]
+        v_p = timing[i, 1]
+        v_b = timing[i, 2]
+        accel_t = timing[i, 3]
+        cruise_t = timing[i, 4]
+        decel_t = timing[i, 5]
+        tau_in = timing[i, 6]
+        tau_out = timing[i, 7]
+        if move_d[i] <= 0.0:
+            if timing[i, 8] > 0.0:
+                _put(rows, k, t, timing[i, 8], p0[i], zero, zero, move, PHASE_DWELL, moves_out, phases_out)
+                k += 1
+            continue
+        if tau_in > 0.0:
+            # second half of the blend around p0[i]: from its middle to the line of move i
+            for ax in range(4):
+                v_in = v_a * axes_r[i - 1, ax]
+                v_out = v_a * axes_r[i, ax]
+                acc[ax] = (v_out - v_in) / (2.0 * tau_in)
+                p[ax] = p0[i, ax] + 0.5 * acc[ax] * tau_in * tau_in
+                v[ax] = 0.5 * (v_in + v_out)
+            _put(rows, k, t, tau_in, p, v, acc, move, PHASE_BLEND, moves_out, phases_out)
+            k += 1
+            t += tau_in
+        d = corner_c[i] * v_a * v_a  # distance of the straight part's start from p0
+        a = accel[i]
+        for ax in range(4):
+            p[ax] = p0[i, ax] + axes_r[i, ax] * d
+        if accel_t > 0.0:
+            for ax in range(4):
+                v[ax] = v_a * axes_r[i, ax]
+                acc[ax] = a * axes_r[i, ax]
+            _put(rows, k, t, accel_t, p, v, acc, move, PHASE_ACCEL, moves_out, phases_out)
+            k += 1
+            t += accel_t
+            d += 0.5 * (v_a + v_p) * accel_t
+            for ax in range(4):
+                p[ax] = p0[i, ax] + axes_r[i, ax] * d
+        if cruise_t > 0.0:
+            for ax in range(4):
+                v[ax] = v_p * axes_r[i, ax]
+            _put(rows, k, t, cruise_t, p, v, zero, move, PHASE_CRUISE, moves_out, phases_out)
+            k += 1
+            t += cruise_t
+            d += v_p * cruise_t
+            for ax in range(4):
+                p[ax] = p0[i, ax] + axes_r[i, ax] * d
+        if decel_t > 0.0:
+            for ax in range(4):
+                v[ax] = v_p * axes_r[i, ax]
+                acc[ax] = -a * axes_r[i, ax]
+            _put(rows, k, t, decel_t, p, v, acc, move, PHASE_DECEL, moves_out, phases_out)
+            k += 1
+            t += decel_t
+        if tau_out > 0.0:
+            # first half of the blend around p1[i]: from the line of move i to the blend's middle
+            for ax in range(4):
+                v_in = v_b * axes_r[i, ax]
+                v_out = v_b * axes_r[i + 1, ax]
+                acc[ax] = (v_out - v_in) / (2.0 * tau_out)
+                p[ax] = p1[i, ax] - v_in * tau_out
+                v[ax] = v_in
+            _put(rows, k, t, tau_out, p, v, acc, move, PHASE_BLEND, moves_out, phases_out)
+            k += 1
+    return rows, moves_out, phases_out
+
+
+# --------------------------------------------------------------------------- public API
+def _tolerance(moves: np.ndarray, machine) -> np.ndarray:
+    p = np.asarray(moves["blend_p"], dtype=np.float64)
+    p = np.where(np.isnan(p), float(machine.blend_tolerance), p)
+    bad = np.flatnonzero(~(p >= 0.0))
+    if bad.size:
+        row = int(bad[0])
+        if np.isnan(moves["blend_p"][row]):
+            raise ConfigError(f"blend_tolerance: must be >= 0 mm, got {machine.blend_tolerance!r}")
+        line = int(moves["line"][row])
+        raise GcodeError(f"G64 P (path tolerance) must be >= 0, got {float(p[row])!r}", line=line)
+    return p
+
+
+def _corners(moves: np.ndarray, limits: np.ndarray, machine):
+    """The rows that take part, their per-move limits, the corner constants and settled corner speeds².
+
+    Zero-length rows take no part (prepare drops them, so the corner is taken between their
+    neighbours); dwell and wait rows stay, as full stops.
+    """
+    from .prepare import prepare  # the trapezoid planner's per-move limits and input checks
+
+    moves = np.asarray(moves)
+    limits = np.asarray(limits)
+    tol_all = _tolerance(moves, machine)
+    prep_all = prepare(moves, limits, machine, "exact-stop")
+    kind = moves["kind"]
+    rows = np.flatnonzero(prep_all["is_move"] | (kind == KIND_DWELL) | (kind == KIND_WAIT))
+    every = len(rows) == len(moves)
+    sub = moves if every else moves[rows]
+    prep = prep_all if every else prep_all[rows]
+    m = len(rows)
+    axes_r = np.zeros((m, 4))
+    axis_a = np.zeros((m, 4))
+    lim_row = sub["limits"]
+    for col, ax in enumerate("xyze"):
+        axes_r[:, col] = prep["axes_r_" + ax]
+        axis_a[:, col] = limits["axis_a_" + ax][lim_row]
+    ml = {
+        "rows": rows,
+        "move_d": np.ascontiguousarray(prep["move_d"], dtype=np.float64),
+        "axes_r": axes_r,
+        "max_cruise_v2": np.ascontiguousarray(prep["max_cruise_v2"], dtype=np.float64),
+        "accel": np.ascontiguousarray(prep["accel"], dtype=np.float64),
+        "cruise_limit": np.ascontiguousarray(prep["limit"]),
+    }
+    xyz = np.ascontiguousarray(prep["kinematic"] & prep["is_move"])
+    corner_c, corner_v2 = blend_corners_kernel(
+        ml["move_d"], axes_r, xyz, np.ascontiguousarray(sub["exact_stop"].astype(np.bool_)),
+        ml["max_cruise_v2"], ml["accel"], np.ascontiguousarray(sub["accel"], dtype=np.float64), axis_a,
+        np.ascontiguousarray(tol_all[rows]))
+    blend_speeds_kernel(ml["move_d"], ml["accel"], ml["max_cruise_v2"], corner_c, corner_v2)
+    return ml, corner_c, corner_v2
+
+
+def corner_geometry(moves: np.ndarray, limits: np.ndarray, machine):
+    """(rows, corner_c, corner_v2): the rows that take part (zero-length rows do not) and, for the
+    junctions between them, the corner constant and settled corner speed² after the passes.
+
+    Junction j is the end of taking-part row j−1 (0 and len(rows) are the ends of the path); the blend
+    there lasts 2·corner_c[j]·√corner_v2[j] s. Exposed for tests and plots.
+    """
+    ml, corner_c, corner_v2 = _corners(moves, limits, machine)
+    return ml["rows"], corner_c, corner_v2
+
+
+def plan_blend(moves: np.ndarray, limits: np.ndarray, machine, first_move: int = 0):
+    """Plan ``moves`` with parabolic corner blends under the path tolerance (G64 P).
+
+    Returns (PLAN rows aligned with ``moves``, SEGMENT rows). t_start counts from the start of the first
+    move; SEGMENT.move is ``first_move`` + the row index. The path starts and ends at rest; so does every
+    dwell/wait row and every exact-stop (G61) move. Bad input raises GcodeError / ConfigError.
+    """
+    moves = np.asarray(moves)
+    n = len(moves)
+    ml, corner_c, corner_v2 = _corners(moves, limits, machine)
+    rows = ml["rows"]
+    sub = moves if len(rows) == n else moves[rows]
+    move_d = ml["move_d"]
+    dwell_t = np.where(move_d > 0, 0.0, sub["dwell_t"]).astype(np.float64)
+    timing = blend_timing_kernel(move_d, ml["accel"], ml["max_cruise_v2"], corner_c, corner_v2, dwell_t)
+
+    full = np.zeros((n, 9))
+    full[rows] = timing
+    plan = np.zeros(n, dtype=PLAN_DTYPE)
+    duration = full[:, 8]
+    t_start = np.zeros(n)
+    if n:
+        np.cumsum(duration[:-1], out=t_start[1:])
+    plan["t_start"] = t_start
+    plan["start_v"], plan["cruise_v"], plan["end_v"] = full[:, 0], full[:, 1], full[:, 2]
+    accel = np.zeros(n)
+    accel[rows] = np.where(move_d > 0, ml["accel"], 0.0)
+    plan["accel"] = accel
+    plan["decel"] = accel
+    plan["accel_t"], plan["cruise_t"], plan["decel_t"] = full[:, 3], full[:, 4], full[:, 5]
+    plan["duration"] = duration
+    reached = timing[:, 1] >= np.sqrt(ml["max_cruise_v2"]) * (1.0 - 1e-9)
+    pinned = timing[:, 1] <= np.maximum(timing[:, 0], timing[:, 2]) * (1.0 + 1e-12)
+    limit = np.full(n, LIMIT_NONE, dtype=np.uint8)
+    limit[rows] = np.where(move_d <= 0, LIMIT_NONE,
+                           np.where(reached, ml["cruise_limit"], np.where(pinned, LIMIT_JUNCTION, LIMIT_ACCEL)))
+    plan["limit"] = limit
+    plan["jerk"] = 0.0
+
+    p0 = np.zeros((len(rows), 4))
+    p1 = np.zeros((len(rows), 4))
+    for col, ax in enumerate("xyze"):
+        p0[:, col] = sub[ax + "0"]
+        p1[:, col] = sub[ax + "1"]
+    seg_rows, seg_move, seg_phase = blend_segments_kernel(
+        p0, p1, move_d, ml["axes_r"], ml["accel"], corner_c, timing, np.ascontiguousarray(t_start[rows]),
+        np.ascontiguousarray(rows.astype(np.int64)), int(first_move))
+    segs = np.zeros(len(seg_rows), dtype=SEGMENT_DTYPE)
+    segs["t0"], segs["dt"] = seg_rows[:, 0], seg_rows[:, 1]
+    for col, ax in enumerate("xyze"):
+        segs["p" + ax] = seg_rows[:, 2 + col]
+        segs["v" + ax] = seg_rows[:, 6 + col]
+        segs["a" + ax] = seg_rows[:, 10 + col]
+    segs["move"] = seg_move
+    segs["phase"] = seg_phase
+    return plan, segs

@@ -1,0 +1,366 @@
+"""Per-move limits and junction limits: MOVE rows → PREP rows (one per move).
+
+This is Klipper's ``Move`` construction and ``calc_junction`` (see
+/work/shared/reference/klipper-planner.md §1–2) generalised to the other junction policies. All
+speeds are tracked squared (``_v2``). The arrays are computed by two numba kernels:
+
+* ``_move_limits_kernel``: independent per move (cruise speed cap, acceleration, Δv² = 2·d·a);
+* ``_junction_kernel``: sequential, the junction cap with the previous move, including the
+  forward reach ``max_start_v2 ≤ prev.max_start_v2 + prev.delta_v2`` (so a single backward pass
+  afterwards gives the maximal feasible speeds).
+
+Rows that are not motion (dwell, wait, zero-length moves) have ``is_move = 0``: a dwell or wait row
+forces a full stop (the next move has ``stop_before``), a zero-length move is dropped (Klipper
+never queues it) and the junction is taken between its neighbours.
+"""
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+
+from ..errors import ConfigError, GcodeError
+from ..machine import POLICIES
+from ..schema import (KIND_DWELL, KIND_WAIT, MOVE_DTYPE, LIMIT_AXIS, LIMIT_EXTRUDER, LIMIT_FEED,
+                      LIMIT_MAX_V, LIMIT_NONE, LIMITS_DTYPE)
+from .junctions import (jd_junction_v2, klipper_centripetal_v2, klipper_extruder_corner_v2,
+                        klipper_junction_deviation, marlin_jerk_junction_v, marlin_safe_v,
+                        marlin_small_segment_v2)
+
+# _move_limits_kernel error codes
+ERR_NONE, ERR_LIMITS_ROW, ERR_FEED, ERR_ACCEL, ERR_COORD, ERR_DWELL = range(6)
+_ERR_TEXT = {ERR_LIMITS_ROW: "move refers to a LIMITS row that does not exist",
+             ERR_FEED: "feed rate must be > 0 (F0 or no F given?)",
+             ERR_ACCEL: "acceleration must be finite and > 0",
+             ERR_COORD: "a coordinate is not finite",
+             ERR_DWELL: "dwell time must be >= 0"}
+
+POLICY_KLIPPER, POLICY_JD, POLICY_CLASSIC_JERK, POLICY_BLEND, POLICY_EXACT_STOP = range(5)
+assert POLICIES == ("klipper", "junction-deviation", "classic-jerk", "blend", "exact-stop")
+
+# Klipper: an extrude-only move starts with this acceleration before the extruder limits apply.
+KLIPPER_EXTRUDE_ONLY_ACCEL = 99999999.9
+# Klipper: an XYZ length below this is an extrude-only move.
+KLIPPER_MIN_MOVE_D = 1e-9
+
+PREP_DTYPE = np.dtype(
+    [
+        ("move_d", "f8"),            # mm: XYZ length, |dE| for extrude-only
+        ("axes_r_x", "f8"), ("axes_r_y", "f8"), ("axes_r_z", "f8"), ("axes_r_e", "f8"),  # d_i / move_d
+        ("max_cruise_v2", "f8"),     # mm²/s² after every speed limit
+        ("accel", "f8"),             # mm/s² after every acceleration limit
+        ("delta_v2", "f8"),          # 2·move_d·accel
+        ("max_start_v2", "f8"),      # junction cap with the previous move (incl. forward reach)
+        ("mcr_delta_v2", "f8"),      # 2·move_d·accel·(1 − mcr), capped by delta_v2 (Klipper)
+        ("max_mcr_start_v2", "f8"),  # the same junction chain with mcr_delta_v2 (Klipper)
+        ("limit", "u1"),             # LIMIT_* that bounded max_cruise_v2
+        ("stop_before", "?"),        # a full stop (flush) precedes this move
+        ("is_move", "?"),            # False for dwell / wait / zero-length rows
+        ("kinematic", "?"),          # XYZ motion (False: extrude-only)
+        ("junction_dev", "f8"),      # mm, δ used by this move (Klipper: from scv; JD: LIMITS.junction_dev)
+        ("stop_v2", "f8"),           # speed² allowed next to a full stop (classic-jerk safe speed, else 0)
+    ],
+    align=True,
+)
+
+# LIMITS columns, in the order handed to the kernel as one 2-D float array.
+_LIM_FIELDS = tuple(LIMITS_DTYPE.names)
+_L = {name: k for k, name in enumerate(_LIM_FIELDS)}
+L_MAX_V, L_SCV, L_MCR, L_JD = _L["max_v"], _L["scv"], _L["mcr"], _L["junction_dev"]
+L_JERK0, L_AXV0, L_AXA0 = _L["jerk_x"], _L["axis_v_x"], _L["axis_a_x"]
+L_EO_V, L_EO_A, L_ICV = _L["extrude_only_v"], _L["extrude_only_a"], _L["icv"]
+L_MIN_FEED, L_MIN_TRAVEL = _L["min_feed_v"], _L["min_travel_v"]
+
+
+def policy_code(policy: str) -> int:
+    try:
+        return POLICIES.index(policy)
+    except ValueError:
+        raise ConfigError(f"junction_policy: unknown policy {policy!r} (one of {', '.join(POLICIES)})") from None
+
+
+# --------------------------------------------------------------------------- per-move kernel
+@numba.njit(cache=True)
+def _limit_speed(speed_v: float, accel: float, code: int, move_d: float,
+                 max_cruise_v2: float, cur_accel: float, mcr_delta_v2: float, limit: int):
+    """Klipper Move.limit_speed: v² cap (strictly lower wins), accel = min, Δv² recomputed,
+    mcr Δv² ≤ Δv². Returns the updated (max_cruise_v2, accel, delta_v2, mcr_delta_v2, limit)."""
+    speed_v2 = speed_v * speed_v
+    if speed_v2 < max_cruise_v2:
+        max_cruise_v2 = speed_v2
+        limit = code
+    cur_accel = min(cur_accel, accel)
+    delta_v2 = 2.0 * move_d * cur_accel
+    mcr_delta_v2 = min(mcr_delta_v2, delta_v2)
+    return max_cruise_v2, cur_accel, delta_v2, mcr_delta_v2, limit
+
+
+@numba.njit(cache=True)
+def _move_limits_kernel(moves, lim, policy, prep):
+    """Per-move limits (Klipper Move.__init__, kinematics and extruder check_move) into ``prep``.
+    Returns (error code, row) of the first row the planner cannot use, (ERR_NONE, -1) if none."""
+    n = moves.shape[0]
+    n_lim = lim.shape[0]
+    d = np.empty(4)
+    for i in range(n):
+        mv = moves[i]
+        out = prep[i]
+        out.is_move = False
+        out.kinematic = False
+        out.stop_before = False
+        out.limit = LIMIT_NONE
+        out.move_d = 0.0
+        out.axes_r_x = 0.0
+        out.axes_r_y = 0.0
+        out.axes_r_z = 0.0
+        out.axes_r_e = 0.0
+        out.max_cruise_v2 = 0.0
+        out.accel = 0.0
+        out.delta_v2 = 0.0
+        out.mcr_delta_v2 = 0.0
+        out.max_start_v2 = 0.0
+        out.max_mcr_start_v2 = 0.0
+        out.junction_dev = 0.0
+        out.stop_v2 = 0.0
+        k = mv.kind
+        if k == KIND_DWELL or k == KIND_WAIT:
+            if not mv.dwell_t >= 0.0:
+                return ERR_DWELL, i
+            continue
+        if mv.limits < 0 or mv.limits >= n_lim:
+            return ERR_LIMITS_ROW, i
+        if not mv.feed_v > 0.0:
+            return ERR_FEED, i
+        if not (mv.accel > 0.0 and mv.accel < math.inf):
+            return ERR_ACCEL, i
+        L = lim[mv.limits]
+        d[0] = mv.x1 - mv.x0
+        d[1] = mv.y1 - mv.y0
+        d[2] = mv.z1 - mv.z0
+        d[3] = mv.e1 - mv.e0
+        for a in range(4):
+            if not abs(d[a]) < math.inf:
+                return ERR_COORD, i
+        # Klipper: sum of squares in x, y, z order, then sqrt (bit-identical move_d).
+        move_d = math.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
+        accel = mv.accel
+        feed = mv.feed_v
+        if policy != POLICY_KLIPPER:
+            # Marlin M205 S/T: a floor on the requested feed (printing vs travel moves).
+            floor_v = L[L_MIN_FEED] if d[3] > 0.0 else L[L_MIN_TRAVEL]
+            if feed < floor_v:
+                feed = floor_v
+        kinematic = move_d >= KLIPPER_MIN_MOVE_D
+        if kinematic:
+            velocity = min(feed, L[L_MAX_V])
+            limit = LIMIT_MAX_V if L[L_MAX_V] < feed else LIMIT_FEED
+        else:
+            d[0] = 0.0
+            d[1] = 0.0
+            d[2] = 0.0
+            move_d = abs(d[3])
+            if policy == POLICY_KLIPPER:
+                # Klipper: extrude-only keeps the requested speed, huge accel, then extruder limits.
+                velocity = feed
+                limit = LIMIT_FEED
+                accel = KLIPPER_EXTRUDE_ONLY_ACCEL
+            else:
+                velocity = min(feed, L[L_MAX_V])
+                limit = LIMIT_MAX_V if L[L_MAX_V] < feed else LIMIT_FEED
+        if move_d == 0.0:
+            continue  # zero-length: dropped, as Klipper's toolhead.move does
+        inv_move_d = 1.0 / move_d
+        max_cruise_v2 = velocity * velocity
+        delta_v2 = 2.0 * move_d * accel
+        mcr_pseudo_accel = mv.accel * (1.0 - L[L_MCR])
+        mcr_delta_v2 = 2.0 * move_d * mcr_pseudo_accel
+        # Per-axis limits, v ≤ V_i·d/|d_i|, a ≤ A_i·d/|d_i| (Klipper's z_ratio form, exact).
+        for a in range(4):
+            if d[a] != 0.0 and (kinematic or a == 3):
+                av = L[L_AXV0 + a]
+                aa = L[L_AXA0 + a]
+                if av < math.inf or aa < math.inf:
+                    ratio = move_d / abs(d[a])
+                    code = LIMIT_AXIS if a < 3 else LIMIT_EXTRUDER
+                    max_cruise_v2, accel, delta_v2, mcr_delta_v2, limit = _limit_speed(
+                        av * ratio, aa * ratio, code, move_d, max_cruise_v2, accel, mcr_delta_v2, limit)
+        axes_r_e = d[3] * inv_move_d
+        # Klipper extruder.check_move: extrude-only (no X/Y motion) or retraction → extrude-only limits.
+        if d[3] != 0.0 and ((d[0] == 0.0 and d[1] == 0.0) or axes_r_e < 0.0):
+            if L[L_EO_V] < math.inf or L[L_EO_A] < math.inf:
+                inv_extrude_r = 1.0 / abs(axes_r_e)
+                max_cruise_v2, accel, delta_v2, mcr_delta_v2, limit = _limit_speed(
+                    L[L_EO_V] * inv_extrude_r, L[L_EO_A] * inv_extrude_r, LIMIT_EXTRUDER, move_d,
+                    max_cruise_v2, accel, mcr_delta_v2, limit)
+        out.is_move = True
+        out.kinematic = kinematic
+        out.move_d = move_d
+        out.axes_r_x = d[0] * inv_move_d
+        out.axes_r_y = d[1] * inv_move_d
+        out.axes_r_z = d[2] * inv_move_d
+        out.axes_r_e = axes_r_e
+        out.max_cruise_v2 = max_cruise_v2
+        out.accel = accel
+        out.delta_v2 = delta_v2
+        out.mcr_delta_v2 = mcr_delta_v2
+        out.limit = limit
+        if policy == POLICY_KLIPPER:
+            out.junction_dev = klipper_junction_deviation(L[L_SCV], mv.accel)
+        else:
+            out.junction_dev = L[L_JD]
+        if policy == POLICY_CLASSIC_JERK:
+            cruise_v = math.sqrt(max_cruise_v2)
+            safe_v = marlin_safe_v(cruise_v, out.axes_r_x * cruise_v, out.axes_r_y * cruise_v,
+                                   out.axes_r_z * cruise_v, axes_r_e * cruise_v,
+                                   L[L_JERK0], L[L_JERK0 + 1], L[L_JERK0 + 2], L[L_JERK0 + 3])
+            out.stop_v2 = safe_v * safe_v
+    return ERR_NONE, -1
+
+
+# --------------------------------------------------------------------------- junction kernel
+@numba.njit(cache=True)
+def _junction_kernel(moves, lim, policy, i_start, prev, stop_pending, prep):
+    """Sequential junction caps for rows i_start.. of ``prep``; ``prev`` = row of the previous
+    move (-1: none), ``stop_pending`` = a full stop happened since it. Returns (prev, stop_pending)."""
+    n = moves.shape[0]
+    for i in range(i_start, n):
+        cur = prep[i]
+        k = moves[i].kind
+        if k == KIND_DWELL or k == KIND_WAIT:
+            cur.stop_before = True
+            stop_pending = True
+            continue
+        if not cur.is_move:
+            continue
+        if prev < 0 or stop_pending or policy == POLICY_EXACT_STOP:
+            cur.stop_before = True
+            cur.max_start_v2 = cur.stop_v2
+            cur.max_mcr_start_v2 = 0.0
+        else:
+            cur.stop_before = False
+            pm = prep[prev]
+            v2 = 0.0
+            reach_v2 = pm.max_start_v2 + pm.delta_v2
+            if cur.kinematic and pm.kinematic:
+                junction_cos_theta = -(cur.axes_r_x * pm.axes_r_x + cur.axes_r_y * pm.axes_r_y
+                                       + cur.axes_r_z * pm.axes_r_z)
+                if policy == POLICY_KLIPPER:
+                    L = lim[moves[i].limits]
+                    e_v2 = klipper_extruder_corner_v2(L[L_ICV], cur.axes_r_e, pm.axes_r_e, cur.max_cruise_v2)
+                    # Klipper's caps: extruder, both cruise speeds, next_junction_v2, previous reach.
+                    v2 = min(e_v2, cur.max_cruise_v2, pm.max_cruise_v2, 999999999.9, reach_v2)
+                    v2 = min(v2, klipper_centripetal_v2(junction_cos_theta, cur.junction_dev, cur.accel,
+                                                        cur.delta_v2, pm.junction_dev, pm.accel, pm.delta_v2))
+                else:
+                    # grbl/Marlin: the junction's block (this move) acceleration.
+                    v2 = min(cur.max_cruise_v2, pm.max_cruise_v2, reach_v2,
+                             jd_junction_v2(junction_cos_theta, cur.accel, cur.junction_dev))
+                    if policy == POLICY_JD:
+                        v2 = min(v2, marlin_small_segment_v2(junction_cos_theta, cur.move_d, cur.accel))
+            if policy == POLICY_CLASSIC_JERK:
+                # Per-axis velocity jumps, E included; applies to extrude-only neighbours as well.
+                L = lim[moves[i].limits]
+                jv = marlin_jerk_junction_v(math.sqrt(pm.max_cruise_v2), math.sqrt(cur.max_cruise_v2),
+                                            pm.axes_r_x, pm.axes_r_y, pm.axes_r_z, pm.axes_r_e,
+                                            cur.axes_r_x, cur.axes_r_y, cur.axes_r_z, cur.axes_r_e,
+                                            L[L_JERK0], L[L_JERK0 + 1], L[L_JERK0 + 2], L[L_JERK0 + 3],
+                                            math.sqrt(pm.stop_v2), math.sqrt(cur.stop_v2))
+                v2 = min(jv * jv, cur.max_cruise_v2, pm.max_cruise_v2, reach_v2)
+            cur.max_start_v2 = v2
+            cur.max_mcr_start_v2 = min(v2, pm.max_mcr_start_v2 + pm.mcr_delta_v2)
+        prev = i
+        stop_pending = moves[i].exact_stop != 0
+    return prev, stop_pending
+
+
+# --------------------------------------------------------------------------- Python layer
+def limits_table(limits: np.ndarray) -> np.ndarray:
+    """LIMITS rows → contiguous (n, n_fields) float array in LIMITS_DTYPE field order."""
+    limits = np.asarray(limits)
+    if limits.dtype != LIMITS_DTYPE:
+        raise ConfigError("limits: table does not have LIMITS_DTYPE")
+    out = np.empty((len(limits), len(_LIM_FIELDS)), dtype=np.float64)
+    for k, name in enumerate(_LIM_FIELDS):
+        out[:, k] = limits[name]
+    return out
+
+
+def _line_error(moves: np.ndarray, row: int, message: str) -> GcodeError:
+    """The MOVE rows do not know their file name: the caller (CLI) adds it; the line is in the text."""
+    line = int(moves["line"][row])
+    return GcodeError(message, line=line)
+
+
+def validate(moves: np.ndarray, limits: np.ndarray, policy: int) -> None:
+    """Reject limits the planner cannot give a true answer for (per-row checks are in the kernel)."""
+    if moves.dtype != MOVE_DTYPE:
+        raise ConfigError("moves: array does not have MOVE_DTYPE")
+    if len(limits) == 0:
+        raise ConfigError("limits: the LIMITS table is empty (row 0 comes from the machine)")
+    mcr = limits["mcr"]
+    bad = ~((mcr >= 0.0) & (mcr < 1.0))
+    if np.any(bad):
+        raise ConfigError(f"minimum_cruise_ratio must be in [0, 1), got {float(mcr[bad][0])}")
+    if policy == POLICY_KLIPPER and np.any(~(limits["scv"] >= 0.0)):
+        raise ConfigError("square_corner_velocity must be >= 0")
+    if policy in (POLICY_JD, POLICY_BLEND) and np.any(~(limits["junction_dev"] >= 0.0)):
+        raise ConfigError("junction_deviation must be >= 0")
+    if np.any(~(limits["max_v"] > 0.0)):
+        raise ConfigError("max_velocity must be > 0")
+    for a in "xyze":
+        if np.any(~(limits["axis_v_" + a] > 0.0)) or np.any(~(limits["axis_a_" + a] > 0.0)):
+            raise ConfigError(f"max velocity / accel of axis {a} must be > 0")
+    if np.any(~(limits["extrude_only_v"] > 0.0)) or np.any(~(limits["extrude_only_a"] > 0.0)):
+        raise ConfigError("max_extrude_only_velocity / max_extrude_only_accel must be > 0")
+    if policy == POLICY_CLASSIC_JERK:
+        jerks = np.stack([limits["jerk_" + a] for a in "xyze"], axis=1)
+        if np.any(jerks < 0.0) or np.any(~np.isfinite(jerks)):
+            raise ConfigError("jerk (M205 X/Y/Z/E) must be finite and >= 0")
+        if np.any(np.all(jerks == 0.0, axis=1)):
+            raise ConfigError("classic-jerk policy needs a jerk per axis (M205 X/Y/Z/E, [axis] jerk); all are 0")
+
+
+def prepare_with_context(moves: np.ndarray, limits: np.ndarray, policy: int,
+                         prev_moves: np.ndarray | None = None, prev_prep: np.ndarray | None = None,
+                         stop_pending: bool = True) -> tuple[np.ndarray, bool]:
+    """PREP rows for ``moves``, continuing from one previous move (the streaming case).
+
+    ``prev_moves``/``prev_prep``: the last real move already prepared (one row each) or None;
+    ``stop_pending``: a full stop happened after it. Returns (prep, stop_pending after the chunk).
+    """
+    moves = np.ascontiguousarray(moves)
+    lim = limits_table(limits)
+    prep = np.zeros(len(moves), dtype=PREP_DTYPE)
+    err, row = _move_limits_kernel(moves, lim, policy, prep)
+    if err != ERR_NONE:
+        raise _line_error(moves, row, _ERR_TEXT[err])
+    if prev_prep is not None:
+        ctx = np.concatenate([prev_prep, prep])
+        ctx_moves = np.concatenate([prev_moves, moves])
+        i_start, prev = 1, 0
+    else:
+        ctx, ctx_moves = prep, moves
+        i_start, prev = 0, -1
+    _, stop_pending = _junction_kernel(ctx_moves, lim, policy, i_start, prev, bool(stop_pending), ctx)
+    if prev_prep is not None:
+        prep = ctx[1:]
+    return prep, bool(stop_pending)
+
+
+def prepare(moves: np.ndarray, limits: np.ndarray, machine, policy: str | None = None) -> np.ndarray:
+    """PREP_DTYPE rows, one per MOVE row: per-move speed/accel limits and junction caps.
+
+    ``policy`` None = ``machine.junction_policy``. The first move starts from rest
+    (``stop_before``); so does every move after a dwell/wait row or an ``exact_stop`` move.
+    Policy 'blend' computes the junction caps of 'junction-deviation' (the blend planner uses
+    the per-move limits and does its own corners).
+    """
+    pcode = policy_code(policy or machine.junction_policy)
+    moves = np.asarray(moves)
+    limits = np.asarray(limits)
+    validate(moves, limits, pcode)
+    if pcode == POLICY_BLEND:
+        pcode = POLICY_JD
+    prep, _ = prepare_with_context(moves, limits, pcode)
+    return prep
