@@ -1,0 +1,246 @@
+"""Streaming G-code reader: file -> MOVE batches, LIMITS table, layer Z, feature names, summary.
+
+The file is read in binary chunks cut at the last newline; the numba scanner interprets the common lines
+and returns to :class:`~.interp.Interpreter` for the rest, one line at a time. Memory is bounded by the
+chunk size and the batch size, whatever the file size.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ..errors import GcodeError
+from ..machine import Machine
+from ..schema import KIND_NAMES, MOVE_DTYPE
+from . import scan as S
+from .interp import Interpreter
+from .summary import ParseSummary
+
+CHUNK_BYTES = 8 << 20
+_BOM = b"\xef\xbb\xbf"
+_LAYER_MARKS = (b"\n;LAYER_CHANGE", b"\n;LAYER:", b"\n; layer ")
+
+
+def _check_text(path: str, head: bytes) -> None:
+    """A binary file is refused before any line is interpreted."""
+    sample = head[:65536]
+    if not sample:
+        return
+    if b"\x00" in sample:
+        raise GcodeError("not a text file (NUL bytes): is this a binary file?", path)
+    ctrl = sum(sample.count(bytes([c])) for c in range(32) if c not in (9, 10, 11, 12, 13)) + sample.count(b"\x7f")
+    if ctrl > 0.02 * len(sample):
+        raise GcodeError("not a text file (control characters): is this a binary file?", path)
+    text = sample.decode("utf-8", "replace")
+    if text.count("\ufffd") > 0.3 * len(text):
+        raise GcodeError("not a text file (mostly non-text bytes)", path)
+
+
+class GcodeReader:
+    """Read a G-code file as MOVE batches (see the package docstring for the API contract).
+
+    ``force_python`` sends every line through the Python interpreter (slow; the tests compare it with
+    the scanner). ``chunk_bytes`` is the read size. Layers: when the first chunk holds a layer comment
+    (``;LAYER_CHANGE``, ``;LAYER:``, ``; layer``) layers follow the comments only; otherwise a printing
+    move above every earlier printing move's Z starts a layer, until a layer comment appears.
+    """
+
+    def __init__(self, path: str, machine: Machine, *, strict: bool = False, batch_moves: int = 65536,
+                 force_python: bool = False, chunk_bytes: int = CHUNK_BYTES):
+        self.path = str(path)
+        self.machine = machine
+        self.strict = strict
+        if batch_moves < 1:
+            raise ValueError("batch_moves must be >= 1")
+        self.batch_moves = int(batch_moves)
+        self.force_python = force_python
+        self.chunk_bytes = int(chunk_bytes)
+        self.interp = Interpreter(machine, self.path, strict)
+        self.summary = ParseSummary(file=self.path)
+        self._acc = np.zeros(S.N_ACC)
+        for i in (S.A_MIN_X, S.A_MIN_Y, S.A_MIN_Z):
+            self._acc[i] = math.inf
+        for i in (S.A_MAX_X, S.A_MAX_Y, S.A_MAX_Z):
+            self._acc[i] = -math.inf
+        rv = machine.rapid_velocity if machine.rapid_velocity is not None else machine.max_velocity
+        self._rapid_v = float(rv)
+        self._started = False
+        try:
+            fh = open(self.path, "rb")
+        except IsADirectoryError:
+            raise GcodeError("is a directory, not a G-code file", self.path) from None
+        except FileNotFoundError:
+            raise GcodeError("no such file", self.path) from None
+        except OSError as err:
+            raise GcodeError(f"cannot read: {err.strerror or err}", self.path) from None
+        fh.close()
+
+    # ------------------------------------------------------------------ public state
+    @property
+    def limits(self) -> np.ndarray:
+        return self.interp.limits
+
+    @property
+    def layer_z(self) -> list[float]:
+        return self.interp.layer_z
+
+    @property
+    def features(self) -> list[str]:
+        return self.interp.features
+
+    # ------------------------------------------------------------------ streaming
+    def _chunks(self):
+        """(buffer, start, end): the file piece by piece in one reused bytearray, each piece ending at a
+        newline (the last one may not). A line longer than the buffer makes it grow."""
+        try:
+            fh = open(self.path, "rb")
+        except OSError as err:
+            raise GcodeError(f"cannot read: {err.strerror or err}", self.path) from None
+        with fh:
+            store = bytearray(self.chunk_bytes)
+            filled = 0
+            start = 0
+            first = True
+            while True:
+                if filled == len(store):
+                    bigger = bytearray(2 * len(store))
+                    bigger[:filled] = store
+                    store = bigger
+                try:
+                    with memoryview(store) as mv:
+                        got = fh.readinto(mv[filled:])
+                except OSError as err:
+                    raise GcodeError(f"cannot read: {err.strerror or err}", self.path) from None
+                if first:
+                    first = False
+                    if store.startswith(_BOM):
+                        start = 3
+                    _check_text(self.path, bytes(store[start:min(got, start + 65536)]))
+                    if store.startswith((b";LAYER_CHANGE", b";LAYER:", b"; layer "), start) or \
+                            any(store.find(m, start, got) >= 0 for m in _LAYER_MARKS):
+                        self.interp.ist[S.I_LAYER_BY_Z] = 0
+                filled += got
+                if got == 0:
+                    if filled > start:
+                        yield store, start, filled
+                    return
+                cut = store.rfind(b"\n", start, filled)
+                if cut < 0:
+                    continue
+                yield store, start, cut + 1
+                rest = filled - (cut + 1)
+                store[0:rest] = store[cut + 1:filled]
+                filled = rest
+                start = 0
+
+    def batches(self):
+        """MOVE arrays in file order, each at most ``batch_moves`` rows."""
+        if self._started:
+            raise RuntimeError("GcodeReader.batches() can run once")
+        self._started = True
+        interp = self.interp
+        st, ist = interp.st, interp.ist
+        cap = self.batch_moves
+        out = np.empty(cap, dtype=MOVE_DTYPE)
+        n = 0
+        for data, pos, end in self._chunks():
+            buf = np.frombuffer(data, dtype=np.uint8)
+            while True:
+                if ist[S.I_STOPPED]:
+                    ist[S.I_LINE] += S.count_lines(buf, pos, end)
+                    break
+                if self.force_python:
+                    status = S.ST_PYTHON
+                    if pos >= end:
+                        break
+                else:
+                    status, pos, n = S.scan_chunk(buf, pos, end, st, ist, out, n, interp.feat_raw,
+                                                  interp.feat_len, interp.feat_idx)
+                    if status == S.ST_DONE:
+                        break
+                    if status == S.ST_FULL:
+                        yield self._finish(out, n)
+                        out = np.empty(cap, dtype=MOVE_DTYPE)
+                        n = 0
+                        continue
+                # one line through Python
+                eol = data.find(b"\n", pos, end)
+                if eol < 0:
+                    eol = end
+                lineno = int(ist[S.I_LINE]) + 1
+                interp.handle(bytes(data[pos:eol]), lineno)
+                ist[S.I_LINE] = lineno
+                pos = eol + 1
+                for arr in interp.take_rows():
+                    k0 = 0
+                    while k0 < len(arr):
+                        k = min(cap - n, len(arr) - k0)
+                        out[n:n + k] = arr[k0:k0 + k]
+                        n += k
+                        k0 += k
+                        if n == cap:
+                            yield self._finish(out, n)
+                            out = np.empty(cap, dtype=MOVE_DTYPE)
+                            n = 0
+            del buf
+        if n:
+            yield self._finish(out, n)
+        self._complete_summary()
+
+    def _finish(self, out: np.ndarray, n: int) -> np.ndarray:
+        batch = out[:n] if n < len(out) else out
+        S.summarise_rows(batch, self._acc, self._rapid_v)
+        return batch
+
+    def _complete_summary(self) -> None:
+        s, a, it = self.summary, self._acc, self.interp
+        s.lines = int(it.ist[S.I_LINE])
+        by_kind = {name: int(a[i]) for i, name in enumerate(KIND_NAMES)}
+        s.moves_by_kind = by_kind
+        s.moves = by_kind["travel"] + by_kind["print"] + by_kind["extrude_only"]
+        s.rows = sum(by_kind.values())
+        s.layer_count = len(it.layer_z)
+        s.header_layer_count = it.header_layer_count
+        s.travel_mm = float(a[S.A_TRAVEL_MM])
+        s.print_mm = float(a[S.A_PRINT_MM])
+        s.filament_mm = float(a[S.A_FILAMENT_MM])
+        s.retracts = int(a[S.A_RETRACTS])
+        s.naive_time_s = float(a[S.A_NAIVE_T])
+        s.dwell_s = float(a[S.A_DWELL_T])
+        s.wait_s = float(a[S.A_WAIT_T])
+        s.waits = dict(it.waits)
+        s.arcs = it.arcs
+        s.arc_chords = int(a[S.A_ARC_CHORDS])
+        s.canned_cycles = it.canned_cycles
+        s.spindle_commands = it.spindle_commands
+        s.tool_changes = it.tool_changes
+        s.unknown_commands = dict(it.unknown)
+        ignored = dict(it.ignored)
+        m204 = int(it.ist[S.I_M204_IGNORED])
+        if m204:
+            ignored["M204 without S or P+T"] = m204
+        if it.g64_q_ignored:
+            ignored["G64 Q"] = it.g64_q_ignored
+        s.ignored_commands = ignored
+        s.skipped_lines = it.skipped_lines
+        s.events = list(it.events)
+        s.warnings = list(it.warnings)
+        s.warning_count = it.warning_count
+        s.slicer_estimate_s = it.slicer_estimate_s
+        s.features = list(it.features)
+        s.limits_rows = len(it._limits_rows)
+        if math.isfinite(a[S.A_MIN_X]):
+            s.bounds_mm = {k: [float(a[lo]), float(a[hi])] for k, lo, hi in
+                           (("x", S.A_MIN_X, S.A_MAX_X), ("y", S.A_MIN_Y, S.A_MAX_Y), ("z", S.A_MIN_Z, S.A_MAX_Z))}
+
+
+def read_moves(path: str, machine: Machine, **kw) -> tuple[np.ndarray, GcodeReader]:
+    """The whole file's MOVE rows as one array, and the reader (for limits, layers, summary)."""
+    r = GcodeReader(path, machine, **kw)
+    parts = list(r.batches())
+    moves = np.concatenate(parts) if parts else np.empty(0, dtype=MOVE_DTYPE)
+    return moves, r
+
+
+__all__ = ["GcodeReader", "read_moves", "ParseSummary", "CHUNK_BYTES"]

@@ -1,0 +1,600 @@
+"""Numba kernels of the parser: the byte scanner (fast path) and the batch summariser.
+
+The scanner walks the raw bytes of a chunk and fully handles the lines that make
+up nearly all of a slicer's output (G0/G1 with X Y Z E F, G90/G91, M82/M83,
+``G92 E``, M204, G4, fan/heater commands without motion, comments, ``;TYPE:``
+names already seen). Any other line (arcs, offsets, Klipper extended commands,
+unknown commands, anything odd or malformed) is handed back to the Python
+interpreter (:mod:`.interp`) *before* the scanner changes any state, so the
+interpreter is the single authority on rare lines and on every error message.
+
+Both sides share the modal state through two small arrays (``st`` float64 and
+``ist`` int64, indices below) and must compute a move with the very same floating
+point operations in the same order: the test suite checks that a run with every
+line sent through Python gives arrays identical to the kernel's.
+"""
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+from ..schema import KIND_DWELL, KIND_EXTRUDE_ONLY, KIND_PRINT, KIND_TRAVEL, FLAG_RAPID, FLAG_RETRACT
+
+# ------------------------------------------------------------------ float state (st)
+S_X, S_Y, S_Z, S_E = 0, 1, 2, 3     # mm, machine position; S_E is the running machine E (G92 never resets it)
+S_OX, S_OY, S_OZ = 4, 5, 6          # mm, program -> machine offset (work + G92 + tool length), per axis
+S_ELOG = 7                          # mm, logical E: what the G-code's absolute E values are measured against
+S_FEED = 8                          # mm/s, modal F (before the M220 factor)
+S_SPEED_F = 9                       # M220 factor (1 = 100 %)
+S_FLOW_F = 10                       # M221 factor, scales E
+S_UNIT = 11                         # mm per program unit (1, or 25.4 under G20)
+S_ACC_P, S_ACC_T, S_ACC_R = 12, 13, 14   # mm/s² print / travel / retract accel (all equal outside marlin/reprap)
+S_BLEND_P = 15                      # mm, G64 P in force (nan = machine default, 0 = exact path)
+S_MAXZ = 16                         # mm, highest Z of a printing move (layer detection by Z)
+N_ST = 17
+
+# ------------------------------------------------------------------ int state (ist)
+I_LINE = 0          # number of the last line fully processed (1-based lines)
+I_ABS_COORD = 1     # G90 (1) / G91 (0)
+I_ABS_E = 2         # M82 (1) / M83 (0); E is relative when either flag is 0 (Klipper's rule)
+I_MOTION = 3        # modal motion: 0, 1, 2, 3 (G0..G3), 80 = none, 73/81..89 = canned cycle
+I_DIALECT = 4       # DIALECT_*
+I_LIMITS = 5        # LIMITS row in force
+I_LAYER = 6         # layer index (-1 before the first)
+I_FEATURE = 7       # feature index (-1 before the first)
+I_EXACT_STOP = 8    # G61 (1) / G64 (0)
+I_LAYER_BY_Z = 9    # 1 while no layer comment has been seen: a printing move above S_MAXZ starts a layer
+I_LAYER_Z_TODO = 10  # 1 while the current layer's Z is unknown (the first printing move sets it)
+I_NFEAT = 11        # rows in use in the ;TYPE: name table
+I_M204_IGNORED = 12  # klipper dialect: M204 lines without S and without both P and T
+I_STOPPED = 13      # 1 after a program end (M2/M30 on CNC flavors): nothing more is interpreted
+N_IST = 14
+
+DIALECT_KLIPPER = 0   # M204: S, else min(P, T) when both; one accel for every move
+DIALECT_MARLIN = 1    # marlin / reprap: M204 S/P/T/R, accel chosen by the move's kind
+DIALECT_CNC = 2       # grbl / linuxcnc: machine accel, G0 rapid, G4 P in seconds
+
+# scanner results
+ST_DONE = 0      # the chunk is consumed
+ST_PYTHON = 1    # the line starting at pos needs the Python interpreter
+ST_FULL = 2      # the output array is full; the line at pos is not processed yet
+
+FEAT_MAX = 64        # ;TYPE: name table rows
+FEAT_NAME_MAX = 48   # bytes per name; longer names always go through Python
+
+# 10**k for k = 0..22 are exact doubles: mantissa (< 2**53) times or divided by one of them is
+# correctly rounded, i.e. the same double as Python's float() (Clinger's fast path).
+POW10 = np.array([10.0 ** k for k in range(23)])
+
+
+@numba.njit(cache=True, inline="always")
+def _is_sep(c):
+    # what may follow a number: blank, end of line, comment, or the next word's letter
+    return (c == 32 or c == 9 or c == 13 or c == 10 or c == 59
+            or (65 <= c <= 90) or (97 <= c <= 122))
+
+
+@numba.njit(cache=True, error_model="numpy", inline="always")
+def parse_decimal(buf, p, end):
+    """Parse ``[+-]digits[.digits]`` at ``buf[p:]``.
+
+    Returns ``(ok, value, p_after)``. ``ok`` is False when the text is not a number of this
+    simple form, is not followed by a separator, or has more than 15 digits: the caller then lets
+    Python decide (``float()`` or an error). When ok, value is mantissa / 10**decimals with the
+    mantissa < 10**15 < 2**53 and 10**decimals exact, so one rounding: the same double as
+    ``float(text)`` (Clinger's fast path).
+    """
+    while p < end and (buf[p] == 32 or buf[p] == 9):
+        p += 1
+    neg = False
+    if p < end and (buf[p] == 45 or buf[p] == 43):
+        neg = buf[p] == 45
+        p += 1
+    mant = 0
+    ndig = 0
+    frac = 0
+    while p < end and 48 <= buf[p] <= 57:
+        mant = mant * 10 + (buf[p] - 48)
+        ndig += 1
+        p += 1
+    if p < end and buf[p] == 46:
+        p += 1
+        while p < end and 48 <= buf[p] <= 57:
+            mant = mant * 10 + (buf[p] - 48)
+            ndig += 1
+            frac += 1
+            p += 1
+    # 15 digits keep the mantissa below 2**53 (and int64 cannot overflow); longer numbers go to Python
+    if ndig == 0 or ndig > 15:
+        return False, 0.0, p
+    if p < end and not _is_sep(buf[p]):
+        return False, 0.0, p
+    v = float(mant)
+    if frac > 0:
+        v = v / POW10[frac]
+    if neg:
+        v = -v
+    return True, v, p
+
+
+@numba.njit(cache=True, inline="always")
+def _lower(c):
+    if 65 <= c <= 90:
+        return c + 32
+    return c
+
+
+@numba.njit(cache=True, inline="always")
+def _skip_blank(buf, p, end):
+    while p < end and (buf[p] == 32 or buf[p] == 9 or buf[p] == 13):
+        p += 1
+    return p
+
+
+@numba.njit(cache=True, inline="always")
+def _to_eol(buf, p, end):
+    while p < end and buf[p] != 10:
+        p += 1
+    return p
+
+
+@numba.njit(cache=True, inline="always")
+def _starts(buf, p, end, pat):
+    n = len(pat)
+    if p + n > end:
+        return False
+    for k in range(n):
+        if buf[p + k] != pat[k]:
+            return False
+    return True
+
+
+def _pat(s: str) -> tuple:
+    # a tuple of byte values: numba keeps it as a compile-time constant (no array object per use)
+    return tuple(s.encode())
+
+
+# comment prefixes (after the ';') that carry information: handled by Python
+PAT_LAYER = _pat("LAYER")            # ;LAYER_CHANGE, ;LAYER:n, ;LAYER_COUNT:n
+PAT_Z = _pat("Z:")
+PAT_TIME = _pat("TIME:")
+PAT_TYPE = _pat("TYPE:")
+PAT_S3D_LAYER = _pat(" layer")
+PAT_S3D_FEATURE = _pat(" feature")
+PAT_ESTIMATED = _pat(" estimated printing time")
+
+
+@numba.njit(cache=True, inline="always")
+def _comment_needs_python(buf, p, eol, ist, feat_raw, feat_len, feat_idx):
+    """p is just after the ';' of a whole-line comment. True when Python must read it;
+    a ``;TYPE:`` line whose name is already in the table is applied here."""
+    if p >= eol:
+        return False
+    c = buf[p]
+    if c != 84 and c != 76 and c != 90 and c != 32:   # every marker starts with 'T', 'L', 'Z' or ' '
+        return False
+    if _starts(buf, p, eol, PAT_TYPE):
+        a = p + 5
+        b = eol
+        while b > a and (buf[b - 1] == 13 or buf[b - 1] == 32 or buf[b - 1] == 9):
+            b -= 1
+        n = b - a
+        if n > FEAT_NAME_MAX:
+            return True
+        for r in range(ist[I_NFEAT]):
+            if feat_len[r] != n:
+                continue
+            same = True
+            for k in range(n):
+                if feat_raw[r, k] != buf[a + k]:
+                    same = False
+                    break
+            if same:
+                ist[I_FEATURE] = feat_idx[r]
+                return False
+        return True
+    if (_starts(buf, p, eol, PAT_LAYER) or _starts(buf, p, eol, PAT_Z) or _starts(buf, p, eol, PAT_TIME)
+            or _starts(buf, p, eol, PAT_S3D_LAYER) or _starts(buf, p, eol, PAT_S3D_FEATURE)
+            or _starts(buf, p, eol, PAT_ESTIMATED)):
+        return True
+    return False
+
+
+@numba.njit(cache=True, inline="always")
+def _write_row(out, n, line, kind, flags, ist, st, x0, y0, z0, e0, x1, y1, z1, e1, move_d, feed_v, accel,
+               dwell_t):
+    r = out[n]
+    r.line = line
+    r.kind = kind
+    r.flags = flags
+    r.feature = ist[I_FEATURE]
+    r.layer = ist[I_LAYER]
+    r.limits = ist[I_LIMITS]
+    r.x0 = x0
+    r.y0 = y0
+    r.z0 = z0
+    r.e0 = e0
+    r.x1 = x1
+    r.y1 = y1
+    r.z1 = z1
+    r.e1 = e1
+    r.move_d = move_d
+    r.feed_v = feed_v
+    r.accel = accel
+    r.dwell_t = dwell_t
+    r.blend_p = st[S_BLEND_P]
+    r.exact_stop = ist[I_EXACT_STOP]
+
+
+@numba.njit(cache=True, inline="always")
+def move_accel(dialect, has_xyz, de, acc_p, acc_t, acc_r):
+    """Acceleration of a move: Marlin's choice (planner.cpp: E-only -> retract accel, XYZ with
+    E -> print accel, XYZ alone -> travel accel); the other dialects keep the three equal."""
+    if not has_xyz:
+        return acc_r
+    if de != 0.0:
+        return acc_p
+    return acc_t
+
+
+# _nrt=False: the scanner allocates nothing, and without numba's reference counting the inlined helpers
+# that take arrays cost no atomic incref/decref per word (measured: 66 -> 52 ns per "G1 X Y E" line,
+# 24 -> 2 ns per comment line). error_model="numpy": no zero-division checks in the hot loop.
+@numba.njit(cache=True, error_model="numpy", _nrt=False)
+def scan_chunk(buf, pos, end, st, ist, out, n_out, feat_raw, feat_len, feat_idx):
+    """Interpret lines of ``buf[pos:end]`` until the chunk ends, the output is full, or a line
+    needs Python. Returns ``(status, pos, n_out)``; for ST_PYTHON/ST_FULL ``pos`` is the start
+    of the line not processed (its number is ``ist[I_LINE] + 1``)."""
+    cap = out.shape[0]
+    dialect = ist[I_DIALECT]
+    while pos < end:
+        if n_out >= cap:
+            return ST_FULL, pos, n_out
+        line_start = pos
+        line = ist[I_LINE] + 1
+        p = _skip_blank(buf, pos, end)
+        if p >= end:
+            ist[I_LINE] = line
+            return ST_DONE, end, n_out
+        c = buf[p]
+        if c == 10:
+            ist[I_LINE] = line
+            pos = p + 1
+            continue
+        if c == 59:  # ';' whole-line comment
+            eol = _to_eol(buf, p, end)
+            c1 = buf[p + 1] if p + 1 < eol else 0
+            # every marker starts with 'T', 'L', 'Z' or ' ' (tested here: a call costs more than the test)
+            if (c1 == 84 or c1 == 76 or c1 == 90 or c1 == 32) and \
+                    _comment_needs_python(buf, p + 1, eol, ist, feat_raw, feat_len, feat_idx):
+                return ST_PYTHON, line_start, n_out
+            ist[I_LINE] = line
+            pos = eol + 1
+            continue
+        lc = _lower(c)
+        code = -1
+        letter = 0
+        if lc == 103 or lc == 109:  # 'g' / 'm'
+            letter = lc
+            p += 1
+            code = 0
+            nd = 0
+            while p < end and 48 <= buf[p] <= 57 and nd < 4:
+                code = code * 10 + (buf[p] - 48)
+                nd += 1
+                p += 1
+            if nd == 0 or nd >= 4 or p >= end or not _is_sep(buf[p]):
+                return ST_PYTHON, line_start, n_out
+        elif lc == 120 or lc == 121 or lc == 122 or lc == 101 or lc == 102:  # bare x y z e f
+            motion = ist[I_MOTION]
+            if motion != 0 and motion != 1:
+                return ST_PYTHON, line_start, n_out
+            letter = 103
+            code = motion
+        else:
+            return ST_PYTHON, line_start, n_out
+
+        # ---- the words of the line (only X Y Z E F S P T R, each at most once)
+        has = 0
+        vx = vy = vz = ve = vf = vs = vp = vt = vr = 0.0
+        q = p
+        while True:
+            q = _skip_blank(buf, q, end)
+            if q >= end:
+                break
+            b = buf[q]
+            if b == 10:
+                break
+            if b == 59:
+                q = _to_eol(buf, q, end)
+                break
+            w = _lower(b)
+            if w == 120:
+                bit = 1
+            elif w == 121:
+                bit = 2
+            elif w == 122:
+                bit = 4
+            elif w == 101:
+                bit = 8
+            elif w == 102:
+                bit = 16
+            elif w == 115:
+                bit = 32
+            elif w == 112:
+                bit = 64
+            elif w == 116:
+                bit = 128
+            elif w == 114:
+                bit = 256
+            else:
+                return ST_PYTHON, line_start, n_out
+            if has & bit:
+                return ST_PYTHON, line_start, n_out
+            ok, v, q = parse_decimal(buf, q + 1, end)
+            if not ok:
+                return ST_PYTHON, line_start, n_out
+            has |= bit
+            if bit == 1:
+                vx = v
+            elif bit == 2:
+                vy = v
+            elif bit == 4:
+                vz = v
+            elif bit == 8:
+                ve = v
+            elif bit == 16:
+                vf = v
+            elif bit == 32:
+                vs = v
+            elif bit == 64:
+                vp = v
+            elif bit == 128:
+                vt = v
+            else:
+                vr = v
+        eol = q
+        nxt = eol + 1 if eol < end else end
+
+        if letter == 103 and (code == 0 or code == 1):
+            if has & (32 | 64 | 128 | 256):
+                return ST_PYTHON, line_start, n_out
+            if (has & 16) and not vf > 0.0:
+                return ST_PYTHON, line_start, n_out
+            scale = st[S_UNIT]
+            x0 = st[S_X]
+            y0 = st[S_Y]
+            z0 = st[S_Z]
+            e0 = st[S_E]
+            x1 = x0
+            y1 = y0
+            z1 = z0
+            e1 = e0
+            absc = ist[I_ABS_COORD] != 0
+            if has & 1:
+                x1 = vx * scale + st[S_OX] if absc else x0 + vx * scale
+            if has & 2:
+                y1 = vy * scale + st[S_OY] if absc else y0 + vy * scale
+            if has & 4:
+                z1 = vz * scale + st[S_OZ] if absc else z0 + vz * scale
+            elog = st[S_ELOG]
+            if has & 8:
+                ev = ve * scale
+                if absc and ist[I_ABS_E] != 0:
+                    de_log = ev - elog
+                    elog = ev
+                else:
+                    de_log = ev
+                    elog = elog + ev
+                e1 = e0 + de_log * st[S_FLOW_F]
+            feed = st[S_FEED]
+            if has & 16:
+                feed = vf * scale / 60.0
+            dx = x1 - x0
+            dy = y1 - y0
+            dz = z1 - z0
+            de = e1 - e0
+            move_d = np.sqrt(dx * dx + dy * dy + dz * dz)
+            if move_d > 0.0 and de > 0.0:
+                # a printing move that starts a layer (by Z) or must set the layer's Z: Python's job
+                if ist[I_LAYER_Z_TODO] != 0 or (ist[I_LAYER_BY_Z] != 0 and z1 > st[S_MAXZ]):
+                    return ST_PYTHON, line_start, n_out
+            if not (np.isfinite(x1) and np.isfinite(y1) and np.isfinite(z1) and np.isfinite(e1)
+                    and np.isfinite(move_d)):
+                return ST_PYTHON, line_start, n_out
+            # commit
+            st[S_X] = x1
+            st[S_Y] = y1
+            st[S_Z] = z1
+            st[S_E] = e1
+            st[S_ELOG] = elog
+            st[S_FEED] = feed
+            ist[I_MOTION] = code
+            if move_d > 0.0 or de != 0.0:
+                flags = 0
+                if move_d > 0.0:
+                    kind = KIND_PRINT if de > 0.0 else KIND_TRAVEL
+                else:
+                    kind = KIND_EXTRUDE_ONLY
+                    move_d = abs(de)
+                if de < 0.0:
+                    flags |= FLAG_RETRACT
+                feed_v = feed * st[S_SPEED_F]
+                if code == 0:
+                    flags |= FLAG_RAPID
+                    if dialect == DIALECT_CNC:
+                        feed_v = np.inf
+                accel = move_accel(dialect, kind != KIND_EXTRUDE_ONLY, de, st[S_ACC_P], st[S_ACC_T],
+                                   st[S_ACC_R])
+                _write_row(out, n_out, line, kind, flags, ist, st, x0, y0, z0, e0, x1, y1, z1, e1, move_d,
+                           feed_v, accel, 0.0)
+                n_out += 1
+            ist[I_LINE] = line
+            pos = nxt
+            continue
+
+        if letter == 103:
+            if code == 90 or code == 91:
+                if has != 0:
+                    return ST_PYTHON, line_start, n_out
+                ist[I_ABS_COORD] = 1 if code == 90 else 0
+            elif code == 92:
+                if has != 8:   # only "G92 E<v>" here
+                    return ST_PYTHON, line_start, n_out
+                st[S_ELOG] = ve * st[S_UNIT]
+            elif code == 4:
+                if has & ~(32 | 64):
+                    return ST_PYTHON, line_start, n_out
+                dwell_t = 0.0
+                if has & 64:
+                    dwell_t = vp if dialect == DIALECT_CNC else vp / 1000.0
+                if has & 32:
+                    if dialect == DIALECT_KLIPPER:
+                        return ST_PYTHON, line_start, n_out
+                    dwell_t = vs
+                if not dwell_t >= 0.0:
+                    return ST_PYTHON, line_start, n_out
+                _write_row(out, n_out, line, KIND_DWELL, 0, ist, st, st[S_X], st[S_Y], st[S_Z], st[S_E],
+                           st[S_X], st[S_Y], st[S_Z], st[S_E], 0.0, 0.0, 0.0, dwell_t)
+                n_out += 1
+            else:
+                return ST_PYTHON, line_start, n_out
+        else:  # 'm'
+            if code == 82 or code == 83:
+                if has != 0:
+                    return ST_PYTHON, line_start, n_out
+                ist[I_ABS_E] = 1 if code == 82 else 0
+            elif code == 104 or code == 105 or code == 106 or code == 107 or code == 140:
+                pass  # heaters / fan / temperature report: no motion
+            elif code == 204:
+                if dialect == DIALECT_CNC or (has & ~(32 | 64 | 128 | 256)):
+                    return ST_PYTHON, line_start, n_out
+                if dialect == DIALECT_KLIPPER:
+                    # Klipper: S, else min(P, T) only when both are given, else "Invalid M204"
+                    a = vs
+                    if not (has & 32):
+                        a = min(vp, vt)
+                    if not (has & 32) and not ((has & 64) and (has & 128)):
+                        ist[I_M204_IGNORED] += 1
+                    else:
+                        if not a > 0.0:
+                            return ST_PYTHON, line_start, n_out
+                        st[S_ACC_P] = a
+                        st[S_ACC_T] = a
+                        st[S_ACC_R] = a
+                else:
+                    # Marlin M204: S sets print and travel, then P print, R retract, T travel
+                    if ((has & 32) and not vs > 0.0) or ((has & 64) and not vp > 0.0) or \
+                            ((has & 128) and not vt > 0.0) or ((has & 256) and not vr > 0.0):
+                        return ST_PYTHON, line_start, n_out
+                    if has & 32:
+                        st[S_ACC_P] = vs
+                        st[S_ACC_T] = vs
+                    if has & 64:
+                        st[S_ACC_P] = vp
+                    if has & 256:
+                        st[S_ACC_R] = vr
+                    if has & 128:
+                        st[S_ACC_T] = vt
+            else:
+                return ST_PYTHON, line_start, n_out
+        ist[I_LINE] = line
+        pos = nxt
+    return ST_DONE, pos, n_out
+
+
+# ------------------------------------------------------------------ summary of a batch
+# acc (float64) indices
+A_ROWS_TRAVEL, A_ROWS_PRINT, A_ROWS_EXTRUDE, A_ROWS_DWELL, A_ROWS_WAIT = 0, 1, 2, 3, 4
+A_TRAVEL_MM, A_PRINT_MM, A_FILAMENT_MM, A_NAIVE_T, A_DWELL_T, A_WAIT_T = 5, 6, 7, 8, 9, 10
+A_RETRACTS, A_RAPIDS, A_ARC_CHORDS = 11, 12, 13
+A_MIN_X, A_MIN_Y, A_MIN_Z, A_MAX_X, A_MAX_Y, A_MAX_Z = 14, 15, 16, 17, 18, 19
+N_ACC = 20
+
+
+@numba.njit(cache=True)
+def summarise_rows(moves, acc, rapid_v):
+    """Add a batch of MOVE rows to the running totals in ``acc``.
+
+    naive time = Σ move_d / feed_v (rapids with feed_v = inf at ``rapid_v``) + Σ G4 dwell_t.
+    """
+    for i in range(moves.shape[0]):
+        r = moves[i]
+        k = r.kind
+        acc[k] += 1.0
+        acc[A_FILAMENT_MM] += r.e1 - r.e0
+        if k == KIND_TRAVEL or k == KIND_PRINT or k == KIND_EXTRUDE_ONLY:
+            if k == KIND_TRAVEL:
+                acc[A_TRAVEL_MM] += r.move_d
+            elif k == KIND_PRINT:
+                acc[A_PRINT_MM] += r.move_d
+            f = r.feed_v
+            if f == np.inf:
+                f = rapid_v
+            if f > 0.0:
+                acc[A_NAIVE_T] += r.move_d / f
+            if r.flags & FLAG_RETRACT:
+                acc[A_RETRACTS] += 1.0
+            if r.flags & FLAG_RAPID:
+                acc[A_RAPIDS] += 1.0
+            if r.flags & 2:
+                acc[A_ARC_CHORDS] += 1.0
+            if k != KIND_EXTRUDE_ONLY:
+                acc[A_MIN_X] = min(acc[A_MIN_X], r.x1)
+                acc[A_MIN_Y] = min(acc[A_MIN_Y], r.y1)
+                acc[A_MIN_Z] = min(acc[A_MIN_Z], r.z1)
+                acc[A_MAX_X] = max(acc[A_MAX_X], r.x1)
+                acc[A_MAX_Y] = max(acc[A_MAX_Y], r.y1)
+                acc[A_MAX_Z] = max(acc[A_MAX_Z], r.z1)
+        elif k == KIND_DWELL:
+            acc[A_DWELL_T] += r.dwell_t
+            acc[A_NAIVE_T] += r.dwell_t
+        else:
+            acc[A_WAIT_T] += r.dwell_t
+
+
+@numba.njit(cache=True)
+def count_lines(buf, start, end):
+    """Lines in buf[start:end] (a last line without a newline counts)."""
+    n = 0
+    for i in range(start, end):
+        if buf[i] == 10:
+            n += 1
+    if end > start and buf[end - 1] != 10:
+        n += 1
+    return n
+
+
+def warm_up() -> None:
+    """Load (or compile) the kernels every file needs (count_lines, rarely needed, loads on first use)."""
+    from ..schema import MOVE_DTYPE
+
+    buf = np.frombuffer(b"G1 X1\n", dtype=np.uint8)
+    st = np.zeros(N_ST)
+    st[S_UNIT] = st[S_SPEED_F] = st[S_FLOW_F] = 1.0
+    ist = np.zeros(N_IST, dtype=np.int64)
+    out = np.zeros(2, dtype=MOVE_DTYPE)
+    scan_chunk(buf, 0, buf.shape[0], st, ist, out, 0, np.zeros((FEAT_MAX, FEAT_NAME_MAX), np.uint8),
+               np.zeros(FEAT_MAX, np.int64), np.zeros(FEAT_MAX, np.int64))
+    summarise_rows(out, np.zeros(N_ACC), 1.0)
+
+
+def quick_numba_start() -> None:
+    """Load the kernels for a process that runs only the parser (``gcodeplan parse``).
+
+    On its first use numba probes for BLAS by importing scipy.linalg, which costs 0.1–0.3 s of a
+    sub-second run; the parser needs no BLAS. When nothing has imported scipy or numba's array maths
+    yet, the probe is made to fail (scipy.linalg hidden for the duration of the first load), so np.dot inside
+    njit code would then be unavailable *in this process*: call this only from a parse-only command.
+    """
+    import sys
+
+    if "scipy.linalg" in sys.modules or "numba.np.arraymath" in sys.modules:
+        warm_up()
+        return
+    sys.modules["scipy.linalg"] = None  # type: ignore[assignment]  # "import scipy.linalg..." raises ImportError
+    try:
+        warm_up()
+    finally:
+        if "scipy.linalg" in sys.modules and sys.modules["scipy.linalg"] is None:
+            del sys.modules["scipy.linalg"]

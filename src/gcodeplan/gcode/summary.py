@@ -1,0 +1,92 @@
+"""What a parsed file contains: counts, distances, filament, the naive time, slicer's own estimate."""
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, field
+
+from ..schema import KIND_NAMES
+
+
+def hms(seconds: float | None) -> str:
+    if seconds is None or not math.isfinite(seconds):
+        return "-"
+    s = int(round(seconds))
+    h, rem = divmod(s, 3600)
+    m, s = divmod(rem, 60)
+    return f"{h}h {m:02d}m {s:02d}s"
+
+
+@dataclass
+class ParseSummary:
+    file: str = ""
+    lines: int = 0
+    rows: int = 0                      # MOVE rows of any kind (incl. dwell / wait rows)
+    moves: int = 0                     # travel + print + extrude-only rows (non-zero length)
+    moves_by_kind: dict[str, int] = field(default_factory=lambda: {k: 0 for k in KIND_NAMES})
+    layer_count: int = 0
+    header_layer_count: int | None = None   # Cura ;LAYER_COUNT:
+    travel_mm: float = 0.0             # XYZ path length of non-extruding moves
+    print_mm: float = 0.0              # XYZ path length of extruding moves
+    filament_mm: float = 0.0           # net E change (after M221)
+    retracts: int = 0
+    naive_time_s: float = 0.0          # Σ move_d / feed_v (rapids at the machine's rapid rate) + G4 dwells
+    dwell_s: float = 0.0               # G4
+    wait_s: float = 0.0                # M109/M190 heat waits, homing (machine settings)
+    waits: dict[str, int] = field(default_factory=dict)
+    arcs: int = 0
+    arc_chords: int = 0
+    canned_cycles: int = 0
+    spindle_commands: int = 0
+    tool_changes: int = 0
+    unknown_commands: dict[str, int] = field(default_factory=dict)
+    ignored_commands: dict[str, int] = field(default_factory=dict)   # known, but the dialect ignores them
+    skipped_lines: int = 0             # lines with an unexpanded slicer placeholder
+    events: list[tuple[int, str]] = field(default_factory=list)
+    warnings: list[str] = field(default_factory=list)
+    warning_count: int = 0
+    slicer_estimate_s: float | None = None
+    features: list[str] = field(default_factory=list)
+    limits_rows: int = 1
+    bounds_mm: dict[str, list[float]] | None = None   # {"x": [min, max], ...} of move end points
+
+    def to_json(self) -> dict:
+        d = asdict(self)
+        d["events"] = [list(e) for e in self.events]
+        return d
+
+    def text(self) -> str:
+        lines = [f"file            {self.file}",
+                 f"lines           {self.lines}",
+                 f"moves           {self.moves}  (" + ", ".join(f"{k} {v}" for k, v in self.moves_by_kind.items())
+                 + ")",
+                 f"layers          {self.layer_count}"
+                 + (f"  (header says {self.header_layer_count})" if self.header_layer_count is not None else ""),
+                 f"travel          {self.travel_mm:.1f} mm",
+                 f"print           {self.print_mm:.1f} mm",
+                 f"filament        {self.filament_mm:.1f} mm",
+                 f"retractions     {self.retracts}",
+                 f"naive time      {hms(self.naive_time_s)}  ({self.naive_time_s:.1f} s: length / feed, no "
+                 f"acceleration)",
+                 ]
+        if self.dwell_s:
+            lines.append(f"dwells          {self.dwell_s:.3f} s")
+        if self.waits:
+            lines.append("waits           " + ", ".join(f"{k} {v}" for k, v in sorted(self.waits.items())))
+        if self.arcs:
+            lines.append(f"arcs            {self.arcs} ({self.arc_chords} chords)")
+        if self.canned_cycles:
+            lines.append(f"canned cycles   {self.canned_cycles}")
+        if self.slicer_estimate_s is not None:
+            lines.append(f"slicer estimate {hms(self.slicer_estimate_s)}  ({self.slicer_estimate_s:.0f} s)")
+        if self.unknown_commands:
+            lines.append("unknown         " + ", ".join(f"{k} ×{v}" for k, v in
+                                                        sorted(self.unknown_commands.items())))
+        if self.ignored_commands:
+            lines.append("ignored         " + ", ".join(f"{k} ×{v}" for k, v in
+                                                        sorted(self.ignored_commands.items())))
+        if self.skipped_lines:
+            lines.append(f"skipped lines   {self.skipped_lines}")
+        if self.warning_count:
+            lines.append(f"warnings        {self.warning_count}")
+            lines.extend("  " + w for w in self.warnings[:10])
+        return "\n".join(lines)
