@@ -3,7 +3,7 @@
 ::
 
     from gcodeplan.gcode import GcodeReader, read_moves, ParseSummary
-    r = GcodeReader(path, machine, strict=False, batch_moves=65536)
+    r = GcodeReader(path, machine, strict=False, batch_moves=8192)
     for moves in r.batches():   # MOVE_DTYPE arrays in file order
         ...
     r.limits, r.layer_z, r.features, r.summary

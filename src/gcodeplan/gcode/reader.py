@@ -46,7 +46,7 @@ class GcodeReader:
     move above every earlier printing move's Z starts a layer, until a layer comment appears.
     """
 
-    def __init__(self, path: str, machine: Machine, *, strict: bool = False, batch_moves: int = 65536,
+    def __init__(self, path: str, machine: Machine, *, strict: bool = False, batch_moves: int = 8192,
                  force_python: bool = False, chunk_bytes: int = CHUNK_BYTES):
         self.path = str(path)
         self.machine = machine

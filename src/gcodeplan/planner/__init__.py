@@ -48,6 +48,9 @@ def _scurve_jerk(moves: np.ndarray, limits: np.ndarray, jerk: float | None) -> f
         return float(jerk)
     if len(moves) == 0:
         return None
+    all_mj = limits["max_jerk"]
+    if not np.any(np.isfinite(all_mj) & (all_mj > 0.0)):  # the common case: no jerk limit anywhere
+        return None
     used = np.unique(moves["limits"])
     used = used[(used >= 0) & (used < len(limits))]
     mj = limits["max_jerk"][used]

@@ -22,7 +22,7 @@ import numpy as np
 
 from ..errors import ConfigError, GcodeError
 from ..machine import POLICIES
-from ..schema import (KIND_DWELL, KIND_WAIT, MOVE_DTYPE, LIMIT_AXIS, LIMIT_EXTRUDER, LIMIT_FEED,
+from ..schema import (KIND_DWELL, KIND_WAIT, MOVE_DTYPE, concat_rows, LIMIT_AXIS, LIMIT_EXTRUDER, LIMIT_FEED,
                       LIMIT_MAX_V, LIMIT_NONE, LIMITS_DTYPE)
 from .junctions import (jd_junction_v2, klipper_centripetal_v2, klipper_extruder_corner_v2,
                         klipper_junction_deviation, marlin_jerk_junction_v, marlin_safe_v,
@@ -336,8 +336,8 @@ def prepare_with_context(moves: np.ndarray, limits: np.ndarray, policy: int,
     if err != ERR_NONE:
         raise _line_error(moves, row, _ERR_TEXT[err])
     if prev_prep is not None:
-        ctx = np.concatenate([prev_prep, prep])
-        ctx_moves = np.concatenate([prev_moves, moves])
+        ctx = concat_rows(prev_prep, prep)
+        ctx_moves = concat_rows(prev_moves, moves)
         i_start, prev = 1, 0
     else:
         ctx, ctx_moves = prep, moves

@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..schema import MOVE_DTYPE, PLAN_DTYPE
+from ..schema import MOVE_DTYPE, PLAN_DTYPE, concat_rows
 from .passes import klipper_flush, layout_rows, plan_runs, speed_buffers, standard_flush
 from .prepare import (POLICY_BLEND, POLICY_KLIPPER, PREP_DTYPE, policy_code, prepare_with_context, validate)
 from .segments import to_segments
@@ -63,8 +63,8 @@ class StreamPlanner:
         if real.size:
             self._last_move = moves_chunk[real[-1]:real[-1] + 1].copy()
             self._last_prep = prep[real[-1]:real[-1] + 1].copy()
-        self._moves = np.concatenate([self._moves, moves_chunk])
-        self._prep = np.concatenate([self._prep, prep])
+        self._moves = concat_rows(self._moves, moves_chunk)
+        self._prep = concat_rows(self._prep, prep) if len(self._prep) else prep
         return self._emit(final=False)
 
     def finish(self) -> list[tuple[np.ndarray, np.ndarray]]:
