@@ -29,12 +29,16 @@ from .junctions import (jd_junction_v2, klipper_centripetal_v2, klipper_extruder
                         marlin_small_segment_v2)
 
 # _move_limits_kernel error codes
-ERR_NONE, ERR_LIMITS_ROW, ERR_FEED, ERR_ACCEL, ERR_COORD, ERR_DWELL = range(6)
+ERR_NONE, ERR_LIMITS_ROW, ERR_FEED, ERR_ACCEL, ERR_COORD, ERR_DWELL, ERR_NO_ACCEL, ERR_NO_SPEED = range(8)
 _ERR_TEXT = {ERR_LIMITS_ROW: "move refers to a LIMITS row that does not exist",
              ERR_FEED: "feed rate must be > 0 (F0 or no F given?)",
              ERR_ACCEL: "acceleration must be finite and > 0",
              ERR_COORD: "a coordinate is not finite",
-             ERR_DWELL: "dwell time must be >= 0"}
+             ERR_DWELL: "dwell time must be >= 0",
+             ERR_NO_ACCEL: "no acceleration limit applies to this move: set toolhead max_accel or the "
+                           "max_accel of every axis it moves (machine file)",
+             ERR_NO_SPEED: "no speed limit applies to this rapid move: set toolhead max_velocity, "
+                           "rapid_velocity or the max_velocity of every axis it moves (machine file)"}
 
 POLICY_KLIPPER, POLICY_JD, POLICY_CLASSIC_JERK, POLICY_BLEND, POLICY_EXACT_STOP = range(5)
 assert POLICIES == ("klipper", "junction-deviation", "classic-jerk", "blend", "exact-stop")
@@ -132,7 +136,8 @@ def _move_limits_kernel(moves, lim, policy, prep):
             return ERR_LIMITS_ROW, i
         if not mv.feed_v > 0.0:
             return ERR_FEED, i
-        if not (mv.accel > 0.0 and mv.accel < math.inf):
+        # inf is allowed here: a grbl machine has only per-axis limits, which bound the move below.
+        if not mv.accel > 0.0:
             return ERR_ACCEL, i
         L = lim[mv.limits]
         d[0] = mv.x1 - mv.x0
@@ -193,6 +198,10 @@ def _move_limits_kernel(moves, lim, policy, prep):
                 max_cruise_v2, accel, delta_v2, mcr_delta_v2, limit = _limit_speed(
                     L[L_EO_V] * inv_extrude_r, L[L_EO_A] * inv_extrude_r, LIMIT_EXTRUDER, move_d,
                     max_cruise_v2, accel, mcr_delta_v2, limit)
+        if not accel < math.inf:
+            return ERR_NO_ACCEL, i
+        if not max_cruise_v2 < math.inf:
+            return ERR_NO_SPEED, i
         out.is_move = True
         out.kinematic = kinematic
         out.move_d = move_d
