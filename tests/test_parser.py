@@ -467,3 +467,11 @@ def test_parse_command_errors_exit_2(tmp_path, capsys):
     path = _write(tmp_path, "M999\n", "u.gcode")
     assert cli.main(["parse", path, "--flavor", "marlin", "--strict"]) == 2
     assert cli.main(["parse", str(tmp_path / "missing.gcode")]) == 2
+
+
+def test_m30_ends_the_program_on_cnc_flavors_but_is_a_file_command_on_printers(tmp_path):
+    text = "G21 G90\nG1 X1 F600\nM30\nG1 X5\n"
+    mv, r = _parse(tmp_path, text, Machine(flavor="linuxcnc"))
+    assert list(mv["x1"]) == [1.0] and (3, "M30 program end") in r.summary.events
+    mv, r = _parse(tmp_path, text, Machine(flavor="marlin"))   # Marlin M30 = delete an SD file
+    assert list(mv["x1"]) == [1.0, 5.0]

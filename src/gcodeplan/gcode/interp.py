@@ -482,7 +482,8 @@ class Interpreter:
 
     def _classic(self, code: str) -> None:
         head = _FREE_TEXT_RE.match(code)
-        if head and int(head.group(1)) in _FREE_TEXT_M:
+        # M30 takes a file name on printers (delete an SD file) but ends the program on CNC flavors
+        if head and int(head.group(1)) in _FREE_TEXT_M and not (self.machine.is_cnc and int(head.group(1)) == 30):
             return
         try_words_error = None
         try:
@@ -496,7 +497,8 @@ class Interpreter:
             if m:
                 name = f"{m.group(1).upper()}{int(m.group(2))}"
                 num = int(m.group(2))
-                if m.group(1) in "Mm" and (num in _QUIET_M or num in _FREE_TEXT_M):
+                if m.group(1) in "Mm" and (num in _QUIET_M or (num in _FREE_TEXT_M and not (
+                        self.machine.is_cnc and num == 30))):
                     return
                 if not self._known(m.group(1).upper(), num):
                     self.unknown_command(name)
