@@ -54,6 +54,7 @@ class GcodeReader:
         if batch_moves < 1:
             raise ValueError("batch_moves must be >= 1")
         self.batch_moves = int(batch_moves)
+        self.bytes_read = 0          # for progress bars: bytes of the file read so far
         self.force_python = force_python
         self.chunk_bytes = int(chunk_bytes)
         self.interp = Interpreter(machine, self.path, strict)
@@ -121,6 +122,7 @@ class GcodeReader:
                             any(store.find(m, start, got) >= 0 for m in _LAYER_MARKS):
                         self.interp.ist[S.I_LAYER_BY_Z] = 0
                 filled += got
+                self.bytes_read += got
                 if got == 0:
                     if filled > start:
                         yield store, start, filled
