@@ -96,3 +96,15 @@ def test_missing_file_and_bad_options_exit_2(tmp_path, capsys):
     with pytest.raises(SystemExit) as e:
         main(["estimate", "--policy", "nonsense", str(SAMPLES / "a_long_x.gcode")])
     assert e.value.code == 2
+
+
+def test_over_extrusion_stops_like_klipper_but_tiny_amounts_pass(tmp_path, capsys):
+    # klipper preset: max_extrude_cross_section 50 mm² -> 20.79 mm of filament per mm of path
+    p = tmp_path / "over.gcode"
+    p.write_text("G1 X10 F600\nG1 X11 E100\n")          # 100 mm over 1 mm: 240.5 mm²
+    assert main(["estimate", "--quiet", str(p)]) == 2
+    assert "over.gcode:2: move exceeds maximum extrusion (240.528 mm² vs 50.000 mm²)" in capsys.readouterr().err
+    p.write_text("G1 X10 F600\nG1 X10.01 E5\n")         # 500 mm²-worth, but 5 mm < 0.4·20.79: allowed
+    assert main(["estimate", "--quiet", str(p)]) == 0
+    p.write_text("G1 X10 F600\nG1 X11 E100\n")
+    assert main(["estimate", "--quiet", "--machine", "marlin", str(p)]) == 0   # Marlin has no such check

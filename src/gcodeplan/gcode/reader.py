@@ -193,7 +193,27 @@ class GcodeReader:
     def _finish(self, out: np.ndarray, n: int) -> np.ndarray:
         batch = out[:n] if n < len(out) else out
         S.summarise_rows(batch, self._acc, self._rapid_v)
+        self._check_extrusion(batch)
         return batch
+
+    def _check_extrusion(self, batch: np.ndarray) -> None:
+        """Klipper's extruder.check_move: a move with X/Y motion that extrudes more filament per mm of
+        path than max_extrude_ratio (from max_extrude_cross_section) stops the print with an error,
+        unless the amount is tiny (≤ nozzle_diameter·max_extrude_ratio). Klipper would not run such a
+        file, so neither do we estimate it."""
+        ratio_max = self.machine.max_extrude_ratio
+        if not np.isfinite(ratio_max) or batch.size == 0:
+            return
+        de = batch["e1"] - batch["e0"]
+        xy = (batch["x1"] != batch["x0"]) | (batch["y1"] != batch["y0"])
+        bad = xy & (de > ratio_max * batch["move_d"]) & (de > self.machine.nozzle_diameter * ratio_max)
+        if np.any(bad):
+            i = int(np.argmax(bad))
+            area = de[i] / batch["move_d"][i] * np.pi * (self.machine.filament_diameter / 2) ** 2
+            limit = ratio_max * np.pi * (self.machine.filament_diameter / 2) ** 2
+            raise GcodeError(f"move exceeds maximum extrusion ({area:.3f} mm² vs {limit:.3f} mm²): Klipper stops "
+                             f"the print here; raise [extruder] max_extrude_cross_section if this is intended",
+                             self.path, int(batch["line"][i]))
 
     def _complete_summary(self) -> None:
         s, a, it = self.summary, self._acc, self.interp
