@@ -50,6 +50,7 @@ class Estimate:
             print_time_s=t.print_time_s,
             travel_time_s=t.travel_time_s,
             extrude_only_time_s=t.extrude_only_time_s,
+            rapid_time_s=t.rapid_t,
             dwell_s=t.dwell_s,
             waits_s=t.waits_s,
             accelerating_s=t.accel_t,
@@ -129,11 +130,18 @@ def print_text(est: Estimate, out=None) -> None:
     slicer = getattr(s, "slicer_estimate_s", None)
     if slicer:
         w(f"  slicer's own    {hms(slicer):>10}  ({slicer:.0f} s)\n")
-    waits = getattr(s, "waits", None)
-    n_waits = sum(waits.values()) if isinstance(waits, dict) else 0
-    note = " (heat-up and homing not modelled: set [time] in the machine file)" if n_waits and t.waits_s == 0 else ""
-    w(f"  print {hms(t.print_time_s)}, travel {hms(t.travel_time_s)}, extrude-only {hms(t.extrude_only_time_s)}, "
-      f"dwell {hms(t.dwell_s)}, waits {hms(t.waits_s)}{note}\n")
+    waits = getattr(s, "waits", None) or {}
+    timed = {k: v for k, v in waits.items() if k in ("heat", "homing", "M109", "M190", "G28")}
+    note = ""
+    if waits and t.waits_s == 0:
+        what = ", ".join(f"{k}×{v}" for k, v in sorted(waits.items()))
+        note = f" ({what}: no time modelled" + ("; set [time] in the machine file)" if timed else ")")
+    if t.print_time_s == 0 and t.extrude_only_time_s == 0:   # no extrusion: a mill, laser or plotter
+        w(f"  feed moves {hms(t.travel_time_s - t.rapid_t)}, rapids (G0) {hms(t.rapid_t)}, "
+          f"dwell {hms(t.dwell_s)}, waits {hms(t.waits_s)}{note}\n")
+    else:
+        w(f"  print {hms(t.print_time_s)}, travel {hms(t.travel_time_s)}, extrude-only {hms(t.extrude_only_time_s)}, "
+          f"dwell {hms(t.dwell_s)}, waits {hms(t.waits_s)}{note}\n")
     motion = max(t.accel_t + t.cruise_t + t.decel_t, 1e-300)
     w(f"  accelerating {100 * t.accel_t / motion:.1f} %, cruising {100 * t.cruise_t / motion:.1f} %, "
       f"decelerating {100 * t.decel_t / motion:.1f} %\n")

@@ -11,6 +11,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..schema import (
+    FLAG_RAPID,
     KIND_DWELL,
     KIND_EXTRUDE_ONLY,
     KIND_NAMES,
@@ -47,6 +48,7 @@ class TimeSummary:
     by_layer: np.ndarray = field(default_factory=lambda: np.zeros(1))
     # index = feature + 1 (slot 0 holds moves with no feature tag)
     by_feature: np.ndarray = field(default_factory=lambda: np.zeros(1))
+    rapid_t: float = 0.0               # G0 moves (CNC: rapids; printers: Cura's G0 travels)
     peak_v: float = 0.0                # mm/s highest planned cruise speed
     peak_v_line: int = 0
     stops: int = 0                     # moves ending at rest
@@ -63,6 +65,7 @@ class TimeSummary:
         self.by_kind += np.bincount(kind, weights=dur, minlength=len(KIND_NAMES))[: len(KIND_NAMES)]
         self.by_limit += np.bincount(plan["limit"].astype(np.intp), weights=dur,
                                      minlength=len(LIMIT_NAMES))[: len(LIMIT_NAMES)]
+        self.rapid_t += float(dur[(moves["flags"] & FLAG_RAPID) != 0].sum())
         self.accel_t += float(plan["accel_t"].sum())
         self.cruise_t += float(plan["cruise_t"].sum())
         self.decel_t += float(plan["decel_t"].sum())
