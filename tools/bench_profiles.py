@@ -1,8 +1,14 @@
-"""Benchmark: 1-D profiles solved per second (``python tools/bench.py profiles [--n N] [--ruckig-n M]``).
+"""Benchmark: 1-D profiles solved per second
+(``python tools/bench.py profiles [--n N] [--ruckig-n M] [--against OLD_SCURVE_PY]``).
 
 Measures, in one run on this machine and one core:
   * ``profiles.scurve_durations`` on N random feasible S-curves (planner-like moves: 0.05-200 mm, end speeds
-    anywhere the limits allow), with and without its argument checks;
+    anywhere the limits allow): the batch (argument checks fused into one njit pass, Newton cases iterated in
+    lockstep), and a plain loop over the scalar ``scurve_duration_kernel`` (what compiled callers such as the
+    planner get; bit-identical results);
+  * with ``--against FILE``, the same two for another version of ``profiles/scurve.py`` (e.g. the last commit's:
+    ``git show HEAD:src/gcodeplan/profiles/scurve.py > /tmp/old.py``), for a before/after under the same load,
+    and the largest relative difference of the durations;
   * ``profiles.trapezoid_durations`` on the same moves;
   * ruckig's Python binding (1 DoF, ``Ruckig.calculate``) on the first M of them, and the agreement of the
     durations (max relative difference).
@@ -72,6 +78,23 @@ def ruckig_rate(c: dict[str, np.ndarray], m: int) -> tuple[float, float, int]:
     return rate, durs
 
 
+def load_against(path: str):
+    """Another version of profiles/scurve.py as a sibling module of the current one, so that its relative
+    imports (.core) resolve."""
+    import importlib.util
+    import shutil
+    import tempfile
+    from pathlib import Path
+
+    # numba caches next to the source: give it a private copy
+    tmp = Path(tempfile.mkdtemp(prefix="bench_scurve_")) / "scurve_against.py"
+    shutil.copy(path, tmp)
+    spec = importlib.util.spec_from_file_location("gcodeplan.profiles._scurve_against", tmp)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
 def main(argv: list[str]) -> int:
     from gcodeplan import profiles
     from gcodeplan.profiles.scurve import _scurve_durations_loop
@@ -79,36 +102,50 @@ def main(argv: list[str]) -> int:
     ap = argparse.ArgumentParser(prog="bench.py profiles")
     ap.add_argument("--n", type=int, default=2_000_000, help="S-curves per timed batch (default 2e6)")
     ap.add_argument("--ruckig-n", type=int, default=50_000, help="profiles given to ruckig (default 5e4)")
+    ap.add_argument("--against", metavar="FILE", help="another scurve.py to time in the same run")
     args = ap.parse_args(argv)
 
     c = make_cases(args.n)
     n = c["distance"].shape[0]
     out = np.empty(n)
+    cols = (c["distance"], c["v_max"], c["a_max"], c["j_max"], c["v_start"], c["v_end"])
+    rows = []
+    notes = []
+    if args.against:
+        old = load_against(args.against)
+        old_api = best_rate(lambda: old.scurve_durations(**c), n)
+        old_raw = best_rate(lambda: old._scurve_durations_loop(*cols, out), n)
+        rows += [(f"before ({args.against}): `scurve_durations`", old_api),
+                 (f"before ({args.against}): `scurve_duration_kernel` loop", old_raw)]
+        new, was = profiles.scurve_durations(**c), old.scurve_durations(**c)
+        rel = np.abs(new - was) / was
+        notes.append(f"durations now vs before: max relative difference {np.nanmax(rel):.1e}, "
+                     f"NaN in the same places: {bool((np.isnan(new) == np.isnan(was)).all())}")
     api = best_rate(lambda: profiles.scurve_durations(**c), n)
-    raw = best_rate(lambda: _scurve_durations_loop(c["distance"], c["v_max"], c["a_max"], c["j_max"],
-                                                   c["v_start"], c["v_end"], out), n)
+    raw = best_rate(lambda: _scurve_durations_loop(*cols, out), n)
     trap = best_rate(lambda: profiles.trapezoid_durations(c["distance"], c["v_max"], c["a_max"], c["v_start"],
                                                           c["v_end"]), n)
-    rows = [("gcodeplan `scurve_durations` (checks + numba kernel)", api),
-            ("gcodeplan `scurve_duration_kernel` loop (no checks)", raw),
-            ("gcodeplan `trapezoid_durations`", trap)]
+    rows += [("gcodeplan `scurve_durations` (fused checks, lockstep Newton)", api),
+             ("gcodeplan `scurve_duration_kernel` loop (scalar kernel, no checks)", raw),
+             ("gcodeplan `trapezoid_durations`", trap)]
     m = min(args.ruckig_n, n)
-    agree = ""
     try:
         rk_rate, rk = ruckig_rate(c, m)
         ours = profiles.scurve_durations(**{k: v[:m] for k, v in c.items()})
         ok = np.isfinite(rk)
         rel = np.abs(ours[ok] - rk[ok]) / rk[ok]
-        agree = (f"durations vs ruckig on {ok.sum()} of {m} profiles (ruckig failed on {m - ok.sum()}): "
-                 f"median relative difference {np.median(rel):.1e}, {np.mean(rel <= 1e-9) * 100:.2f} % within 1e-9")
+        notes.append(f"durations vs ruckig on {ok.sum()} of {m} profiles (ruckig failed on {m - ok.sum()}): "
+                     f"median relative difference {np.median(rel):.1e}, "
+                     f"{np.mean(rel <= 1e-9) * 100:.2f} % within 1e-9")
         rows.append(("ruckig Python binding, `Ruckig.calculate` (1 DoF)", rk_rate))
     except ImportError:
-        agree = "ruckig not installed: no comparison"
+        notes.append("ruckig not installed: no comparison")
     print(f"{n} feasible random S-curves (0.05-200 mm, 50-500 mm/s, 500-20000 mm/s², 1e4-1e7 mm/s³), one core\n")
     print("| solver | profiles per second |")
     print("|---|---:|")
     for name, rate in rows:
         print(f"| {name} | {rate / 1e6:.2f} M/s |")
     print()
-    print(agree)
+    for note in notes:
+        print(note)
     return 0
