@@ -10,7 +10,10 @@ Public API::
 Policies (``POLICIES``): 'klipper' (Klipper's toolhead planner, exact), 'junction-deviation'
 (grbl / Marlin 2), 'classic-jerk' (Marlin classic jerk), 'exact-stop' (G61), and 'blend'
 (parabolic blends, :mod:`gcodeplan.planner.blend`). A finite ``max_jerk`` in the limits, or
-``jerk=``, selects S-curves (:mod:`gcodeplan.planner.scurve`).
+``jerk=``, selects S-curves (:mod:`gcodeplan.planner.scurve`). ``StreamPlanner`` streams every
+policy and S-curves with a bounded window, bit-identical to whole-program planning; for blends
+and S-curves ask ``sp.segments_for(moves, plan, first_index)`` for each emitted pair (their pieces
+are not trapezoids) before the next ``feed``/``finish``.
 """
 from __future__ import annotations
 

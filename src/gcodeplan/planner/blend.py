@@ -216,6 +216,25 @@ def blend_speeds_kernel(move_d, path_a, max_cruise_v2, corner_c, corner_v2):
 
 
 @numba.njit(cache=True)
+def blend_runs_kernel(move_d, path_a, max_cruise_v2, corner_c, corner_v2):
+    """:func:`blend_speeds_kernel` on each run of moves between two corners capped at 0 (full stops: the ends,
+    reversals, dwell/wait rows, extrude-only neighbours, exact stops, losing corners), one run at a time.
+
+    Speeds only decrease, so a corner capped at 0 stays 0 and the runs on either side never interact: planning
+    them apart is the same plan, and it is what lets the streaming planner emit a run as soon as the stop
+    after it is known, with the same rounding as the whole program.
+    """
+    n = move_d.shape[0]
+    a = 0
+    for j in range(1, n + 1):
+        if j == n or corner_v2[j] <= 0.0:
+            blend_speeds_kernel(move_d[a:j], path_a[a:j], max_cruise_v2[a:j], corner_c[a:j + 1],
+                                corner_v2[a:j + 1])
+            a = j
+    return corner_v2
+
+
+@numba.njit(cache=True)
 def blend_timing_kernel(move_d, accel, max_cruise_v2, corner_c, corner_v2, dwell_t):
     """Per-move trapezoid on the straight part and the blend half-times around it.
 
@@ -380,30 +399,43 @@ def _tolerance(moves: np.ndarray, machine) -> np.ndarray:
     return p
 
 
-def _corners(moves: np.ndarray, limits: np.ndarray, machine):
-    """The rows that take part, their per-move limits, the corner constants and settled corner speeds².
-
-    Zero-length rows take no part (prepare drops them, so the corner is taken between their
-    neighbours); dwell and wait rows stay, as full stops.
-    """
-    from .prepare import prepare  # the trapezoid planner's per-move limits and input checks
+def blend_row_limits(moves: np.ndarray, limits: np.ndarray, machine):
+    """(PREP rows, (n, 5) float array): per-row limits of the blend planner for MOVE rows, row by row (so that
+    chunks of a program give the same values as the whole): the trapezoid planner's per-move limits and input
+    checks, and per row the path tolerance P (mm) then the axis accelerations x, y, z, e (mm/s²)."""
+    from .prepare import prepare
 
     moves = np.asarray(moves)
     limits = np.asarray(limits)
-    tol_all = _tolerance(moves, machine)
-    prep_all = prepare(moves, limits, machine, "exact-stop")
+    tol = _tolerance(moves, machine)
+    prep = prepare(moves, limits, machine, "exact-stop")
+    aux = np.empty((len(moves), 5))
+    aux[:, 0] = tol
+    lim_row = moves["limits"]
+    for col, ax in enumerate("xyze"):
+        aux[:, 1 + col] = limits["axis_a_" + ax][lim_row]
+    return prep, aux
+
+
+def blend_window_corners(moves: np.ndarray, prep: np.ndarray, aux: np.ndarray, lazy: bool):
+    """The rows that take part, their per-move arrays, the corner constants and corner speeds² of a window.
+
+    Zero-length rows take no part (prepare drops them, so the corner is taken between their neighbours);
+    dwell and wait rows stay, as full stops. Returns (ml, corner_c, corner_v2, j_end): corners [0, j_end] are
+    settled (the passes ran over the runs they close) and the rows before taking-part row j_end are final;
+    ``lazy`` = False: the window ends the program, j_end = len(rows). Lazy: j_end is the last corner in the
+    window capped at 0 (its two moves are known), 0 when there is none.
+    """
     kind = moves["kind"]
-    rows = np.flatnonzero(prep_all["is_move"] | (kind == KIND_DWELL) | (kind == KIND_WAIT))
+    rows = np.flatnonzero(prep["is_move"] | (kind == KIND_DWELL) | (kind == KIND_WAIT))
     every = len(rows) == len(moves)
     sub = moves if every else moves[rows]
-    prep = prep_all if every else prep_all[rows]
+    prep = prep if every else prep[rows]
+    aux = aux if every else aux[rows]
     m = len(rows)
     axes_r = np.zeros((m, 4))
-    axis_a = np.zeros((m, 4))
-    lim_row = sub["limits"]
     for col, ax in enumerate("xyze"):
         axes_r[:, col] = prep["axes_r_" + ax]
-        axis_a[:, col] = limits["axis_a_" + ax][lim_row]
     ml = {
         "rows": rows,
         "move_d": np.ascontiguousarray(prep["move_d"], dtype=np.float64),
@@ -415,9 +447,22 @@ def _corners(moves: np.ndarray, limits: np.ndarray, machine):
     xyz = np.ascontiguousarray(prep["kinematic"] & prep["is_move"])
     corner_c, corner_v2 = blend_corners_kernel(
         ml["move_d"], axes_r, xyz, np.ascontiguousarray(sub["exact_stop"].astype(np.bool_)),
-        ml["max_cruise_v2"], ml["accel"], np.ascontiguousarray(sub["accel"], dtype=np.float64), axis_a,
-        np.ascontiguousarray(tol_all[rows]))
-    blend_speeds_kernel(ml["move_d"], ml["accel"], ml["max_cruise_v2"], corner_c, corner_v2)
+        ml["max_cruise_v2"], ml["accel"], np.ascontiguousarray(sub["accel"], dtype=np.float64),
+        np.ascontiguousarray(aux[:, 1:5]), np.ascontiguousarray(aux[:, 0]))
+    if lazy:
+        stops = np.flatnonzero(corner_v2[1:m] <= 0.0)
+        j_end = int(stops[-1]) + 1 if stops.size else 0
+    else:
+        j_end = m
+    blend_runs_kernel(ml["move_d"][:j_end], ml["accel"][:j_end], ml["max_cruise_v2"][:j_end],
+                      corner_c[:j_end + 1], corner_v2[:j_end + 1])
+    return ml, corner_c, corner_v2, j_end
+
+
+def _corners(moves: np.ndarray, limits: np.ndarray, machine):
+    """Whole program: (ml, corner_c, corner_v2) with every corner settled."""
+    prep, aux = blend_row_limits(moves, limits, machine)
+    ml, corner_c, corner_v2, _ = blend_window_corners(np.asarray(moves), prep, aux, lazy=False)
     return ml, corner_c, corner_v2
 
 
@@ -432,53 +477,70 @@ def corner_geometry(moves: np.ndarray, limits: np.ndarray, machine):
     return ml["rows"], corner_c, corner_v2
 
 
-def plan_blend(moves: np.ndarray, limits: np.ndarray, machine, first_move: int = 0):
-    """Plan ``moves`` with parabolic corner blends under the path tolerance (G64 P).
+def blend_plan_window(moves: np.ndarray, prep: np.ndarray, aux: np.ndarray, t_clock: float, lazy: bool):
+    """Plan the final part of a window of rows (MOVE rows, their PREP and aux rows from
+    :func:`blend_row_limits`) that starts at rest at time ``t_clock``.
 
-    Returns (PLAN rows aligned with ``moves``, SEGMENT rows). t_start counts from the start of the first
-    move; SEGMENT.move is ``first_move`` + the row index. The path starts and ends at rest; so does every
-    dwell/wait row and every exact-stop (G61) move. Bad input raises GcodeError / ConfigError.
+    Returns (n_rows, plan, t_end, ctx): the first n_rows rows are final (all of them when ``lazy`` is False),
+    their PLAN rows, the clock after them, and what :func:`blend_segments` needs to make their pieces.
     """
-    moves = np.asarray(moves)
     n = len(moves)
-    ml, corner_c, corner_v2 = _corners(moves, limits, machine)
+    ml, corner_c, corner_v2, j_end = blend_window_corners(moves, prep, aux, lazy)
     rows = ml["rows"]
-    sub = moves if len(rows) == n else moves[rows]
-    move_d = ml["move_d"]
-    dwell_t = np.where(move_d > 0, 0.0, sub["dwell_t"]).astype(np.float64)
-    timing = blend_timing_kernel(move_d, ml["accel"], ml["max_cruise_v2"], corner_c, corner_v2, dwell_t)
+    m = len(rows)
+    n_rows = n if j_end == m else int(rows[j_end])
+    rows = rows[:j_end]
+    move_d = ml["move_d"][:j_end]
+    accel_m = ml["accel"][:j_end]
+    max_cruise_v2 = ml["max_cruise_v2"][:j_end]
+    corner_c = corner_c[:j_end + 1]
+    corner_v2 = corner_v2[:j_end + 1]
+    dwell_t = np.where(move_d > 0, 0.0, moves["dwell_t"][rows]).astype(np.float64)
+    timing = blend_timing_kernel(move_d, accel_m, max_cruise_v2, corner_c, corner_v2, dwell_t)
 
-    full = np.zeros((n, 9))
+    full = np.zeros((n_rows, 9))
     full[rows] = timing
-    plan = np.zeros(n, dtype=PLAN_DTYPE)
+    plan = np.zeros(n_rows, dtype=PLAN_DTYPE)
     duration = full[:, 8]
-    t_start = np.zeros(n)
-    if n:
-        np.cumsum(duration[:-1], out=t_start[1:])
-    plan["t_start"] = t_start
+    clock = np.empty(n_rows + 1)
+    clock[0] = t_clock
+    clock[1:] = duration
+    np.cumsum(clock, out=clock)  # sequential: every row starts where the previous one ends
+    plan["t_start"] = clock[:-1]
     plan["start_v"], plan["cruise_v"], plan["end_v"] = full[:, 0], full[:, 1], full[:, 2]
-    accel = np.zeros(n)
-    accel[rows] = np.where(move_d > 0, ml["accel"], 0.0)
+    accel = np.zeros(n_rows)
+    accel[rows] = np.where(move_d > 0, accel_m, 0.0)
     plan["accel"] = accel
     plan["decel"] = accel
     plan["accel_t"], plan["cruise_t"], plan["decel_t"] = full[:, 3], full[:, 4], full[:, 5]
     plan["duration"] = duration
-    reached = timing[:, 1] >= np.sqrt(ml["max_cruise_v2"]) * (1.0 - 1e-9)
+    reached = timing[:, 1] >= np.sqrt(max_cruise_v2) * (1.0 - 1e-9)
     pinned = timing[:, 1] <= np.maximum(timing[:, 0], timing[:, 2]) * (1.0 + 1e-12)
-    limit = np.full(n, LIMIT_NONE, dtype=np.uint8)
+    limit = np.full(n_rows, LIMIT_NONE, dtype=np.uint8)
     limit[rows] = np.where(move_d <= 0, LIMIT_NONE,
-                           np.where(reached, ml["cruise_limit"], np.where(pinned, LIMIT_JUNCTION, LIMIT_ACCEL)))
+                           np.where(reached, ml["cruise_limit"][:j_end],
+                                    np.where(pinned, LIMIT_JUNCTION, LIMIT_ACCEL)))
     plan["limit"] = limit
     plan["jerk"] = 0.0
+    ctx = {"rows": rows, "move_d": move_d, "axes_r": ml["axes_r"][:j_end], "accel": accel_m,
+           "corner_c": corner_c, "timing": timing}
+    return n_rows, plan, float(clock[-1]), ctx
 
+
+def blend_segments(moves: np.ndarray, plan: np.ndarray, ctx: dict, first_move: int = 0) -> np.ndarray:
+    """SEGMENT rows of rows planned by :func:`blend_plan_window` (``ctx`` is its last result); SEGMENT.move =
+    first_move + row index."""
+    rows = ctx["rows"]
+    sub = moves[rows]
     p0 = np.zeros((len(rows), 4))
     p1 = np.zeros((len(rows), 4))
     for col, ax in enumerate("xyze"):
         p0[:, col] = sub[ax + "0"]
         p1[:, col] = sub[ax + "1"]
     seg_rows, seg_move, seg_phase = blend_segments_kernel(
-        p0, p1, move_d, ml["axes_r"], ml["accel"], corner_c, timing, np.ascontiguousarray(t_start[rows]),
-        np.ascontiguousarray(rows.astype(np.int64)), int(first_move))
+        p0, p1, ctx["move_d"], ctx["axes_r"], ctx["accel"], ctx["corner_c"], ctx["timing"],
+        np.ascontiguousarray(plan["t_start"][rows]), np.ascontiguousarray(rows.astype(np.int64)),
+        int(first_move))
     segs = np.zeros(len(seg_rows), dtype=SEGMENT_DTYPE)
     segs["t0"], segs["dt"] = seg_rows[:, 0], seg_rows[:, 1]
     for col, ax in enumerate("xyze"):
@@ -487,4 +549,19 @@ def plan_blend(moves: np.ndarray, limits: np.ndarray, machine, first_move: int =
         segs["a" + ax] = seg_rows[:, 10 + col]
     segs["move"] = seg_move
     segs["phase"] = seg_phase
-    return plan, segs
+    return segs
+
+
+def plan_blend(moves: np.ndarray, limits: np.ndarray, machine, first_move: int = 0):
+    """Plan ``moves`` with parabolic corner blends under the path tolerance (G64 P).
+
+    Returns (PLAN rows aligned with ``moves``, SEGMENT rows). t_start counts from the start of the first
+    move; SEGMENT.move is ``first_move`` + the row index. The path starts and ends at rest; so does every
+    dwell/wait row and every exact-stop (G61) move. Bad input raises GcodeError / ConfigError. The streaming
+    planner (:class:`gcodeplan.planner.stream.StreamPlanner`) gives the same rows bit for bit.
+    """
+    moves = np.asarray(moves)
+    prep, aux = blend_row_limits(moves, limits, machine)
+    n_rows, plan, _, ctx = blend_plan_window(moves, prep, aux, 0.0, lazy=False)
+    assert n_rows == len(moves)
+    return plan, blend_segments(moves, plan, ctx, first_move)

@@ -14,6 +14,11 @@ Model:
   move accelerates, always feasible), and a lower start never makes the next move's braking harder.
 * Every full stop (first move, after dwell/wait rows and exact-stop moves, the end) is at rest; Klipper's
   minimum_cruise_ratio smoothing is not applied (it is a trapezoid-planner rule).
+* Streaming (:func:`scurve_window_speeds_kernel`): a move is final once the junction after it is certain to
+  sit at its cap whatever follows. The backward reach of a jerk-limited move is not monotone in its end speed
+  (a ramp with a = 0 at both ends covers less distance starting from rest than from a low speed), so "assume
+  a stop after the window" is not a lower bound as it is for trapezoids; the kernel uses the least reach over
+  every possible end speed instead (:func:`least_reach_start_v`).
 
 PLAN rows: start_v, cruise_v (peak), end_v, accel = decel = the move's acceleration limit, jerk = J,
 accel_t = t1 + t2 + t3, cruise_t = t4, decel_t = t5 + t6 + t7. SEGMENT rows: one cubic piece per phase of
@@ -27,33 +32,110 @@ import numba
 import numpy as np
 
 from ..errors import ConfigError
-from ..profiles.scurve import (scurve_max_end_speed_kernel, scurve_max_start_speed_kernel,
+from ..profiles.scurve import (ramp_distance_kernel, scurve_max_end_speed_kernel, scurve_max_start_speed_kernel,
                                scurve_phases_kernel)
 from ..schema import (KIND_DWELL, KIND_WAIT, LIMIT_ACCEL, LIMIT_JUNCTION, LIMIT_NONE, PHASE_ACCEL,
                       PHASE_CRUISE, PHASE_DECEL, PHASE_DWELL, PLAN_DTYPE, SEGMENT_DTYPE)
 
 
 @numba.njit(cache=True)
-def scurve_speeds_kernel(move_d, max_cruise_v, accel, jerk, start_cap_v):
-    """Junction speeds (n+1, mm/s) of n moves: start_cap_v[i] caps the start of move i (0 = full stop),
-    the end of the last move is at rest. Backward pass with the jerk-limited braking reach, then the
-    forward pass with the jerk-limited acceleration reach."""
+def least_reach_start_v(move_d: float, accel: float, jerk: float) -> float:
+    """mm/s, the end speed x* at which the backward reach R(x) of a move (the highest start speed that
+    can brake to x over move_d) is least.
+
+    A jerk-limited ramp with a = 0 at both ends is slow at low speed, so R is not monotone: from the
+    move's end speed x the ramp covers (2x + Δv)/2 · T(Δv) = d. Differentiating: with c = A²/J,
+    pure S (Δv < c, T = 2√(Δv/J)): dR/dx ∝ 2x − Δv, so the least R is at x = Δv/2, where
+    d = 2Δv·√(Δv/J), Δv = (d·√J/2)^(2/3); with a constant-acceleration phase (Δv ≥ c):
+    dR/dx ∝ 2x − c, least at x = c/2. R falls then rises (one minimum), so for any x ≥ x_lo,
+    R(x) ≥ R(max(x_lo, x*)).
+    """
+    c = accel * accel / jerk
+    dv_pure = (0.5 * move_d * math.sqrt(jerk)) ** (2.0 / 3.0)
+    if dv_pure < c:
+        return 0.5 * dv_pure
+    return 0.5 * c
+
+
+@numba.njit(cache=True)
+def longest_brake_end_v(v_max: float, accel: float, jerk: float) -> float:
+    """mm/s, the end speed x in [0, V] whose ramp down from V is the longest in distance.
+
+    The ramp from V down by Δv = V − x covers f(Δv) = (2V − Δv)/2 · T(Δv). With c = A²/J, f is concave
+    (pure S: f = (2V − Δv)·√(Δv/J), f' ∝ 2V − 3Δv; with a constant-acceleration phase:
+    f = (2V − Δv)/2 · (Δv/A + A/J), f' ∝ 2V − 2Δv − c; C¹ where they meet), so its maximum is at
+    Δv = 2V/3 (x = V/3) when V < 1.5c, else at Δv = V − c/2 (x = c/2); over x ≥ x_lo it is at max(x_lo, x).
+    """
+    c = accel * accel / jerk
+    if v_max < 1.5 * c:
+        return v_max / 3.0
+    return 0.5 * c
+
+
+# Relative margin on a lower bound of the backward reach: covers the rounding of the reach kernel (its
+# error is ~1e-15 relative) and of x* (R is flat at its minimum, so an error δ in x* moves R by ~δ²).
+SETTLED_RTOL = 1e-9
+
+
+@numba.njit(cache=True)
+def scurve_window_speeds_kernel(move_d, max_cruise_v, accel, jerk, start_cap_v, start_v, lazy):
+    """Junction speeds of a window of n moves whose first start speed ``start_v`` is final.
+
+    Returns (k, v): moves [0, k) are final, with junction speeds v[0..k] (v[k] final too). The caps are
+    c[i] = min(start_cap_v[i], V[i], V[i−1]) (0 at a full stop); the backward pass is
+    b[i] = min(c[i], R_i(b[i+1])) with R the jerk-limited braking reach, then the forward pass
+    v[i+1] = min(b[i+1], F_i(v[i])) with F the acceleration reach. ``lazy`` = False: the window ends the
+    program (b[n] = 0), k = n.
+
+    ``lazy`` = True: what follows the window is unknown, so b is bounded from below for every possible
+    continuation, from the end backwards: lo[n] = 0, lo[i] = min(c[i], R_i(max(lo[i+1], x*_i))·(1 − SETTLED_RTOL))
+    (R is least at x*, :func:`least_reach_start_v`). Where that bound reaches the cap, b[i] = c[i] for certain
+    (a full stop, c = 0, always does); the last such junction p starts the exact backward pass. The forward
+    pass is then exact up to p, and beyond p as long as F_i(v[i]) ≤ lo[i+1] (then min(b[i+1], F_i) = F_i
+    whatever follows: in long runs of short moves the speed is set by how fast it can build up, not by braking).
+    k is where it stops; 0 when nothing is final yet.
+    """
     n = move_d.shape[0]
-    v = np.zeros(n + 1)
-    for i in range(n):
-        v[i] = min(start_cap_v[i], max_cruise_v[i])
-        if i > 0:
-            v[i] = min(v[i], max_cruise_v[i - 1])
-    v[n] = 0.0
-    for i in range(n - 1, -1, -1):
+    cap = np.empty(n + 1)
+    cap[0] = start_v
+    for i in range(1, n):
+        cap[i] = min(start_cap_v[i], max_cruise_v[i])
+        cap[i] = min(cap[i], max_cruise_v[i - 1])
+    cap[n] = 0.0
+    pin = n
+    lo = np.zeros(n + 1)
+    if lazy:
+        pin = 0
+        for i in range(n - 1, 0, -1):
+            x = max(lo[i + 1], least_reach_start_v(move_d[i], accel[i], jerk))
+            reach_lo = scurve_max_start_speed_kernel(move_d[i], max_cruise_v[i], accel[i], jerk, x)
+            reach_lo *= 1.0 - SETTLED_RTOL
+            if reach_lo >= cap[i]:
+                pin = i
+                break
+            # the reach saturates at V exactly (cap = V in a cruise): test the braking distance instead
+            x = min(max(lo[i + 1], longest_brake_end_v(max_cruise_v[i], accel[i], jerk)), max_cruise_v[i])
+            if ramp_distance_kernel(x, max_cruise_v[i], accel[i], jerk) <= move_d[i] * (1.0 - SETTLED_RTOL):
+                pin = i
+                break
+            lo[i] = min(cap[i], reach_lo)
+    v = cap.copy()
+    for i in range(pin - 1, 0, -1):
         reach = scurve_max_start_speed_kernel(move_d[i], max_cruise_v[i], accel[i], jerk, v[i + 1])
         if reach < v[i]:
             v[i] = reach
+    k = 0
     for i in range(n):
         reach = scurve_max_end_speed_kernel(move_d[i], max_cruise_v[i], accel[i], jerk, v[i])
-        if reach < v[i + 1]:
+        if i + 1 <= pin:
+            if reach < v[i + 1]:
+                v[i + 1] = reach
+        elif reach <= lo[i + 1]:
             v[i + 1] = reach
-    return v
+        else:
+            break
+        k = i + 1
+    return k, v[:k + 1].copy()
 
 
 @numba.njit(cache=True)
@@ -132,89 +214,126 @@ def scurve_segments_kernel(p0, axes_r, durations, start_v, jerk, t_start, is_mot
     return rows, moves_out, phases_out
 
 
-def plan_scurve(moves: np.ndarray, limits: np.ndarray, machine, jerk: float, first_move: int = 0):
-    """Plan ``moves`` with jerk-limited S-curves (``jerk`` mm/s³ along the path).
+@numba.njit(cache=True)
+def scurve_layout_kernel(kind, dwell_t, prep, speeds, durations, peak_v, jerk, t_clock, plan):
+    """PLAN rows for every row of ``prep`` (speeds and phase times in compact order: k-th real move), moves
+    back to back from ``t_clock``; dwell/wait rows add dwell_t, dropped rows take no time. Returns the clock
+    at the end. accel_t = t1 + t2 + t3, cruise_t = t4, decel_t = t5 + t6 + t7; duration adds t1..t7 in order.
+    limit: the move's own cruise limit when its peak reaches it, else LIMIT_JUNCTION when the peak is one of
+    its end speeds (it cannot speed up), else LIMIT_ACCEL."""
+    k = 0
+    for i in range(prep.shape[0]):
+        out = plan[i]
+        m = prep[i]
+        out.t_start = t_clock
+        if m.is_move:
+            d = durations[k]
+            start_v = speeds[k]
+            end_v = speeds[k + 1]
+            cruise_v = peak_v[k]
+            out.start_v = start_v
+            out.cruise_v = cruise_v
+            out.end_v = end_v
+            out.accel = m.accel
+            out.decel = m.accel
+            out.jerk = jerk
+            out.accel_t = d[0] + d[1] + d[2]
+            out.cruise_t = d[3]
+            out.decel_t = d[4] + d[5] + d[6]
+            duration = d[0] + d[1] + d[2] + d[3] + d[4] + d[5] + d[6]
+            out.duration = duration
+            if cruise_v >= math.sqrt(m.max_cruise_v2) * (1.0 - 1e-9):
+                out.limit = m.limit
+            elif cruise_v <= max(start_v, end_v) * (1.0 + 1e-12):
+                out.limit = LIMIT_JUNCTION
+            else:
+                out.limit = LIMIT_ACCEL
+            t_clock = t_clock + duration
+            k += 1
+        else:
+            out.start_v = 0.0
+            out.cruise_v = 0.0
+            out.end_v = 0.0
+            out.accel = 0.0
+            out.decel = 0.0
+            out.jerk = 0.0
+            out.accel_t = 0.0
+            out.cruise_t = 0.0
+            out.decel_t = 0.0
+            out.limit = LIMIT_NONE
+            if kind[i] == KIND_DWELL or kind[i] == KIND_WAIT:
+                out.duration = dwell_t[i]
+                t_clock = t_clock + dwell_t[i]
+            else:
+                out.duration = 0.0
+    return t_clock
 
-    Returns (PLAN rows aligned with ``moves``, SEGMENT rows with cubic pieces). Junction caps follow
-    ``machine.junction_policy``; see the module docstring for the model.
-    """
-    from .prepare import prepare
 
+def check_jerk(jerk) -> float:
+    """The S-curve jerk as a float; ConfigError unless finite and > 0."""
     try:
         jerk = float(jerk)
     except (TypeError, ValueError):
         raise ConfigError(f"max_jerk: must be a number, got {jerk!r}") from None
     if not (jerk > 0.0 and math.isfinite(jerk)):
         raise ConfigError(f"max_jerk: must be finite and > 0 for S-curves, got {jerk!r}")
-    moves = np.asarray(moves)
-    limits = np.asarray(limits)
-    n = len(moves)
-    prep_all = prepare(moves, limits, machine, machine.junction_policy)
-    kind = moves["kind"]
-    still = (kind == KIND_DWELL) | (kind == KIND_WAIT)
-    rows = np.flatnonzero(prep_all["is_move"] | still)
-    prep = prep_all[rows]
-    sub = moves[rows]
-    m = len(rows)
-    is_motion = np.ascontiguousarray(prep["is_move"])
+    return jerk
 
-    # the moves alone, in order; stops come from stop_before (set after dwell/wait rows and exact stops)
-    mv = np.flatnonzero(is_motion)
+
+def scurve_plan_window(moves: np.ndarray, prep: np.ndarray, jerk: float, start_v: float, t_clock: float,
+                       lazy: bool):
+    """Plan the final part of a window of rows (MOVE + their PREP rows) whose first move starts at the final
+    speed ``start_v`` (mm/s) at time ``t_clock``.
+
+    Returns (n_rows, plan, t_end, v_end, durations): the first n_rows rows are final (``lazy`` = False: all of
+    them, the program ends at rest), their PLAN rows, the clock and the start speed of the next move after
+    them, and the (k, 7) phase durations of their k moves (for :func:`scurve_segments`).
+    """
+    is_move = prep["is_move"]
+    mv = np.flatnonzero(is_move)
     move_d = np.ascontiguousarray(prep["move_d"][mv], dtype=np.float64)
     max_cruise_v = np.sqrt(np.ascontiguousarray(prep["max_cruise_v2"][mv], dtype=np.float64))
     accel = np.ascontiguousarray(prep["accel"][mv], dtype=np.float64)
     start_cap_v = np.where(prep["stop_before"][mv], 0.0, np.sqrt(prep["max_start_v2"][mv]))
-    speeds = scurve_speeds_kernel(move_d, max_cruise_v, accel, jerk, np.ascontiguousarray(start_cap_v))
-    durations, peak_v = scurve_phases_all_kernel(move_d, max_cruise_v, accel, jerk, speeds)
+    k, speeds = scurve_window_speeds_kernel(move_d, max_cruise_v, accel, jerk, start_cap_v, float(start_v),
+                                            bool(lazy))
+    # every row before the first move still open (dwell / wait / dropped rows included)
+    n_rows = len(moves) if k == len(mv) else int(mv[k])
+    durations, peak_v = scurve_phases_all_kernel(move_d[:k], max_cruise_v[:k], accel[:k], jerk, speeds)
     bad = np.flatnonzero(np.isnan(peak_v))
     if bad.size:  # the passes make every profile feasible; reaching here is a bug, not bad input
         i = int(mv[bad[0]])
-        raise RuntimeError(f"S-curve planner: no profile for the move on line {int(sub['line'][i])} "
+        raise RuntimeError(f"S-curve planner: no profile for the move on line {int(moves['line'][i])} "
                            f"(d={move_d[bad[0]]!r}, v0={speeds[bad[0]]!r}, v1={speeds[bad[0] + 1]!r})")
+    plan = np.empty(n_rows, dtype=PLAN_DTYPE)
+    t_end = scurve_layout_kernel(np.ascontiguousarray(moves["kind"][:n_rows]),
+                                 np.ascontiguousarray(moves["dwell_t"][:n_rows], dtype=np.float64),
+                                 prep[:n_rows], speeds, durations, peak_v, jerk, float(t_clock), plan)
+    return n_rows, plan, float(t_end), float(speeds[k]), durations
 
-    dur_rows = np.zeros((m, 7))
-    dur_rows[mv] = durations
-    start_v = np.zeros(m)
-    end_v = np.zeros(m)
-    cruise_v = np.zeros(m)
-    start_v[mv], end_v[mv], cruise_v[mv] = speeds[:-1], speeds[1:], peak_v
+
+def scurve_segments(moves: np.ndarray, prep: np.ndarray, plan: np.ndarray, durations: np.ndarray, jerk: float,
+                    first_move: int = 0) -> np.ndarray:
+    """SEGMENT rows (one cubic piece per phase of non-zero duration, PHASE_DWELL for dwell/wait rows) of rows
+    planned by :func:`scurve_plan_window`; SEGMENT.move = first_move + row index."""
+    kind = moves["kind"]
+    still = (kind == KIND_DWELL) | (kind == KIND_WAIT)
+    is_move = prep["is_move"]
+    rows = np.flatnonzero(is_move | still)
+    is_motion = np.ascontiguousarray(is_move[rows])
+    dur_rows = np.zeros((len(rows), 7))
+    dur_rows[is_motion] = durations
+    sub = moves[rows]
     dwell_t = np.where(is_motion, 0.0, sub["dwell_t"]).astype(np.float64)
-    duration_rows = dur_rows.sum(axis=1) + dwell_t
-
-    plan = np.zeros(n, dtype=PLAN_DTYPE)
-    duration = np.zeros(n)
-    duration[rows] = duration_rows
-    t_start = np.zeros(n)
-    if n:
-        np.cumsum(duration[:-1], out=t_start[1:])
-    plan["t_start"] = t_start
-    plan["duration"] = duration
-    for name, col in (("start_v", start_v), ("cruise_v", cruise_v), ("end_v", end_v)):
-        plan[name][rows] = col
-    a_rows = np.zeros(m)
-    a_rows[mv] = accel
-    plan["accel"][rows] = a_rows
-    plan["decel"][rows] = a_rows
-    plan["jerk"][rows] = np.where(is_motion, jerk, 0.0)
-    plan["accel_t"][rows] = dur_rows[:, 0:3].sum(axis=1)
-    plan["cruise_t"][rows] = dur_rows[:, 3]
-    plan["decel_t"][rows] = dur_rows[:, 4:7].sum(axis=1)
-    limit = np.full(n, LIMIT_NONE, dtype=np.uint8)
-    vmax_rows = np.sqrt(prep["max_cruise_v2"])
-    reached = cruise_v >= vmax_rows * (1.0 - 1e-9)
-    pinned = cruise_v <= np.maximum(start_v, end_v) * (1.0 + 1e-12)
-    limit[rows] = np.where(~is_motion, LIMIT_NONE,
-                           np.where(reached, prep["limit"], np.where(pinned, LIMIT_JUNCTION, LIMIT_ACCEL)))
-    plan["limit"] = limit
-
-    p0 = np.zeros((m, 4))
-    axes_r = np.zeros((m, 4))
+    p0 = np.zeros((len(rows), 4))
+    axes_r = np.zeros((len(rows), 4))
     for col, ax in enumerate("xyze"):
         p0[:, col] = sub[ax + "0"]
-        axes_r[:, col] = prep["axes_r_" + ax]
+        axes_r[:, col] = prep["axes_r_" + ax][rows]
     seg_rows, seg_move, seg_phase = scurve_segments_kernel(
-        p0, axes_r, dur_rows, start_v, jerk, np.ascontiguousarray(t_start[rows]), is_motion,
-        np.ascontiguousarray(dwell_t), np.ascontiguousarray(rows.astype(np.int64)), int(first_move))
+        p0, axes_r, dur_rows, np.ascontiguousarray(plan["start_v"][rows]), float(jerk),
+        np.ascontiguousarray(plan["t_start"][rows]), is_motion, np.ascontiguousarray(dwell_t),
+        np.ascontiguousarray(rows.astype(np.int64)), int(first_move))
     segs = np.zeros(len(seg_rows), dtype=SEGMENT_DTYPE)
     segs["t0"], segs["dt"] = seg_rows[:, 0], seg_rows[:, 1]
     for col, ax in enumerate("xyze"):
@@ -224,4 +343,22 @@ def plan_scurve(moves: np.ndarray, limits: np.ndarray, machine, jerk: float, fir
         segs["j" + ax] = seg_rows[:, 14 + col]
     segs["move"] = seg_move
     segs["phase"] = seg_phase
-    return plan, segs
+    return segs
+
+
+def plan_scurve(moves: np.ndarray, limits: np.ndarray, machine, jerk: float, first_move: int = 0):
+    """Plan ``moves`` with jerk-limited S-curves (``jerk`` mm/s³ along the path).
+
+    Returns (PLAN rows aligned with ``moves``, SEGMENT rows with cubic pieces). Junction caps follow
+    ``machine.junction_policy``; see the module docstring for the model. The streaming planner
+    (:class:`gcodeplan.planner.stream.StreamPlanner`) gives the same rows bit for bit.
+    """
+    from .prepare import prepare
+
+    jerk = check_jerk(jerk)
+    moves = np.asarray(moves)
+    limits = np.asarray(limits)
+    prep = prepare(moves, limits, machine, machine.junction_policy)
+    n_rows, plan, _, _, durations = scurve_plan_window(moves, prep, jerk, 0.0, 0.0, lazy=False)
+    assert n_rows == len(moves)
+    return plan, scurve_segments(moves, prep, plan, durations, jerk, first_move)

@@ -4,91 +4,117 @@ Moves arrive in chunks (MOVE rows + the LIMITS table they index). The planner ke
 moves whose plan may still change and emits the others, so that the concatenation of everything
 emitted is bit-identical to ``plan_moves`` on the whole file:
 
-* a run of moves followed by a known full stop (dwell/wait row, exact-stop move) is flushed
-  completely, as ``plan_moves`` does;
-* the open run at the end is flushed lazily: Klipper's rule (up to the accelerating move before
-  the 2nd "peak" from the end) for 'klipper', the last move whose start speed is pinned at its
-  junction cap for the other trapezoid policies. Those moves' speeds depend only on moves that
-  are already known.
+* trapezoid policies: a run of moves followed by a known full stop (dwell/wait row, exact-stop
+  move) is flushed completely, as ``plan_moves`` does; the open run at the end is flushed lazily:
+  Klipper's rule (up to the accelerating move before the 2nd "peak" from the end) for 'klipper',
+  the last move whose start speed is pinned at its junction cap for the other trapezoid policies.
+  Those moves' speeds depend only on moves that are already known.
+* S-curves (``jerk`` or a finite ``max_jerk``): up to the last junction certain to sit at its cap
+  whatever follows (a full stop, or enough distance ahead to brake from the cap to any speed:
+  :func:`gcodeplan.planner.scurve.scurve_window_speeds_kernel`).
+* 'blend': up to the last corner of the window that is a full stop (cap 0: reversal, extrude-only or
+  dwell neighbour, exact stop, zero tolerance, a corner where blending loses to stopping); the runs
+  between such corners are planned independently (:func:`gcodeplan.planner.blend.blend_runs_kernel`),
+  so the window is bounded by the longest run without a stop.
 
-Times continue from the previous emission (the first move starts at 0). 'blend' and S-curves are
-planned by other modules that need the whole program: for them the stream buffers everything and
-plans at ``finish()`` (memory is then not bounded).
+Times continue from the previous emission (the first move starts at 0). ``segments_for`` gives the
+SEGMENT rows of an emission: the blend / S-curve planner's own pieces, trapezoid pieces otherwise.
 """
 from __future__ import annotations
 
 import numpy as np
 
+from ..errors import ConfigError
 from ..schema import MOVE_DTYPE, PLAN_DTYPE, concat_rows
 from .passes import klipper_flush, layout_rows, plan_runs, speed_buffers, standard_flush
-from .prepare import (POLICY_BLEND, POLICY_KLIPPER, PREP_DTYPE, policy_code, prepare_with_context, validate)
+from .prepare import (POLICY_BLEND, POLICY_JD, POLICY_KLIPPER, PREP_DTYPE, policy_code, prepare_with_context,
+                      validate)
 from .segments import to_segments
+
+MODE_TRAPEZOID, MODE_SCURVE, MODE_BLEND = "trapezoid", "scurve", "blend"
 
 
 class StreamPlanner:
     """``for moves_out, plan_out in sp.feed(chunk, limits): ...`` then the same with ``sp.finish()``."""
 
     def __init__(self, machine, policy: str | None = None, jerk: float | None = None):
+        from .scurve import check_jerk
+
         self.machine = machine
         self.policy = policy or machine.junction_policy
         self._pcode = policy_code(self.policy)
-        self._jerk = jerk
+        self._jerk = None if jerk is None else check_jerk(jerk)
+        self._jerk_from_limits = False
+        self._mode: str | None = None                     # decided by the first chunk with rows
         self._moves = np.zeros(0, dtype=MOVE_DTYPE)      # pending rows (not emitted yet)
         self._prep = np.zeros(0, dtype=PREP_DTYPE)
+        self._aux = np.zeros((0, 5))                      # blend: per-row tolerance and axis accels
         self._last_move: np.ndarray | None = None         # the last real move prepared (1 row)
         self._last_prep: np.ndarray | None = None
         self._stop_pending = True                         # a full stop precedes the next move
+        self._start_v = 0.0                               # S-curve: final start speed of the first pending move
         self._clock = 0.0
-        self._buffered: list[np.ndarray] = []             # blend / S-curve: whole program
-        self._limits = None
-        self._delegate = self._pcode == POLICY_BLEND or jerk is not None
-        self._delegated_segments: np.ndarray | None = None
+        self._emitted: list[tuple[np.ndarray, np.ndarray, object]] = []  # last call's (moves, plan, ctx)
 
     # ------------------------------------------------------------------ public
+    @property
+    def mode(self) -> str | None:
+        """'trapezoid', 'scurve' or 'blend' once the first rows arrived (None before)."""
+        return self._mode
+
     def feed(self, moves_chunk: np.ndarray, limits: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
         """Add MOVE rows; return the (moves, plan) pieces whose plan can no longer change."""
         moves_chunk = np.asarray(moves_chunk)
         limits = np.asarray(limits)
+        self._emitted = []
         if len(moves_chunk) == 0:
             return []
-        if self._delegate or self._wants_scurve(moves_chunk, limits):
-            self._delegate = True
-            self._buffered.append(moves_chunk.copy())
-            self._limits = limits.copy()
-            return []
-        validate(moves_chunk, limits, self._pcode)
-        prep, self._stop_pending = prepare_with_context(moves_chunk, limits, self._pcode, self._last_move,
-                                                        self._last_prep, self._stop_pending)
-        real = np.flatnonzero(prep["is_move"])
-        if real.size:
-            self._last_move = moves_chunk[real[-1]:real[-1] + 1].copy()
-            self._last_prep = prep[real[-1]:real[-1] + 1].copy()
+        if self._mode is None:
+            self._mode = self._choose_mode(moves_chunk, limits)
+        if self._mode == MODE_BLEND:
+            from .blend import blend_row_limits
+
+            prep, aux = blend_row_limits(moves_chunk, limits, self.machine)
+            self._aux = np.concatenate([self._aux, aux]) if len(self._aux) else aux
+        else:
+            pcode = self._pcode
+            if self._mode == MODE_SCURVE:
+                self._check_same_jerk(moves_chunk, limits)
+                # plan_scurve: the junction caps of the machine's policy ('blend' takes junction deviation's)
+                pcode = policy_code(self.machine.junction_policy)
+            validate(moves_chunk, limits, pcode)
+            if pcode == POLICY_BLEND:
+                pcode = POLICY_JD
+            prep, self._stop_pending = prepare_with_context(moves_chunk, limits, pcode, self._last_move,
+                                                            self._last_prep, self._stop_pending)
+            real = np.flatnonzero(prep["is_move"])
+            if real.size:
+                self._last_move = moves_chunk[real[-1]:real[-1] + 1].copy()
+                self._last_prep = prep[real[-1]:real[-1] + 1].copy()
         self._moves = concat_rows(self._moves, moves_chunk)
         self._prep = concat_rows(self._prep, prep) if len(self._prep) else prep
         return self._emit(final=False)
 
     def finish(self) -> list[tuple[np.ndarray, np.ndarray]]:
         """Plan everything still pending, ending at rest."""
-        if self._delegate:
-            from . import plan_with_segments
-
-            if not self._buffered:
-                return []
-            moves = np.concatenate(self._buffered)
-            self._buffered = []
-            plan, self._delegated_segments = plan_with_segments(moves, self._limits, self.machine, self.policy,
-                                                                jerk=self._jerk)
-            return [(moves, plan)]
+        self._emitted = []
         out = self._emit(final=True)
         self._last_move = self._last_prep = None
         self._stop_pending = True
+        self._start_v = 0.0
         return out
 
     def segments_for(self, moves: np.ndarray, plan: np.ndarray, first_index: int = 0) -> np.ndarray:
-        """SEGMENT rows of an emitted (moves, plan) pair: the delegated planner's own pieces for
-        blends and S-curves (emitted whole at finish()), trapezoid pieces otherwise."""
-        if self._delegated_segments is not None:
-            return self._delegated_segments
+        """SEGMENT rows of an emitted (moves, plan) pair, SEGMENT.move = first_index + row: the blend /
+        S-curve planner's own pieces (ask before the next feed()/finish()), trapezoid pieces otherwise."""
+        if self._mode in (MODE_SCURVE, MODE_BLEND):
+            for moves_out, plan_out, ctx in self._emitted:
+                if plan_out is plan:
+                    return self._segments(moves_out, plan_out, ctx, first_index)
+            if len(plan) == 0:
+                return to_segments(moves, plan, first_index)
+            raise ConfigError("segments_for: blend and S-curve pieces exist only for the (moves, plan) pairs the "
+                              "last feed()/finish() returned")
         return to_segments(moves, plan, first_index)
 
     @property
@@ -97,18 +123,73 @@ class StreamPlanner:
         return len(self._moves)
 
     # ------------------------------------------------------------------ internals
-    @staticmethod
-    def _wants_scurve(moves: np.ndarray, limits: np.ndarray) -> bool:
+    def _choose_mode(self, moves: np.ndarray, limits: np.ndarray) -> str:
+        """plan_moves' dispatch: a jerk (argument, else the limits in force) selects S-curves, then 'blend'."""
         from . import _scurve_jerk
 
-        return _scurve_jerk(moves, limits, None) is not None
+        if self._jerk is None:
+            self._jerk = _scurve_jerk(moves, limits, None)
+            self._jerk_from_limits = self._jerk is not None
+        if self._jerk is not None:
+            return MODE_SCURVE
+        return MODE_BLEND if self._pcode == POLICY_BLEND else MODE_TRAPEZOID
+
+    def _check_same_jerk(self, moves: np.ndarray, limits: np.ndarray) -> None:
+        """Whole-file planning takes the least max_jerk of the limits rows the program uses; a stream cannot
+        know later rows, so a jerk from the limits must not change along the program."""
+        if not self._jerk_from_limits:
+            return
+        from . import _scurve_jerk
+
+        j = _scurve_jerk(moves, limits, None)
+        if j is not None and j != self._jerk:
+            line = int(moves["line"][0])
+            raise ConfigError(f"max_jerk changes from {self._jerk:g} to {j:g} mm/s³ near line {line}: "
+                              "S-curve planning needs one jerk for the whole program (give --jerk)")
 
     def _emit(self, final: bool) -> list[tuple[np.ndarray, np.ndarray]]:
+        if len(self._moves) == 0:
+            return []
+        if self._mode == MODE_SCURVE:
+            from .scurve import scurve_plan_window
+
+            n_rows, plan, t_end, v_end, ctx = scurve_plan_window(self._moves, self._prep, self._jerk,
+                                                                 self._start_v, self._clock, lazy=not final)
+            self._start_v = v_end
+        elif self._mode == MODE_BLEND:
+            from .blend import blend_plan_window
+
+            n_rows, plan, t_end, ctx = blend_plan_window(self._moves, self._prep, self._aux, self._clock,
+                                                         lazy=not final)
+            self._aux = self._aux[n_rows:].copy()
+        else:
+            n_rows, plan, t_end = self._emit_trapezoid(final)
+            ctx = None
+        if n_rows == 0:
+            return []
+        moves_out = self._moves[:n_rows]
+        self._clock = t_end
+        self._moves = self._moves[n_rows:].copy()
+        prep_out = self._prep[:n_rows]
+        self._prep = self._prep[n_rows:].copy()
+        if ctx is not None:
+            self._emitted.append((moves_out, plan, (prep_out, ctx)))
+        return [(moves_out, plan)]
+
+    def _segments(self, moves: np.ndarray, plan: np.ndarray, ctx, first_index: int) -> np.ndarray:
+        prep, detail = ctx
+        if self._mode == MODE_SCURVE:
+            from .scurve import scurve_segments
+
+            return scurve_segments(moves, prep, plan, detail, self._jerk, first_index)
+        from .blend import blend_segments
+
+        return blend_segments(moves, plan, detail, first_index)
+
+    def _emit_trapezoid(self, final: bool) -> tuple[int, np.ndarray | None, float]:
         prep = self._prep
         rows = np.flatnonzero(prep["is_move"])
         m = len(rows)
-        if len(self._moves) == 0:
-            return []
         bufs = speed_buffers(m)
         # Moves before the open run (the one not yet followed by a known full stop) are final.
         if final or self._stop_pending:
@@ -124,17 +205,14 @@ class StreamPlanner:
         # Emit every row before the first move still pending (dwell / dropped rows included).
         n_rows = len(self._moves) if done == m else int(rows[done])
         if n_rows == 0:
-            return []
-        moves_out = self._moves[:n_rows]
-        plan, self._clock = layout_rows(moves_out, prep, n_rows, *bufs, self._clock)
-        self._moves = self._moves[n_rows:].copy()
-        self._prep = self._prep[n_rows:].copy()
-        return [(moves_out, plan)]
+            return 0, None, self._clock
+        plan, t_end = layout_rows(self._moves[:n_rows], prep, n_rows, *bufs, self._clock)
+        return n_rows, plan, t_end
 
 
-def plan_stream(chunks, limits_for_chunk, machine, policy: str | None = None):
+def plan_stream(chunks, limits_for_chunk, machine, policy: str | None = None, jerk: float | None = None):
     """Convenience: run a StreamPlanner over an iterable of MOVE chunks; (moves, plan) concatenated."""
-    sp = StreamPlanner(machine, policy)
+    sp = StreamPlanner(machine, policy, jerk=jerk)
     outs = []
     for chunk in chunks:
         outs.extend(sp.feed(chunk, limits_for_chunk))

@@ -95,10 +95,10 @@ def stream_plan(path: str, machine, policy: str | None, jerk: float | None, stri
     """Plan ``path`` from its start and call ``on_chunk(moves, plan, first_index)`` for each planned
     piece in order (``first_index`` = global row of ``moves[0]``); stop early when it returns True.
 
-    Returns (reader, whole_segments). The blend and S-curve planners need the whole program: the
-    stream planner then hands everything over at the end, and their SEGMENT rows (which only they
-    can make: blends and jerk phases are not trapezoid pieces) are returned for the whole program;
-    else None and the caller makes segments for its window with ``segments_for``.
+    ``on_chunk(moves, plan, first_index, segs)``: ``segs`` are the planner's own SEGMENT rows of the
+    piece for blend and S-curve plans (they cannot be rebuilt from PLAN rows; global move indices), None
+    for trapezoid plans (the caller makes them for what it keeps with ``segments_for``), so a caller
+    keeps only the pieces it wants and memory stays bounded. Returns the reader.
     """
     from ..gcode import GcodeReader
     from ..planner import StreamPlanner
@@ -106,45 +106,38 @@ def stream_plan(path: str, machine, policy: str | None, jerk: float | None, stri
     policy, jerk = _policy_jerk(machine, policy, jerk)
     reader = GcodeReader(path, machine, strict=strict)
     first = 0
-    whole_segs = None
     try:
         planner = StreamPlanner(machine, policy=policy, jerk=jerk)
-        for batch in reader.batches():
-            for m, p in planner.feed(batch, reader.limits):
-                stop = on_chunk(m, p, first)
+
+        def hand_over(pairs) -> bool:
+            nonlocal first
+            for m, p in pairs:
+                # blend / S-curve pieces exist only now (the planner drops them at its next step)
+                segs = planner.segments_for(m, p, first) if planner.mode in ("scurve", "blend") else None
+                stop = on_chunk(m, p, first, segs)
                 first += m.size
                 if stop:
-                    return reader, None
-        for m, p in planner.finish():
-            if isinstance(p, tuple):        # the delegated planners answer (plan, segments)
-                p, whole_segs = p[0], p[1]
-            elif policy == "blend" or (p.size and np.any(p["jerk"] != 0.0)):
-                whole_segs = _whole_program_segments(m, reader.limits, machine, policy, p)
-            if on_chunk(m, p, first):
+                    return True
+            return False
+
+        for batch in reader.batches():
+            if hand_over(planner.feed(batch, reader.limits)):
                 break
-            first += m.size
+        else:
+            hand_over(planner.finish())
     except NotImplementedError as err:
         raise GcodeplanError(f"cannot plan with these settings yet: {err}") from None
-    return reader, whole_segs
+    return reader
 
 
-def _whole_program_segments(moves, limits, machine, policy, plan):
-    """Segments of a whole program planned by the blend or S-curve planner (re-run: it is deterministic)."""
-    if plan.size and np.any(plan["jerk"] != 0.0):
-        from ..planner.scurve import plan_scurve
-
-        return plan_scurve(moves, limits, machine, float(plan["jerk"][plan["jerk"] > 0][0]))[1]
-    from ..planner.blend import plan_blend
-
-    return plan_blend(moves, limits, machine)[1]
-
-
-def segments_for(moves: np.ndarray, plan: np.ndarray, first_index: int, all_segs: np.ndarray | None = None):
-    """SEGMENT rows of a contiguous run of planned moves: cut from the whole program's segments when
-    the planner made them (blend, S-curves), else made by the planner's ``to_segments`` (trapezoids)."""
-    if all_segs is not None:
+def segments_for(moves: np.ndarray, plan: np.ndarray, first_index: int, own_segs: list | None = None):
+    """SEGMENT rows of a contiguous run of planned moves: the planner's own pieces when it handed them
+    over (blend, S-curves; ``own_segs`` = the list of them, cut to the run), else made by the planner's
+    ``to_segments`` (trapezoids)."""
+    if own_segs:
+        segs = np.concatenate(own_segs)
         lo, hi = first_index, first_index + moves.size
-        return all_segs[(all_segs["move"] >= lo) & (all_segs["move"] < hi)]
+        return segs[(segs["move"] >= lo) & (segs["move"] < hi)]
     from ..planner import to_segments
 
     if plan.size and np.any(plan["jerk"] != 0.0):
@@ -160,6 +153,7 @@ class WindowCollector:
         self.sel = sel
         self.max_moves = max_moves
         self.parts: list[tuple[np.ndarray, np.ndarray]] = []
+        self.own_segs: list[np.ndarray] = []     # blend / S-curve pieces of the kept parts
         self.first_index: int | None = None
         self.kept = 0
         self.last_hit = -1       # global index of the last selected row
@@ -167,7 +161,7 @@ class WindowCollector:
         self.last_line = 0
         self.max_layer = -1
 
-    def __call__(self, moves: np.ndarray, plan: np.ndarray, first: int) -> bool:
+    def __call__(self, moves: np.ndarray, plan: np.ndarray, first: int, segs: np.ndarray | None = None) -> bool:
         if moves.size == 0:
             return False
         self.end_t = float(plan["t_start"][-1] + plan["duration"][-1])
@@ -183,6 +177,8 @@ class WindowCollector:
         if hit.size:
             self.last_hit = self.first_index + self.kept + int(hit[-1])
         self.parts.append((moves, plan))
+        if segs is not None:
+            self.own_segs.append(segs[segs["move"] >= self.first_index])
         self.kept += moves.size
         if self.sel.past(moves, plan):
             return True
@@ -191,7 +187,7 @@ class WindowCollector:
                                  "moves: choose a smaller one with --from/--to, --lines or --layer")
         return False
 
-    def window(self, limits: np.ndarray, label: str, all_segs=None, feature_names=()) -> plots.Window:
+    def window(self, limits: np.ndarray, label: str, feature_names=()) -> plots.Window:
         if self.first_index is None:
             raise GcodeplanError(
                 f"no moves in the selected window ({self.sel.describe()}): the file's plan ends at "
@@ -201,7 +197,7 @@ class WindowCollector:
         plan = np.concatenate([p for _, p in self.parts])
         n = self.last_hit - self.first_index + 1
         moves, plan = moves[:n], plan[:n]
-        segs = segments_for(moves, plan, self.first_index, all_segs)
+        segs = segments_for(moves, plan, self.first_index, self.own_segs)
         segs = _clip_segments(segs, self.sel)
         return plots.Window(moves, plan, segs, self.first_index, np.asarray(limits).copy(), label,
                             list(feature_names))
@@ -237,9 +233,9 @@ def load_window(path: str, machine, sel: Selection, policy: str | None = None, j
                 strict: bool = False) -> tuple[plots.Window, object]:
     """Plan ``path`` from its start and return the selected window (with its segments) and the reader."""
     collect = WindowCollector(sel)
-    reader, all_segs = stream_plan(path, machine, policy, jerk, strict, collect)
+    reader = stream_plan(path, machine, policy, jerk, strict, collect)
     label = f"{os.path.basename(path)} ({sel.describe()})"
-    return collect.window(reader.limits, label, all_segs, reader.features), reader
+    return collect.window(reader.limits, label, reader.features), reader
 
 
 def load_layer_times(path: str, machine, policy: str | None = None, jerk: float | None = None,
@@ -247,11 +243,11 @@ def load_layer_times(path: str, machine, policy: str | None = None, jerk: float 
     """Plan the whole file and return its time per (layer, feature) and the reader."""
     times = plots.LayerFeatureTimes()
 
-    def fold(m, p, first):
+    def fold(m, p, first, segs):
         times.add(m, p)
         return False
 
-    reader, _ = stream_plan(path, machine, policy, jerk, strict, fold)
+    reader = stream_plan(path, machine, policy, jerk, strict, fold)
     return times, reader
 
 

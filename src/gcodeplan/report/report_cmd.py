@@ -10,7 +10,7 @@ from __future__ import annotations
 import argparse
 import io
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -33,8 +33,10 @@ class LayerRun:
     parts: list
     kept: int = 0
     truncated: bool = False
+    own_segs: list = field(default_factory=list)
 
-    def add(self, moves: np.ndarray, plan: np.ndarray, time_s: float) -> None:
+    def add(self, moves: np.ndarray, plan: np.ndarray, time_s: float, segs: np.ndarray | None = None) -> None:
+        """``segs``: the planner's own pieces of these moves (blend, S-curves), or None (trapezoids)."""
         self.time_s += time_s
         room = MAX_KEEP_MOVES - self.kept
         if room <= 0:
@@ -43,6 +45,8 @@ class LayerRun:
         if moves.size > room:
             moves, plan, self.truncated = moves[:room], plan[:room], True
         self.parts.append((moves, plan))
+        if segs is not None:
+            self.own_segs.append(segs[segs["move"] < self.first_index + self.kept + moves.size])
         self.kept += moves.size
 
 
@@ -63,7 +67,7 @@ class SlowestLayers:
         self.best.sort(key=lambda r: -r.time_s)
         del self.best[self.k:]
 
-    def __call__(self, moves: np.ndarray, plan: np.ndarray, first: int) -> bool:
+    def __call__(self, moves: np.ndarray, plan: np.ndarray, first: int, segs: np.ndarray | None = None) -> bool:
         if moves.size == 0:
             return False
         layer = moves["layer"]
@@ -75,7 +79,10 @@ class SlowestLayers:
             if self.current is None or self.current.layer != lay:
                 self._close()
                 self.current = LayerRun(lay, first + int(a), 0.0, [])
-            self.current.add(moves[a:b], plan[a:b], float(motion_t[a:b].sum()))
+            run_segs = None
+            if segs is not None:
+                run_segs = segs[(segs["move"] >= first + a) & (segs["move"] < first + b)]
+            self.current.add(moves[a:b], plan[a:b], float(motion_t[a:b].sum()), run_segs)
         return False
 
     def finish(self) -> list[LayerRun]:
@@ -152,13 +159,13 @@ def build_report(path: str, machine, policy: str | None = None, jerk: float | No
     per_layer = plots.LayerFeatureTimes()
     keep = SlowestLayers(slowest)
 
-    def fold(m, p, first):
+    def fold(m, p, first, segs):
         time.add(m, p)
         per_layer.add(m, p)
-        keep(m, p, first)
+        keep(m, p, first, segs)
         return False
 
-    reader, all_segs = stream_plan(path, machine, policy, jerk, strict, fold)
+    reader = stream_plan(path, machine, policy, jerk, strict, fold)
     est = Estimate(path, reader.summary, time, list(reader.layer_z), list(reader.features), policy, machine.name)
     d = est.to_json()
     name = os.path.basename(path)
@@ -174,7 +181,7 @@ def build_report(path: str, machine, policy: str | None = None, jerk: float | No
     for run in keep.finish():
         moves = np.concatenate([m for m, _ in run.parts])
         plan = np.concatenate([p for _, p in run.parts])
-        segs = segments_for(moves, plan, run.first_index, all_segs)
+        segs = segments_for(moves, plan, run.first_index, run.own_segs)
         what = f"layer {run.layer}" if run.layer >= 0 else "before the first layer change"
         note = f" (first {run.kept} moves drawn)" if run.truncated else ""
         win = plots.Window(moves, plan, segs, run.first_index, np.asarray(reader.limits), f"{name} ({what})",
