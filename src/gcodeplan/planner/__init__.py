@@ -79,7 +79,7 @@ def plan_moves(moves: np.ndarray, limits: np.ndarray, machine, policy: str | Non
     limits = np.asarray(limits)
     j = _scurve_jerk(moves, limits, jerk)
     if j is not None:
-        return _plan_only(_external("scurve", "plan_scurve")(moves, limits, machine, j))
+        return _plan_only(_external("scurve", "plan_scurve")(moves, limits, machine, j, policy=name))
     if pcode == POLICY_BLEND:
         return _plan_only(_external("blend", "plan_blend")(moves, limits, machine))
     prep = prepare(moves, limits, machine, name)
@@ -96,7 +96,7 @@ def plan_with_segments(moves: np.ndarray, limits: np.ndarray, machine, policy: s
     limits = np.asarray(limits)
     j = _scurve_jerk(moves, limits, jerk)
     if j is not None:
-        return _external("scurve", "plan_scurve")(moves, limits, machine, j, first_move=first_index)
+        return _external("scurve", "plan_scurve")(moves, limits, machine, j, first_move=first_index, policy=name)
     if policy_code(name) == POLICY_BLEND:
         return _external("blend", "plan_blend")(moves, limits, machine, first_move=first_index)
     plan = plan_moves(moves, limits, machine, name)

@@ -336,7 +336,9 @@ def blend_segments_kernel(p0, p1, move_d, axes_r, accel, corner_c, timing, t_sta
             for ax in range(4):
                 v_in = v_a * axes_r[i - 1, ax]
                 v_out = v_a * axes_r[i, ax]
-                acc[ax] = (v_out - v_in) / (2.0 * tau_in)
+                # v·Δu, not v_out − v_in: on nearly collinear moves Δu is rounding noise and the difference
+                # of the two products would carry v·u·ε into a τ of ~1e-19 s (accelerations above the limits)
+                acc[ax] = v_a * (axes_r[i, ax] - axes_r[i - 1, ax]) / (2.0 * tau_in)
                 p[ax] = p0[i, ax] + 0.5 * acc[ax] * tau_in * tau_in
                 v[ax] = 0.5 * (v_in + v_out)
             _put(rows, k, t, tau_in, p, v, acc, move, PHASE_BLEND, moves_out, phases_out)
@@ -376,8 +378,7 @@ def blend_segments_kernel(p0, p1, move_d, axes_r, accel, corner_c, timing, t_sta
             # first half of the blend around p1[i]: from the line of move i to the blend's middle
             for ax in range(4):
                 v_in = v_b * axes_r[i, ax]
-                v_out = v_b * axes_r[i + 1, ax]
-                acc[ax] = (v_out - v_in) / (2.0 * tau_out)
+                acc[ax] = v_b * (axes_r[i + 1, ax] - axes_r[i, ax]) / (2.0 * tau_out)
                 p[ax] = p1[i, ax] - v_in * tau_out
                 v[ax] = v_in
             _put(rows, k, t, tau_out, p, v, acc, move, PHASE_BLEND, moves_out, phases_out)

@@ -152,8 +152,9 @@ def _move_limits_kernel(moves, lim, policy, prep):
         accel = mv.accel
         feed = mv.feed_v
         if policy != POLICY_KLIPPER:
-            # Marlin M205 S/T: a floor on the requested feed (printing vs travel moves).
-            floor_v = L[L_MIN_FEED] if d[3] > 0.0 else L[L_MIN_TRAVEL]
+            # Marlin M205 S/T: a floor on the requested feed, S for every move that steps E (retractions
+            # too: planner.cpp tests the E step count, not its sign), T for the others.
+            floor_v = L[L_MIN_FEED] if d[3] != 0.0 else L[L_MIN_TRAVEL]
             if feed < floor_v:
                 feed = floor_v
         kinematic = move_d >= KLIPPER_MIN_MOVE_D

@@ -1,8 +1,8 @@
-"""S-curve mode: jerk-limited (seven-phase double-S) profiles per move under the machine's junction policy.
+"""S-curve mode: jerk-limited (seven-phase double-S) profiles per move under a junction policy.
 
 Model:
 
-* Junction caps are the trapezoid planner's (``prepare`` with the machine's policy: Klipper, junction
+* Junction caps are the trapezoid planner's (``prepare`` with the policy asked for: Klipper, junction
   deviation, classic jerk, exact stop; 'blend' takes junction deviation's caps, as ``prepare`` does).
 * Each move's path acceleration is 0 at both of its ends (modelling choice: a move is one double-S profile,
   +J, 0, −J, cruise, −J, 0, +J, from its start speed to its end speed). So acceleration is continuous across
@@ -346,11 +346,12 @@ def scurve_segments(moves: np.ndarray, prep: np.ndarray, plan: np.ndarray, durat
     return segs
 
 
-def plan_scurve(moves: np.ndarray, limits: np.ndarray, machine, jerk: float, first_move: int = 0):
+def plan_scurve(moves: np.ndarray, limits: np.ndarray, machine, jerk: float, first_move: int = 0,
+                policy: str | None = None):
     """Plan ``moves`` with jerk-limited S-curves (``jerk`` mm/s³ along the path).
 
     Returns (PLAN rows aligned with ``moves``, SEGMENT rows with cubic pieces). Junction caps follow
-    ``machine.junction_policy``; see the module docstring for the model. The streaming planner
+    ``policy`` (None = ``machine.junction_policy``); see the module docstring for the model. The streaming planner
     (:class:`gcodeplan.planner.stream.StreamPlanner`) gives the same rows bit for bit.
     """
     from .prepare import prepare
@@ -358,7 +359,7 @@ def plan_scurve(moves: np.ndarray, limits: np.ndarray, machine, jerk: float, fir
     jerk = check_jerk(jerk)
     moves = np.asarray(moves)
     limits = np.asarray(limits)
-    prep = prepare(moves, limits, machine, machine.junction_policy)
+    prep = prepare(moves, limits, machine, policy or machine.junction_policy)
     n_rows, plan, _, _, durations = scurve_plan_window(moves, prep, jerk, 0.0, 0.0, lazy=False)
     assert n_rows == len(moves)
     return plan, scurve_segments(moves, prep, plan, durations, jerk, first_move)

@@ -77,11 +77,10 @@ class StreamPlanner:
             prep, aux = blend_row_limits(moves_chunk, limits, self.machine)
             self._aux = np.concatenate([self._aux, aux]) if len(self._aux) else aux
         else:
+            # S-curves take the junction caps of the policy as well ('blend' takes junction deviation's)
             pcode = self._pcode
             if self._mode == MODE_SCURVE:
                 self._check_same_jerk(moves_chunk, limits)
-                # plan_scurve: the junction caps of the machine's policy ('blend' takes junction deviation's)
-                pcode = policy_code(self.machine.junction_policy)
             validate(moves_chunk, limits, pcode)
             if pcode == POLICY_BLEND:
                 pcode = POLICY_JD

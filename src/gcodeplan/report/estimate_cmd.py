@@ -56,9 +56,11 @@ class Estimate:
             accelerating_s=t.accel_t,
             cruising_s=t.cruise_t,
             decelerating_s=t.decel_t,
+            blending_s=t.blend_t,
             limits_s=t.limits(),
             peak_speed_mm_s=t.peak_v,
             full_stops=t.stops,
+            before_first_layer_s=t.before_first_layer_s,
             layers=t.layers(self.layer_z),
             features=t.features(self.features),
         )
@@ -142,9 +144,10 @@ def print_text(est: Estimate, out=None) -> None:
     else:
         w(f"  print {hms(t.print_time_s)}, travel {hms(t.travel_time_s)}, extrude-only {hms(t.extrude_only_time_s)}, "
           f"dwell {hms(t.dwell_s)}, waits {hms(t.waits_s)}{note}\n")
-    motion = max(t.accel_t + t.cruise_t + t.decel_t, 1e-300)
+    motion = max(t.accel_t + t.cruise_t + t.decel_t + t.blend_t, 1e-300)
+    blending = f", blending {100 * t.blend_t / motion:.1f} %" if t.blend_t > 0 else ""
     w(f"  accelerating {100 * t.accel_t / motion:.1f} %, cruising {100 * t.cruise_t / motion:.1f} %, "
-      f"decelerating {100 * t.decel_t / motion:.1f} %\n")
+      f"decelerating {100 * t.decel_t / motion:.1f} %{blending}\n")
     w(f"  moves {s.moves}, full stops {t.stops}, peak speed {t.peak_v:.1f} mm/s (line {t.peak_v_line})\n")
     lim = t.limits()
     if lim:
@@ -160,6 +163,8 @@ def print_text(est: Estimate, out=None) -> None:
     layers = t.layers(est.layer_z)
     if layers:
         w(f"  layers: {len(layers)}")
+        if t.before_first_layer_s > 0:
+            w(f" (+ {hms(t.before_first_layer_s)} before the first)")
         times = [L["time_s"] for L in layers]
         slow = max(range(len(times)), key=times.__getitem__)
         w(f", slowest #{slow} ({hms(times[slow])}), mean {hms(sum(times) / len(times))}\n")

@@ -44,6 +44,8 @@ class TimeSummary:
     accel_t: float = 0.0
     cruise_t: float = 0.0
     decel_t: float = 0.0
+    # blend mode: the corner blends' halves a PLAN row holds besides its straight part's phases
+    blend_t: float = 0.0
     # index = layer + 1 (slot 0 holds moves before the first layer change)
     by_layer: np.ndarray = field(default_factory=lambda: np.zeros(1))
     # index = feature + 1 (slot 0 holds moves with no feature tag)
@@ -66,16 +68,22 @@ class TimeSummary:
         self.by_limit += np.bincount(plan["limit"].astype(np.intp), weights=dur,
                                      minlength=len(LIMIT_NAMES))[: len(LIMIT_NAMES)]
         self.rapid_t += float(dur[(moves["flags"] & FLAG_RAPID) != 0].sum())
+        phases_t = plan["accel_t"] + plan["cruise_t"] + plan["decel_t"]
         self.accel_t += float(plan["accel_t"].sum())
         self.cruise_t += float(plan["cruise_t"].sum())
         self.decel_t += float(plan["decel_t"].sum())
+        kind = moves["kind"]
+        motion = (kind != KIND_DWELL) & (kind != KIND_WAIT)
+        # duration = τ_in + accel_t + cruise_t + decel_t + τ_out for blends (planner/blend.py); the other
+        # planners add their phases exactly up to rounding, which must not show as blending
+        blend = np.where(motion, dur - phases_t, 0.0)
+        self.blend_t += float(blend[blend > 1e-9 * dur].sum())
         self.by_layer = _grow_add(self.by_layer, np.maximum(moves["layer"], -1).astype(np.intp) + 1, dur)
         self.by_feature = _grow_add(self.by_feature, np.maximum(moves["feature"], -1).astype(np.intp) + 1, dur)
         i = int(np.argmax(plan["cruise_v"]))
         if plan["cruise_v"][i] > self.peak_v:
             self.peak_v = float(plan["cruise_v"][i])
             self.peak_v_line = int(moves["line"][i])
-        motion = (kind != KIND_DWELL) & (kind != KIND_WAIT)
         self.stops += int(np.count_nonzero(motion & (plan["end_v"] == 0.0)))
 
     # ------------------------------------------------------------------ views
@@ -102,6 +110,11 @@ class TimeSummary:
     @property
     def extrude_only_time_s(self) -> float:
         return float(self.by_kind[KIND_EXTRUDE_ONLY])
+
+    @property
+    def before_first_layer_s(self) -> float:
+        """Time of the moves before the first layer change (start G-code, purge line): not in layers()."""
+        return float(self.by_layer[0])
 
     def layers(self, layer_z: list[float]) -> list[dict]:
         out = []

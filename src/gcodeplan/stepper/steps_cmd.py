@@ -17,7 +17,7 @@ import sys
 
 import numpy as np
 
-from ..errors import GcodeplanError
+from ..errors import GcodeplanError, located
 from . import DEFAULT_CLOCK_HZ, DEFAULT_MAX_ERROR_S, KLIPPER_SDS_FILTER_T
 
 
@@ -28,6 +28,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("file", help="G-code file")
     add_machine_arguments(p)
     p.add_argument("--policy", choices=POLICIES, help="junction policy (default: the machine's)")
+    p.add_argument("--jerk", type=float, metavar="J",
+                   help="plan jerk-limited S-curves with this path jerk limit (mm/s³) instead of trapezoids")
     out = p.add_argument_group("output")
     out.add_argument("-o", "--output", required=True, metavar="steps.npz",
                      help="step times per stepper (.npz, written atomically)")
@@ -56,6 +58,8 @@ def _check_args(args) -> None:
         raise GcodeplanError(f"--max-error must be ≥ 0 s, got {args.max_error:g}")
     if args.sds_filter is not None and not (args.sds_filter > 0 and math.isfinite(args.sds_filter)):
         raise GcodeplanError(f"--sds-filter must be a positive time in s, got {args.sds_filter:g}")
+    if args.jerk is not None and not (args.jerk > 0 and math.isfinite(args.jerk)):
+        raise GcodeplanError(f"--jerk must be a positive number (mm/s³), got {args.jerk:g}")
     if args.max_step_rate is not None and not (args.max_step_rate > 0):
         raise GcodeplanError(f"--max-step-rate must be > 0, got {args.max_step_rate:g}")
     if not os.path.isfile(args.file):
@@ -123,9 +127,11 @@ def run(args) -> int:
         gen = StepGenerator(rails, sink, sds_filter_t=args.sds_filter)
         bar = _progress_bar(args.file, args.quiet)
         progress = (lambda done: bar.update(done - bar.n)) if bar is not None else None
-        for segments, reset in segment_batches(args.file, machine, policy=args.policy, strict=args.strict,
-                                               progress=progress):
-            gen.feed(segments, reset)
+        # the planner's errors know the line only: name the file
+        with located(args.file):
+            for segments, reset in segment_batches(args.file, machine, policy=args.policy, jerk=args.jerk,
+                                                   strict=args.strict, progress=progress):
+                gen.feed(segments, reset)
         gen.finish()
 
         writer.put("steppers", np.array(names))
