@@ -9,7 +9,8 @@
     r.limits, r.layer_z, r.features, r.summary
 
 Conventions: MOVE ``e0``/``e1`` are a running machine E that ``G92 E`` does not reset (``e1 − e0`` is the
-commanded extrusion after M221); E is relative under G91 or M83 (Klipper's rule); coordinates are machine
+commanded extrusion after M221); E is relative under G91 or M83 (Klipper's rule; on
+Marlin the last of G90/G91/M82/M83 decides); coordinates are machine
 mm after G20, work offsets, G92 and tool length offsets. The hot path is a numba byte scanner
 (:mod:`.scan`); every other line goes through the Python interpreter (:mod:`.interp`).
 """

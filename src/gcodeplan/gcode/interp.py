@@ -9,7 +9,8 @@ Conventions (see also the package docstring):
 
 * MOVE ``e0``/``e1`` are a running machine E: ``G92 E`` changes the logical E only, so ``e1 − e0`` is
   always the commanded extrusion after the M221 flow factor.
-* E is relative when G91 or M83 is in force (Klipper's rule: G90 does not undo M83).
+* E is relative when G91 or M83 is in force (Klipper's rule: G90 does not undo M83); on Marlin 2 the last of
+  G90/G91/M82/M83 decides E (G90/G91 set every axis, E included: Marlin PR #15218).
 * Words are ``letter number``; a number is ``[+-]digits[.digits]`` (no exponent: ``E`` is a word letter,
   so ``X1E5`` is X1 E5).
 """
@@ -102,6 +103,7 @@ class Interpreter:
         ist[S.I_LAYER] = -1
         ist[S.I_FEATURE] = -1
         ist[S.I_LAYER_BY_Z] = 1
+        ist[S.I_G90_SETS_E] = 1 if m.flavor == "marlin" else 0
         self.st, self.ist = st, ist
 
         self.feat_raw = np.zeros((S.FEAT_MAX, S.FEAT_NAME_MAX), dtype=np.uint8)
@@ -398,6 +400,10 @@ class Interpreter:
                 break
             params[m.group(1).upper()] = m.group(2).strip("\"'")
             pos = m.end()
+        if pos < len(rest) and uname in ("SET_VELOCITY_LIMIT", "SET_KINEMATIC_POSITION"):
+            # Klipper refuses parameters that are not NAME=value ("Malformed command"); dropping them would
+            # silently skip the limit or position change
+            self.error(f"{uname}: malformed parameter {rest[pos:].strip()[:30]!r} (expected NAME=value)")
 
         def num(key: str) -> float | None:
             if key not in params:
@@ -434,7 +440,7 @@ class Interpreter:
                     self.error("SET_VELOCITY_LIMIT: MINIMUM_CRUISE_RATIO must be in [0, 1)")
                 changes["mcr"] = mcr
             a2d = num("ACCEL_TO_DECEL")
-            if a2d is not None:
+            if a2d is not None and mcr is None:   # Klipper: MINIMUM_CRUISE_RATIO wins when both are given
                 if not a2d > 0:
                     self.error("SET_VELOCITY_LIMIT: ACCEL_TO_DECEL must be > 0")
                 # Klipper's legacy setting: max_accel_to_decel = accel·(1 − mcr)
@@ -568,7 +574,13 @@ class Interpreter:
         if 21 in gset:
             st[S.S_UNIT] = 1.0
         scale = float(st[S.S_UNIT])
-        f = self._value(params, "F")
+        # Marlin and Klipper read F only on moves: on an M-code line it is that command's parameter (as X Y Z E
+        # are, below). CNC controls take F as a modal word on any line.
+        f = None
+        if ms and not motion_codes and not self.machine.is_cnc:
+            used.add("F")
+        else:
+            f = self._value(params, "F")
         if f is not None:
             used.add("F")
             if not f > 0.0:
@@ -623,10 +635,10 @@ class Interpreter:
             if "Q" in params:
                 used.add("Q")
                 self.g64_q_ignored += 1
-        if 90 in gset:
-            ist[S.I_ABS_COORD] = 1
-        if 91 in gset:
-            ist[S.I_ABS_COORD] = 0
+        if 90 in gset or 91 in gset:
+            ist[S.I_ABS_COORD] = 1 if 90 in gset else 0
+            if ist[S.I_G90_SETS_E]:
+                ist[S.I_ABS_E] = ist[S.I_ABS_COORD]
         if 90.1 in gset:
             self.arc_abs_centre = True
         if 91.1 in gset:
@@ -737,6 +749,8 @@ class Interpreter:
         elif mc in (220, 221):
             used.add("S")
             s = self._value(params, "S")
+            if s is None and self.dialect == S.DIALECT_KLIPPER:
+                s = 100.0    # Klipper: S defaults to 100 (a bare M220/M221 resets the factor); Marlin: no change
             if s is not None:
                 if not s > 0:
                     self.error(f"M{mc} S must be > 0 (percent)")
@@ -790,7 +804,8 @@ class Interpreter:
             if mc == 203 and k in "XYZE":
                 if not v > 0:
                     self.error(f"M203 {k} must be > 0")
-                changes["axis_v_" + k.lower()] = v       # Marlin M203: units/s
+                # Marlin's M203 is in units/s, RepRapFirmware's in units/min (config.g: M203 X6000 ...)
+                changes["axis_v_" + k.lower()] = v / 60.0 if self.machine.flavor == "reprap" else v
             elif mc == 201 and k in "XYZE":
                 if not v > 0:
                     self.error(f"M201 {k} must be > 0")
@@ -900,6 +915,11 @@ class Interpreter:
         for k in axes:
             a = "XYZ".index(k)
             st[S.S_X + a] = self.machine.axes[k.lower()].home
+            if not self.machine.is_cnc:
+                # homing drops the G92 offset of the axis (Marlin set_axis_is_at_home, Klipper's
+                # base_position = homing_position); CNC G28 is a move to a stored point, offsets kept
+                self.g92[a] = 0.0
+        self._update_offsets()
         self.event("G28 home " + "".join(axes))
         self.waits["G28"] = self.waits.get("G28", 0) + 1
         self._row(KIND_WAIT, FLAG_HOMING, x0, y0, z0, e0, float(st[S.S_X]), float(st[S.S_Y]), float(st[S.S_Z]),
@@ -955,7 +975,7 @@ class Interpreter:
         if v is None:
             return e0, elog
         ev = v * float(st[S.S_UNIT])
-        if ist[S.I_ABS_COORD] != 0 and ist[S.I_ABS_E] != 0:
+        if ist[S.I_ABS_E] != 0 and (ist[S.I_ABS_COORD] != 0 or ist[S.I_G90_SETS_E] != 0):
             de_log = ev - elog
             elog = ev
         else:
@@ -1040,8 +1060,17 @@ class Interpreter:
         centre = [self._value(params, k) for k in "IJK"]
         r = self._value(params, "R")
         p = self._value(params, "P")
+        flavor = self.machine.flavor
+        if p is not None and flavor == "klipper":
+            self.warn("G2/G3 P is not supported by Klipper: ignored")
+            p = None
         turns = 1 if p is None else p
-        if p is not None and (p != int(p) or p < 1):
+        if p is not None and flavor == "marlin":
+            # Marlin (ARC_P_CIRCLES): P complete circles in addition to the arc; LinuxCNC: P turns in all
+            if p != int(p) or p < 0:
+                self.error(f"arc circle count P must be a whole number >= 0, got {params['P'].text}")
+            turns = p + 1
+        elif p is not None and (p != int(p) or p < 1):
             self.error(f"arc turn count P must be a whole number >= 1, got {params['P'].text}")
         ijk = None
         if any(c is not None for c in centre):

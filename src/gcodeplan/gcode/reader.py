@@ -27,8 +27,9 @@ def _check_text(path: str, head: bytes) -> None:
     sample = head[:65536]
     if not sample:
         return
-    if b"\x00" in sample:
-        raise GcodeError("not a text file (NUL bytes): is this a binary file?", path)
+    nul = sample.find(b"\x00")
+    if nul >= 0:
+        raise GcodeError("not a text file (NUL byte): is this a binary file?", path, sample.count(b"\n", 0, nul) + 1)
     ctrl = sum(sample.count(bytes([c])) for c in range(32) if c not in (9, 10, 11, 12, 13)) + sample.count(b"\x7f")
     if ctrl > 0.02 * len(sample):
         raise GcodeError("not a text file (control characters): is this a binary file?", path)

@@ -36,7 +36,7 @@ N_ST = 17
 # ------------------------------------------------------------------ int state (ist)
 I_LINE = 0          # number of the last line fully processed (1-based lines)
 I_ABS_COORD = 1     # G90 (1) / G91 (0)
-I_ABS_E = 2         # M82 (1) / M83 (0); E is relative when either flag is 0 (Klipper's rule)
+I_ABS_E = 2         # M82 (1) / M83 (0); E is relative when either flag is 0 (Klipper's rule), see I_G90_SETS_E
 I_MOTION = 3        # modal motion: 0, 1, 2, 3 (G0..G3), 80 = none, 73/81..89 = canned cycle
 I_DIALECT = 4       # DIALECT_*
 I_LIMITS = 5        # LIMITS row in force
@@ -48,7 +48,9 @@ I_LAYER_Z_TODO = 10  # 1 while the current layer's Z is unknown (the first print
 I_NFEAT = 11        # rows in use in the ;TYPE: name table
 I_M204_IGNORED = 12  # klipper dialect: M204 lines without S and without both P and T
 I_STOPPED = 13      # 1 after a program end (M2/M30 on CNC flavors): nothing more is interpreted
-N_IST = 14
+I_G90_SETS_E = 14   # 1 on Marlin 2: G90/G91 also set the E mode (the last of G90/G91/M82/M83 rules E),
+                    # 0 elsewhere (Klipper's rule: E is relative while G91 or M83 is in force)
+N_IST = 15
 
 DIALECT_KLIPPER = 0   # M204: S, else min(P, T) when both; one accel for every move
 DIALECT_MARLIN = 1    # marlin / reprap: M204 S/P/T/R, accel chosen by the move's kind
@@ -380,7 +382,7 @@ def scan_chunk(buf, pos, end, st, ist, out, n_out, feat_raw, feat_len, feat_idx)
             elog = st[S_ELOG]
             if has & 8:
                 ev = ve * scale
-                if absc and ist[I_ABS_E] != 0:
+                if ist[I_ABS_E] != 0 and (absc or ist[I_G90_SETS_E] != 0):
                     de_log = ev - elog
                     elog = ev
                 else:
@@ -438,6 +440,8 @@ def scan_chunk(buf, pos, end, st, ist, out, n_out, feat_raw, feat_len, feat_idx)
                 if has != 0:
                     return ST_PYTHON, line_start, n_out
                 ist[I_ABS_COORD] = 1 if code == 90 else 0
+                if ist[I_G90_SETS_E] != 0:
+                    ist[I_ABS_E] = ist[I_ABS_COORD]
             elif code == 92:
                 if has != 8:   # only "G92 E<v>" here
                     return ST_PYTHON, line_start, n_out
@@ -465,7 +469,10 @@ def scan_chunk(buf, pos, end, st, ist, out, n_out, feat_raw, feat_len, feat_idx)
                     return ST_PYTHON, line_start, n_out
                 ist[I_ABS_E] = 1 if code == 82 else 0
             elif code == 104 or code == 105 or code == 106 or code == 107 or code == 140:
-                pass  # heaters / fan / temperature report: no motion
+                # heaters / fan / temperature report: no motion. An F here is the command's own parameter on
+                # printers, but a modal feed on CNC controls: Python's job there
+                if (has & 16) and dialect == DIALECT_CNC:
+                    return ST_PYTHON, line_start, n_out
             elif code == 204:
                 if dialect == DIALECT_CNC or (has & ~(32 | 64 | 128 | 256)):
                     return ST_PYTHON, line_start, n_out
