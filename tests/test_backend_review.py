@@ -124,7 +124,7 @@ G1 X1.25 Y3.75 F6000
 """
 END_XYZ = (1.25, 3.75, 0.2)
 MODES = [("classic-jerk", None), ("junction-deviation", None), ("exact-stop", None), ("blend", None),
-         ("junction-deviation", 5e4), ("blend", 2e4), ("exact-stop", 1e3)]
+         ("junction-deviation", 5e4), ("klipper", 2e4), ("exact-stop", 1e3)]
 
 
 @pytest.fixture
@@ -314,3 +314,15 @@ def test_m205_minimum_feeds_follow_marlin_s_for_any_e_motion_t_otherwise(policy)
     # Klipper has no M205 S/T: the requested feed stands
     mv = moves_from_points([(0, 0, 0, 0), (100, 0, 0, -1.0)], feed_v=1.0, accel=a)
     assert plan_moves(mv, lim, mach, "klipper")["cruise_v"][0] == pytest.approx(1.0, rel=1e-12)
+
+
+def test_blend_policy_with_a_jerk_limit_is_refused_not_silently_replaced():
+    from gcodeplan.errors import ConfigError
+    from gcodeplan.planner import StreamPlanner, plan_moves
+
+    m = load_machine("klipper")
+    moves = moves_from_points([(0, 0, 0, 0), (10, 0, 0, 0), (10, 10, 0, 0)])
+    with pytest.raises(ConfigError, match="blend policy and S-curves"):
+        plan_moves(moves, m.limits_row(), m, "blend", jerk=1e4)
+    with pytest.raises(ConfigError, match="blend policy and S-curves"):
+        StreamPlanner(m, "blend", jerk=1e4).feed(moves, m.limits_row())

@@ -27,7 +27,7 @@ from .passes import plan_from_prep
 from .prepare import POLICY_BLEND, PREP_DTYPE, policy_code, prepare
 from .sampling import sample_segments
 from .segments import to_segments
-from .stream import StreamPlanner
+from .stream import StreamPlanner, _no_blend_with_jerk
 
 __all__ = ["plan_moves", "StreamPlanner", "to_segments", "sample_segments", "POLICIES", "prepare",
            "PREP_DTYPE", "plan_from_prep"]
@@ -79,6 +79,7 @@ def plan_moves(moves: np.ndarray, limits: np.ndarray, machine, policy: str | Non
     limits = np.asarray(limits)
     j = _scurve_jerk(moves, limits, jerk)
     if j is not None:
+        _no_blend_with_jerk(policy_code(name))
         return _plan_only(_external("scurve", "plan_scurve")(moves, limits, machine, j, policy=name))
     if pcode == POLICY_BLEND:
         return _plan_only(_external("blend", "plan_blend")(moves, limits, machine))
@@ -96,6 +97,7 @@ def plan_with_segments(moves: np.ndarray, limits: np.ndarray, machine, policy: s
     limits = np.asarray(limits)
     j = _scurve_jerk(moves, limits, jerk)
     if j is not None:
+        _no_blend_with_jerk(policy_code(name))
         return _external("scurve", "plan_scurve")(moves, limits, machine, j, first_move=first_index, policy=name)
     if policy_code(name) == POLICY_BLEND:
         return _external("blend", "plan_blend")(moves, limits, machine, first_move=first_index)

@@ -130,6 +130,7 @@ class StreamPlanner:
             self._jerk = _scurve_jerk(moves, limits, None)
             self._jerk_from_limits = self._jerk is not None
         if self._jerk is not None:
+            _no_blend_with_jerk(self._pcode)
             return MODE_SCURVE
         return MODE_BLEND if self._pcode == POLICY_BLEND else MODE_TRAPEZOID
 
@@ -219,3 +220,11 @@ def plan_stream(chunks, limits_for_chunk, machine, policy: str | None = None, je
     if not outs:
         return np.zeros(0, dtype=MOVE_DTYPE), np.zeros(0, dtype=PLAN_DTYPE)
     return np.concatenate([o[0] for o in outs]), np.concatenate([o[1] for o in outs])
+
+
+def _no_blend_with_jerk(pcode: int) -> None:
+    """Blends are constant-acceleration parabolas: a jerk limit cannot hold in them, and S-curve moves
+    would silently fall back to junction-deviation corners while the result claimed 'blend'."""
+    if pcode == POLICY_BLEND:
+        raise ConfigError("the blend policy and S-curves (--jerk / max_jerk) cannot be combined: blends are "
+                          "constant-acceleration parabolas; choose one")
