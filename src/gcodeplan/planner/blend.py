@@ -63,8 +63,8 @@ from ..schema import (
     PHASE_DECEL,
     PHASE_DWELL,
     PLAN_DTYPE,
-    SEGMENT_DTYPE,
 )
+from .segments import segments_from_table
 
 # Directions closer to opposite than this (cos of the turn > 1 − REVERSAL_COS) are a reversal: full stop.
 REVERSAL_COS = 1e-12
@@ -542,15 +542,7 @@ def blend_segments(moves: np.ndarray, plan: np.ndarray, ctx: dict, first_move: i
         p0, p1, ctx["move_d"], ctx["axes_r"], ctx["accel"], ctx["corner_c"], ctx["timing"],
         np.ascontiguousarray(plan["t_start"][rows]), np.ascontiguousarray(rows.astype(np.int64)),
         int(first_move))
-    segs = np.zeros(len(seg_rows), dtype=SEGMENT_DTYPE)
-    segs["t0"], segs["dt"] = seg_rows[:, 0], seg_rows[:, 1]
-    for col, ax in enumerate("xyze"):
-        segs["p" + ax] = seg_rows[:, 2 + col]
-        segs["v" + ax] = seg_rows[:, 6 + col]
-        segs["a" + ax] = seg_rows[:, 10 + col]
-    segs["move"] = seg_move
-    segs["phase"] = seg_phase
-    return segs
+    return segments_from_table(seg_rows, seg_move, seg_phase)
 
 
 def plan_blend(moves: np.ndarray, limits: np.ndarray, machine, first_move: int = 0):

@@ -196,21 +196,29 @@ def lay_out(kind, dwell_t, prep, n_rows, start_v2, cruise_v2, end_v2, limit, t_c
             t_clock = t_clock + a_t + c_t + d_t
             k += 1
         else:
-            out.start_v = 0.0
-            out.cruise_v = 0.0
-            out.end_v = 0.0
-            out.accel = 0.0
-            out.decel = 0.0
-            out.accel_t = 0.0
-            out.cruise_t = 0.0
-            out.decel_t = 0.0
-            out.limit = LIMIT_NONE
-            if kind[i] == KIND_DWELL or kind[i] == KIND_WAIT:
-                out.duration = dwell_t[i]
-                t_clock = t_clock + dwell_t[i]
-            else:
-                out.duration = 0.0
+            t_clock = t_clock + fill_idle_row(out, kind[i], dwell_t[i])
     return t_clock
+
+
+@numba.njit(cache=True)
+def fill_idle_row(out, kind, dwell_t) -> float:
+    """A PLAN row that is not a move (dwell, wait, or a dropped zero-length row): no motion; returns the
+    time it takes (dwell_t for dwell/wait rows, else 0)."""
+    out.start_v = 0.0
+    out.cruise_v = 0.0
+    out.end_v = 0.0
+    out.accel = 0.0
+    out.decel = 0.0
+    out.jerk = 0.0
+    out.accel_t = 0.0
+    out.cruise_t = 0.0
+    out.decel_t = 0.0
+    out.limit = LIMIT_NONE
+    if kind == KIND_DWELL or kind == KIND_WAIT:
+        out.duration = dwell_t
+        return dwell_t
+    out.duration = 0.0
+    return 0.0
 
 
 # --------------------------------------------------------------------------- Python layer

@@ -34,8 +34,10 @@ import numpy as np
 from ..errors import ConfigError
 from ..profiles.scurve import (ramp_distance_kernel, scurve_max_end_speed_kernel, scurve_max_start_speed_kernel,
                                scurve_phases_kernel)
-from ..schema import (KIND_DWELL, KIND_WAIT, LIMIT_ACCEL, LIMIT_JUNCTION, LIMIT_NONE, PHASE_ACCEL,
-                      PHASE_CRUISE, PHASE_DECEL, PHASE_DWELL, PLAN_DTYPE, SEGMENT_DTYPE)
+from ..schema import (KIND_DWELL, KIND_WAIT, LIMIT_ACCEL, LIMIT_JUNCTION, PHASE_ACCEL,
+                      PHASE_CRUISE, PHASE_DECEL, PHASE_DWELL, PLAN_DTYPE)
+from .passes import fill_idle_row
+from .segments import segments_from_table
 
 
 @numba.njit(cache=True)
@@ -251,21 +253,7 @@ def scurve_layout_kernel(kind, dwell_t, prep, speeds, durations, peak_v, jerk, t
             t_clock = t_clock + duration
             k += 1
         else:
-            out.start_v = 0.0
-            out.cruise_v = 0.0
-            out.end_v = 0.0
-            out.accel = 0.0
-            out.decel = 0.0
-            out.jerk = 0.0
-            out.accel_t = 0.0
-            out.cruise_t = 0.0
-            out.decel_t = 0.0
-            out.limit = LIMIT_NONE
-            if kind[i] == KIND_DWELL or kind[i] == KIND_WAIT:
-                out.duration = dwell_t[i]
-                t_clock = t_clock + dwell_t[i]
-            else:
-                out.duration = 0.0
+            t_clock = t_clock + fill_idle_row(out, kind[i], dwell_t[i])
     return t_clock
 
 
@@ -334,16 +322,7 @@ def scurve_segments(moves: np.ndarray, prep: np.ndarray, plan: np.ndarray, durat
         p0, axes_r, dur_rows, np.ascontiguousarray(plan["start_v"][rows]), float(jerk),
         np.ascontiguousarray(plan["t_start"][rows]), is_motion, np.ascontiguousarray(dwell_t),
         np.ascontiguousarray(rows.astype(np.int64)), int(first_move))
-    segs = np.zeros(len(seg_rows), dtype=SEGMENT_DTYPE)
-    segs["t0"], segs["dt"] = seg_rows[:, 0], seg_rows[:, 1]
-    for col, ax in enumerate("xyze"):
-        segs["p" + ax] = seg_rows[:, 2 + col]
-        segs["v" + ax] = seg_rows[:, 6 + col]
-        segs["a" + ax] = seg_rows[:, 10 + col]
-        segs["j" + ax] = seg_rows[:, 14 + col]
-    segs["move"] = seg_move
-    segs["phase"] = seg_phase
-    return segs
+    return segments_from_table(seg_rows, seg_move, seg_phase)
 
 
 def plan_scurve(moves: np.ndarray, limits: np.ndarray, machine, jerk: float, first_move: int = 0,

@@ -104,3 +104,20 @@ def to_segments(moves: np.ndarray, plan: np.ndarray, first_index: int = 0) -> np
         segs["v" + ax] = v[:, k]
         segs["a" + ax] = a[:, k]
     return segs
+
+
+def segments_from_table(seg_rows: np.ndarray, seg_move: np.ndarray, seg_phase: np.ndarray) -> np.ndarray:
+    """SEGMENT rows from the (n, 18) float table the blend / S-curve kernels fill
+    (t0, dt, then p, v, a, j for x, y, z, e; a table with 14 columns has no jerk)."""
+    segs = np.zeros(len(seg_rows), dtype=SEGMENT_DTYPE)
+    segs["t0"], segs["dt"] = seg_rows[:, 0], seg_rows[:, 1]
+    with_jerk = seg_rows.shape[1] >= 18
+    for col, ax in enumerate("xyze"):
+        segs["p" + ax] = seg_rows[:, 2 + col]
+        segs["v" + ax] = seg_rows[:, 6 + col]
+        segs["a" + ax] = seg_rows[:, 10 + col]
+        if with_jerk:
+            segs["j" + ax] = seg_rows[:, 14 + col]
+    segs["move"] = seg_move
+    segs["phase"] = seg_phase
+    return segs
