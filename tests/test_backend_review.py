@@ -17,7 +17,6 @@ import pytest
 
 from gcodeplan.config import load_machine
 from gcodeplan.planner import StreamPlanner, plan_moves, plan_with_segments
-from gcodeplan.schema import KIND_TRAVEL
 
 from test_planner_util import moves_from_points
 

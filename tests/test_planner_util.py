@@ -110,7 +110,6 @@ def random_program(rng: np.random.Generator, n: int, n_limits: int = 1, dwell_p:
     lines, collinear runs), travels, retract / unretract (extrude-only), Z hops, dwells,
     zero-length moves, feed changes, occasional exact-stop moves and limits-row switches."""
     pts = [np.array([100.0, 100.0, 0.2, 0.0])]
-    feeds, kinds_dwell, rows_lim, exact = [], [], [], []
     cur_feed = 50.0
     lim = 0
     out = []

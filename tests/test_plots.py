@@ -650,12 +650,6 @@ def test_plot_command_user_errors_exit_2_with_one_line(argv, message, samples, c
 def test_plot_command_on_a_missing_file_names_it(tmp_path, capsys):
     assert run_cli(["plot", str(tmp_path / "nope.gcode"), "-o", str(tmp_path / "x.png")]) == 2
     assert "nope.gcode" in capsys.readouterr().err
-def run_cli(argv):
-    from gcodeplan.cli import main
-
-    return main(argv)
-
-
 @pytest.mark.parametrize("policy,jerk", [("blend", None), (None, 50_000.0)])
 def test_blend_and_scurve_windows_are_drawn_from_their_planners_segments(policy, jerk, samples):
     from gcodeplan.planner import sample_segments

@@ -81,17 +81,6 @@ def test_csv_writer(tmp_path):
 
 # ------------------------------------------------------------------------------ the command
 
-def _have_pipeline():
-    try:
-        from gcodeplan.config import machine_from_args  # noqa: F401
-        from gcodeplan.gcode import GcodeReader  # noqa: F401
-        from gcodeplan.planner import StreamPlanner, to_segments  # noqa: F401
-    except ImportError:
-        return False
-    return True
-
-
-needs_pipeline = pytest.mark.skipif(not _have_pipeline(), reason="parser/planner/config not in the tree yet")
 
 GCODE = "G90\nG1 X10 Y5 F3000\nG1 X0 Y0\nG1 X3.3 Y-2.2\n"
 
@@ -109,7 +98,6 @@ def _main(argv):
     return main([str(a) for a in argv])
 
 
-@needs_pipeline
 def test_steps_command_writes_everything(gfile, tmp_path, capsys):
     out = tmp_path / "steps.npz"
     rc = _main(["steps", gfile, "--machine", "klipper", "-o", out, "--csv", tmp_path / "csv", "--compress",
@@ -136,14 +124,12 @@ def test_steps_command_writes_everything(gfile, tmp_path, capsys):
     assert net == round(pos * spm[first])
 
 
-@needs_pipeline
 def test_unwritable_output_is_exit_2(gfile, tmp_path, capsys):
     rc = _main(["steps", gfile, "--machine", "klipper", "-o", tmp_path / "missing" / "s.npz"])
     assert rc == 2
     assert "does not exist" in capsys.readouterr().err
 
 
-@needs_pipeline
 def test_interrupt_leaves_no_partial_file(gfile, tmp_path, monkeypatch):
     from gcodeplan.stepper import generate
 
@@ -158,7 +144,6 @@ def test_interrupt_leaves_no_partial_file(gfile, tmp_path, monkeypatch):
     assert os.listdir(tmp_path / "csv") == []
 
 
-@needs_pipeline
 def test_bad_option_values_are_exit_2(gfile, tmp_path, capsys):
     rc = _main(["steps", gfile, "-o", tmp_path / "s.npz", "--max-error", "-1"])
     assert rc == 2 and "--max-error" in capsys.readouterr().err
@@ -166,7 +151,6 @@ def test_bad_option_values_are_exit_2(gfile, tmp_path, capsys):
     assert rc == 2 and "nope.gcode" in capsys.readouterr().err
 
 
-@needs_pipeline
 def test_step_rate_warning(gfile, tmp_path, capsys):
     rc = _main(["steps", gfile, "--machine", "klipper", "-o", tmp_path / "s.npz", "--max-step-rate", "1000", "-q"])
     assert rc == 0

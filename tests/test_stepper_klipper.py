@@ -7,7 +7,6 @@ one 20 ns tick).
 """
 from __future__ import annotations
 
-import importlib.util
 import json
 
 import numpy as np
@@ -79,20 +78,6 @@ def test_zero_error_compression_gives_klipper_clocks():
 
 # ----------------------------------------------------------------- through the parser and the planner
 
-def _pipeline_available() -> bool:
-    for mod in ("gcodeplan.gcode", "gcodeplan.planner", "gcodeplan.config"):
-        if importlib.util.find_spec(mod) is None:
-            return False
-    try:
-        from gcodeplan.config import load_klipper_config  # noqa: F401
-        from gcodeplan.gcode import GcodeReader  # noqa: F401
-        from gcodeplan.planner import StreamPlanner, to_segments  # noqa: F401
-    except ImportError:
-        return False
-    return True
-
-
-needs_pipeline = pytest.mark.skipif(not _pipeline_available(), reason="parser/planner/config not in the tree yet")
 
 
 def pipeline_steps(gcode, cfg):
@@ -129,7 +114,6 @@ def pipeline_steps(gcode, cfg):
 SYNTHETIC = ["a_long_x", "b_square", "c_circle200", "d_slicer_like", "e_spiral20k"]
 
 
-@needs_pipeline
 @pytest.mark.parametrize("kin", ["cartesian", "corexy"])
 @pytest.mark.parametrize("name", SYNTHETIC)
 def test_synthetic_files_match_klipper(name, kin):
@@ -144,7 +128,6 @@ def test_synthetic_files_match_klipper(name, kin):
     assert_same_steps(ours, ref)
 
 
-@needs_pipeline
 @pytest.mark.slow
 def test_corpus_cube_corexy_matches_klipper():
     base = shared_path("reference", "klipper")

@@ -1005,7 +1005,7 @@ class Interpreter:
 
     def _linear(self, code: int, params: dict[str, Word], used: set[str], f: float | None,
                 machine_coords: bool) -> None:
-        st, ist = self.st, self.ist
+        st = self.st
         used.update("XYZEF")
         scale = float(st[S.S_UNIT])
         x0, y0, z0, e0 = float(st[S.S_X]), float(st[S.S_Y]), float(st[S.S_Z]), float(st[S.S_E])

@@ -49,7 +49,7 @@ def segment_batches(path: str, machine, *, policy: str | None = None, jerk: floa
     ``progress(bytes_read)`` is called after each parser batch when the reader reports it.
     """
     from ..gcode import GcodeReader
-    from ..planner import StreamPlanner, to_segments
+    from ..planner import StreamPlanner
 
     policy = policy or machine.junction_policy
     reader = GcodeReader(path, machine, strict=strict)
