@@ -18,11 +18,9 @@ N_SAMPLES = 20000
 
 
 def _pipeline():
-    try:
-        from gcodeplan.config import load_klipper_config, load_machine
-        from gcodeplan.stepper.source import segment_batches
-    except ImportError:
-        pytest.skip("parser/planner/config not in the tree yet")
+    from gcodeplan.config import load_klipper_config, load_machine
+    from gcodeplan.stepper.source import segment_batches
+
     return load_klipper_config, load_machine, segment_batches
 
 
