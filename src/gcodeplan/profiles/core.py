@@ -80,6 +80,22 @@ def check_array(name: str, arr: np.ndarray, positive: bool, allow_inf: bool) -> 
         raise ValueError(f"{name} must be finite everywhere")
 
 
+def check_batch_args(distance: np.ndarray, v_max: np.ndarray, limits: dict[str, np.ndarray],
+                     v_start: np.ndarray, v_end: np.ndarray) -> None:
+    """The batch solvers' argument checks: ValueError naming the first bad argument. ``limits``
+    maps accel/decel/jerk names to arrays that must be positive and finite."""
+    check_array("distance", distance, positive=False, allow_inf=False)
+    check_array("v_max", v_max, positive=True, allow_inf=True)
+    for name, arr in limits.items():
+        check_array(name, arr, positive=True, allow_inf=False)
+    check_array("v_start", v_start, positive=False, allow_inf=False)
+    check_array("v_end", v_end, positive=False, allow_inf=False)
+    if (v_start > v_max).any():
+        raise ValueError("v_start exceeds v_max")
+    if (v_end > v_max).any():
+        raise ValueError("v_end exceeds v_max")
+
+
 def batch_arrays(**named) -> tuple[tuple[int, ...], list[np.ndarray]]:
     """Broadcast the named arguments together; return the shape and flat contiguous float64 copies."""
     try:

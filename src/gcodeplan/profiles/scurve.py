@@ -577,22 +577,13 @@ def scurve(distance, v_max, a_max, j_max, v_start=0.0, v_end=0.0):
 def scurve_durations(distance, v_max, a_max, j_max, v_start, v_end) -> np.ndarray:
     """Durations (s) of many time-optimal S-curves at once from broadcastable arrays; NaN where no forward-only
     motion exists. Raises ValueError for NaN or out-of-range arguments (naming the argument)."""
-    from .core import batch_arrays, check_array
+    from .core import batch_arrays, check_batch_args
 
     shape, (h, vm, am, jm, v0, v1) = batch_arrays(distance=distance, v_max=v_max, a_max=a_max, j_max=j_max,
                                                   v_start=v_start, v_end=v_end)
     out = np.empty(h.shape[0])
     if _scurve_durations_checked(h, vm, am, jm, v0, v1, out) >= 0:
         # an invalid argument somewhere: the per-array checks name it (and raise)
-        check_array("distance", h, positive=False, allow_inf=False)
-        check_array("v_max", vm, positive=True, allow_inf=True)
-        check_array("a_max", am, positive=True, allow_inf=False)
-        check_array("j_max", jm, positive=True, allow_inf=False)
-        check_array("v_start", v0, positive=False, allow_inf=False)
-        check_array("v_end", v1, positive=False, allow_inf=False)
-        if (v0 > vm).any():
-            raise ValueError("v_start exceeds v_max")
-        if (v1 > vm).any():
-            raise ValueError("v_end exceeds v_max")
+        check_batch_args(h, vm, {"a_max": am, "j_max": jm}, v0, v1)
         raise AssertionError("unreachable: the fused and the per-array argument checks disagree")
     return out.reshape(shape)

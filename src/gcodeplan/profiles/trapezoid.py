@@ -143,20 +143,11 @@ def trapezoid_durations(distance, v_max, a_max, v_start, v_end, decel=None):
     Raises ValueError for NaN or out-of-range arguments (naming the argument)."""
     import numpy as np
 
-    from .core import batch_arrays, check_array
+    from .core import batch_arrays, check_batch_args
 
     shape, (h, vm, am, v0, v1, dm) = batch_arrays(distance=distance, v_max=v_max, a_max=a_max, v_start=v_start,
                                                   v_end=v_end, decel=a_max if decel is None else decel)
-    check_array("distance", h, positive=False, allow_inf=False)
-    check_array("v_max", vm, positive=True, allow_inf=True)
-    check_array("a_max", am, positive=True, allow_inf=False)
-    check_array("decel", dm, positive=True, allow_inf=False)
-    check_array("v_start", v0, positive=False, allow_inf=False)
-    check_array("v_end", v1, positive=False, allow_inf=False)
-    if (v0 > vm).any():
-        raise ValueError("v_start exceeds v_max")
-    if (v1 > vm).any():
-        raise ValueError("v_end exceeds v_max")
+    check_batch_args(h, vm, {"a_max": am, "decel": dm}, v0, v1)
     out = np.empty(h.shape[0])
     _trapezoid_durations_loop(h, vm, am, v0, v1, dm, out)
     return out.reshape(shape)
