@@ -11,7 +11,7 @@ and PrusaSlicer's estimator (its own re-implementation of Marlin's planner) is n
 import pytest
 
 from gcodeplan.config import load_machine
-from gcodeplan.report.estimate_cmd import estimate_file
+from gcodeplan.api import estimate
 from conftest import SAMPLES, shared_path
 
 BIG = ["prusaslicer25_twisted_vase_spiral.gcode", "prusaslicer25_multi_object_plate_relE.gcode",
@@ -19,7 +19,7 @@ BIG = ["prusaslicer25_twisted_vase_spiral.gcode", "prusaslicer25_multi_object_pl
 
 
 def _check(path):
-    est = estimate_file(str(path), load_machine("marlin"), "classic-jerk", None, False)
+    est = estimate(str(path), load_machine("marlin"), "classic-jerk")
     slicer = est.parse.slicer_estimate_s
     assert slicer, "PrusaSlicer writes its estimate in every file"
     assert est.time.total_time_s == pytest.approx(slicer, rel=0.02)
@@ -37,13 +37,12 @@ def test_file_limits_are_honoured_under_marlin_meanings(tmp_path):
     assert "M201 X1000 Y1000" in text
     slow = tmp_path / "cube_slow_accel.gcode"
     slow.write_text(text.replace("M201 X1000 Y1000", "M201 X250 Y250", 1))
-    base = estimate_file(str(SAMPLES / "prusaslicer25_cube20_marlin2.gcode"), load_machine("marlin"),
-                         "classic-jerk", None, False).time.total_time_s
-    slower = estimate_file(str(slow), load_machine("marlin"), "classic-jerk", None, False).time.total_time_s
+    base = estimate(str(SAMPLES / "prusaslicer25_cube20_marlin2.gcode"), load_machine("marlin"), "classic-jerk").time.total_time_s
+    slower = estimate(str(slow), load_machine("marlin"), "classic-jerk").time.total_time_s
     assert slower > base * 1.02
     klipper = load_machine("klipper")
-    k_base = estimate_file(str(SAMPLES / "prusaslicer25_cube20_marlin2.gcode"), klipper, None, None, False)
-    k_slow = estimate_file(str(slow), klipper, None, None, False)
+    k_base = estimate(str(SAMPLES / "prusaslicer25_cube20_marlin2.gcode"), klipper, None)
+    k_slow = estimate(str(slow), klipper, None)
     assert k_slow.time.total_time_s == k_base.time.total_time_s
     assert k_slow.parse.ignored_commands.get("M201") == 1
 

@@ -569,7 +569,7 @@ def test_layer_window_is_planned_from_the_file_start_and_matches_klippers_per_li
     import gzip
 
     from conftest import shared_path
-    from gcodeplan.report.plot_cmd import Selection, load_window
+    from gcodeplan.commands.plot import Selection, load_window
 
     ref = shared_path("reference", "klipper", "per_line", CUBE.replace(".gcode", ".per_line_end_time.csv.gz"))
     with gzip.open(ref, "rt") as fh:
@@ -601,7 +601,7 @@ def test_layer_window_is_planned_from_the_file_start_and_matches_klippers_per_li
 
 
 def test_time_window_is_cut_exactly_at_its_ends(samples):
-    from gcodeplan.report.plot_cmd import Selection, load_window
+    from gcodeplan.commands.plot import Selection, load_window
 
     win, _ = load_window(str(samples / CUBE), klipper_machine(), Selection(t_from=100.0, t_to=101.5))
     assert np.isclose(win.segs["t0"][0], 100.0) and np.isclose(win.segs["t0"][-1] + win.segs["dt"][-1], 101.5)
@@ -653,7 +653,7 @@ def test_plot_command_on_a_missing_file_names_it(tmp_path, capsys):
 @pytest.mark.parametrize("policy,jerk", [("blend", None), (None, 50_000.0)])
 def test_blend_and_scurve_windows_are_drawn_from_their_planners_segments(policy, jerk, samples):
     from gcodeplan.planner import sample_segments
-    from gcodeplan.report.plot_cmd import Selection, load_window
+    from gcodeplan.commands.plot import Selection, load_window
 
     from dataclasses import replace
 

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from gcodeplan import cli, profiles
-from gcodeplan.profiles import profile_cmd
+from gcodeplan.commands import profile as profile_cmd
 
 
 def test_prints_phases_and_total_time(capsys):

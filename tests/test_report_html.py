@@ -13,7 +13,7 @@ import pytest
 
 from conftest import shared_path
 from gcodeplan.report import html as H
-from gcodeplan.report.report_cmd import SlowestLayers, build_report
+from gcodeplan.commands.report import SlowestLayers, build_report
 from gcodeplan.schema import KIND_PRINT, KIND_WAIT, MOVE_DTYPE, PLAN_DTYPE
 
 CUBE = "prusaslicer25_cube20_marlin2.gcode"

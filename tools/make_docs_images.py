@@ -25,7 +25,7 @@ def main(argv=None) -> int:
 
     from gcodeplan.config import load_machine
     from gcodeplan.report import plots
-    from gcodeplan.report.plot_cmd import Selection, load_layer_times, load_window
+    from gcodeplan.commands.plot import Selection, load_layer_times, load_window
 
     machine = load_machine(args.machine)
     out = Path(args.out)

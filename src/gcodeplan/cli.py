@@ -1,6 +1,6 @@
 """Command line: ``gcodeplan <command> ...``.
 
-Each command lives in the stage package it belongs to and exposes
+Each command is one module of :mod:`gcodeplan.commands` exposing
 ``add_arguments(parser)`` and ``run(args) -> int``. Modules are imported only
 when their command runs, so ``--help`` stays fast.
 
@@ -18,28 +18,13 @@ from . import __version__
 
 # name -> (module, one-line help)
 COMMANDS: dict[str, tuple[str, str]] = {
-    "estimate": ("gcodeplan.report.estimate_cmd", "plan a G-code file and print its time (the main job)"),
-    "parse": ("gcodeplan.gcode.parse_cmd", "parse a G-code file and print what it contains"),
-    "profile": ("gcodeplan.profiles.profile_cmd", "solve and print (or plot) one 1-D velocity profile"),
-    "steps": ("gcodeplan.stepper.steps_cmd", "write exact per-stepper step times for a G-code file"),
-    "plot": ("gcodeplan.report.plot_cmd", "draw velocity / axes / toolpath / layer plots"),
-    "report": ("gcodeplan.report.report_cmd", "write a self-contained HTML report"),
+    "estimate": ("gcodeplan.commands.estimate", "plan a G-code file and print its time (the main job)"),
+    "parse": ("gcodeplan.commands.parse", "parse a G-code file and print what it contains"),
+    "profile": ("gcodeplan.commands.profile", "solve and print (or plot) one 1-D velocity profile"),
+    "steps": ("gcodeplan.commands.steps", "write exact per-stepper step times for a G-code file"),
+    "plot": ("gcodeplan.commands.plot", "draw velocity / axes / toolpath / layer plots"),
+    "report": ("gcodeplan.commands.report", "write a self-contained HTML report"),
 }
-
-
-def add_machine_arguments(p: argparse.ArgumentParser) -> None:
-    """Options every command that reads G-code shares."""
-    g = p.add_argument_group("machine")
-    src = g.add_mutually_exclusive_group()
-    src.add_argument("--machine", metavar="M.toml",
-                     help="machine description in gcodeplan's TOML format, or a preset name "
-                          "(klipper, marlin, grbl); default: the klipper preset")
-    src.add_argument("--klipper-config", metavar="printer.cfg",
-                     help="read the machine from a Klipper printer.cfg (G-code then has Klipper's meanings)")
-    g.add_argument("--flavor", choices=("marlin", "klipper", "reprap", "grbl", "linuxcnc"),
-                   help="G-code dialect, overriding the machine's (G4 P units, M204 meaning, G0 rate)")
-    g.add_argument("--strict", action="store_true",
-                   help="unknown commands are an error instead of being counted")
 
 
 def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
@@ -57,10 +42,7 @@ def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
         # Import only the module of the command that runs: numba and NumPy cost ~0.5 s to import,
         # and the top-level --help needs none of it.
         if wanted == name:
-            try:
-                mod = importlib.import_module(module)
-            except ImportError:
-                continue
+            mod = importlib.import_module(module)   # a broken command module fails loudly here
             mod.add_arguments(sp)
             sp.set_defaults(_run=mod.run)
     return parser

@@ -1,7 +1,7 @@
 """Per-move limits and junction limits: MOVE rows → PREP rows (one per move).
 
 This is Klipper's ``Move`` construction and ``calc_junction`` (see
-/work/shared/reference/klipper-planner.md §1–2) generalised to the other junction policies. All
+docs/design.md, "Klipper's planner") generalised to the other junction policies. All
 speeds are tracked squared (``_v2``). The arrays are computed by two numba kernels:
 
 * ``_move_limits_kernel``: independent per move (cruise speed cap, acceleration, Δv² = 2·d·a);
@@ -78,10 +78,21 @@ L_MIN_FEED, L_MIN_TRAVEL = _L["min_feed_v"], _L["min_travel_v"]
 
 
 def policy_code(policy: str) -> int:
-    try:
+    """The kernel code of a policy: a built-in's own, a registered policy's ``moves_like`` built-in."""
+    if policy in POLICIES:
         return POLICIES.index(policy)
-    except ValueError:
-        raise ConfigError(f"junction_policy: unknown policy {policy!r} (one of {', '.join(POLICIES)})") from None
+    from .policies import get_policy
+
+    return POLICIES.index(get_policy(policy).moves_like)
+
+
+def custom_cap(policy: str):
+    """The cap function of a registered (non built-in) policy, None for a built-in."""
+    if policy in POLICIES:
+        return None
+    from .policies import get_policy
+
+    return get_policy(policy).cap_v2
 
 
 # --------------------------------------------------------------------------- per-move kernel
@@ -333,11 +344,13 @@ def validate(moves: np.ndarray, limits: np.ndarray, policy: int) -> None:
 
 def prepare_with_context(moves: np.ndarray, limits: np.ndarray, policy: int,
                          prev_moves: np.ndarray | None = None, prev_prep: np.ndarray | None = None,
-                         stop_pending: bool = True) -> tuple[np.ndarray, bool]:
+                         stop_pending: bool = True, cap_v2=None) -> tuple[np.ndarray, bool]:
     """PREP rows for ``moves``, continuing from one previous move (the streaming case).
 
     ``prev_moves``/``prev_prep``: the last real move already prepared (one row each) or None;
-    ``stop_pending``: a full stop happened after it. Returns (prep, stop_pending after the chunk).
+    ``stop_pending``: a full stop happened after it; ``cap_v2``: a registered policy's cap function
+    (:mod:`gcodeplan.planner.policies`), None for the built-in kernel of ``policy``.
+    Returns (prep, stop_pending after the chunk).
     """
     moves = np.ascontiguousarray(moves)
     lim = limits_table(limits)
@@ -352,7 +365,13 @@ def prepare_with_context(moves: np.ndarray, limits: np.ndarray, policy: int,
     else:
         ctx, ctx_moves = prep, moves
         i_start, prev = 0, -1
-    _, stop_pending = _junction_kernel(ctx_moves, lim, policy, i_start, prev, bool(stop_pending), ctx)
+    if cap_v2 is None:
+        _, stop_pending = _junction_kernel(ctx_moves, lim, policy, i_start, prev, bool(stop_pending), ctx)
+    else:
+        from .policies import cap_junction_kernel
+
+        _, stop_pending = cap_junction_kernel(ctx_moves, lim, cap_v2, policy == POLICY_EXACT_STOP, i_start, prev,
+                                              bool(stop_pending), ctx)
     if prev_prep is not None:
         prep = ctx[1:]
     return prep, bool(stop_pending)
@@ -366,11 +385,12 @@ def prepare(moves: np.ndarray, limits: np.ndarray, machine, policy: str | None =
     Policy 'blend' computes the junction caps of 'junction-deviation' (the blend planner uses
     the per-move limits and does its own corners).
     """
-    pcode = policy_code(policy or machine.junction_policy)
+    name = policy or machine.junction_policy
+    pcode = policy_code(name)
     moves = np.asarray(moves)
     limits = np.asarray(limits)
     validate(moves, limits, pcode)
     if pcode == POLICY_BLEND:
         pcode = POLICY_JD
-    prep, _ = prepare_with_context(moves, limits, pcode)
+    prep, _ = prepare_with_context(moves, limits, pcode, cap_v2=custom_cap(name))
     return prep

@@ -27,8 +27,8 @@ import numpy as np
 from ..errors import ConfigError
 from ..schema import MOVE_DTYPE, PLAN_DTYPE, concat_rows
 from .passes import klipper_flush, layout_rows, plan_runs, speed_buffers, standard_flush
-from .prepare import (POLICY_BLEND, POLICY_JD, POLICY_KLIPPER, PREP_DTYPE, policy_code, prepare_with_context,
-                      validate)
+from .prepare import (POLICY_BLEND, POLICY_JD, POLICY_KLIPPER, PREP_DTYPE, custom_cap, policy_code,
+                      prepare_with_context, validate)
 from .segments import to_segments
 
 MODE_TRAPEZOID, MODE_SCURVE, MODE_BLEND = "trapezoid", "scurve", "blend"
@@ -43,6 +43,7 @@ class StreamPlanner:
         self.machine = machine
         self.policy = policy or machine.junction_policy
         self._pcode = policy_code(self.policy)
+        self._cap_v2 = custom_cap(self.policy)            # a registered policy's rule, None for built-ins
         self._jerk = None if jerk is None else check_jerk(jerk)
         self._jerk_from_limits = False
         self._mode: str | None = None                     # decided by the first chunk with rows
@@ -85,7 +86,8 @@ class StreamPlanner:
             if pcode == POLICY_BLEND:
                 pcode = POLICY_JD
             prep, self._stop_pending = prepare_with_context(moves_chunk, limits, pcode, self._last_move,
-                                                            self._last_prep, self._stop_pending)
+                                                            self._last_prep, self._stop_pending,
+                                                            cap_v2=self._cap_v2)
             real = np.flatnonzero(prep["is_move"])
             if real.size:
                 self._last_move = moves_chunk[real[-1]:real[-1] + 1].copy()

@@ -1,4 +1,4 @@
-"""G-code file → SEGMENT batches, through the streaming parser and planner.
+"""The step stage as a pipeline sink: planned pieces → exact step times per stepper.
 
 Also marks where the grid must re-anchor: the first segment after a G28 /
 SET_KINEMATIC_POSITION row (KIND_WAIT with FLAG_HOMING) re-anchors even when the
@@ -6,9 +6,9 @@ position did not jump, as Klipper's set_position does.
 """
 from __future__ import annotations
 
-from collections.abc import Callable, Iterator
-
 import numpy as np
+
+from ..pipeline import Piece, Sink
 
 from ..schema import FLAG_HOMING, KIND_WAIT
 
@@ -41,35 +41,52 @@ def homing_resets(moves: np.ndarray, segments: np.ndarray, first_move: int,
     return reset, bool(homing[-1] >= seg_move[-1])
 
 
-def segment_batches(path: str, machine, *, policy: str | None = None, jerk: float | None = None,
-                    strict: bool = False,
-                    progress: Callable[[int], None] | None = None) -> Iterator[tuple[np.ndarray, np.ndarray]]:
-    """(SEGMENT rows, reset flags) per planner emission, with bounded memory.
+def segment_batches(source, machine, *, policy: str | None = None, jerk: float | None = None,
+                    strict: bool = False, progress=None):
+    """(SEGMENT rows, reset flags) per planned piece, streaming (a thin view of :class:`gcodeplan.pipeline.Run`
+    for callers that pull batches, e.g. benchmarks feeding the step kernel themselves)."""
+    from ..pipeline import Run
 
-    ``progress(bytes_read)`` is called after each parser batch when the reader reports it.
-    """
-    from ..gcode import GcodeReader
-    from ..planner import StreamPlanner
-
-    policy = policy or machine.junction_policy
-    reader = GcodeReader(path, machine, strict=strict)
-    planner = StreamPlanner(machine, policy=policy, jerk=jerk)
-    first_move = 0
     pending = False
+    for piece in Run(source, machine, policy=policy, jerk=jerk, strict=strict, progress=progress):
+        segs = piece.segments
+        reset, pending = homing_resets(piece.moves, segs, piece.first_move, pending)
+        yield segs, reset
 
-    def emit(pairs):
-        nonlocal first_move, pending
-        for moves, plan in pairs:
-            # blends and S-curves: the planner's own pieces (to_segments only rebuilds trapezoids)
-            segs = planner.segments_for(moves, plan, first_move)
-            reset, pending = homing_resets(moves, segs, first_move, pending)
-            yield segs, reset
-            first_move += len(moves)
 
-    for moves in reader.batches():
-        yield from emit(planner.feed(moves, reader.limits))
-        if progress is not None:
-            done = getattr(reader, "bytes_read", None)
-            if done is not None:
-                progress(done)
-    yield from emit(planner.finish())
+def rails_from(machine, kinematics=None, klipper_names: bool | None = None):
+    """The steppers to generate: the machine's kinematics, or ``kinematics`` (an object with
+    ``rails(machine)``, e.g. :class:`gcodeplan.kinematics.Linear`). Klipper's stepper names
+    (``stepper_x`` … ``extruder``) when ``klipper_names`` (None: when the machine speaks Klipper's flavor)."""
+    from ..kinematics import rails_for
+
+    if kinematics is not None:
+        return list(kinematics.rails(machine))
+    if klipper_names is None:
+        klipper_names = machine.flavor == "klipper"
+    return rails_for(machine, klipper_names=klipper_names)
+
+
+class StepSink(Sink):
+    """A pipeline sink that steps every piece: ``sink_fn(stepper_index, times_s, dirs)`` receives the
+    steps in order, per stepper, in bounded buffers (see :class:`gcodeplan.stepper.generate.StepGenerator`).
+    The grid re-anchors after G28 / SET_KINEMATIC_POSITION (:func:`homing_resets`)."""
+
+    def __init__(self, rails, sink_fn, *, sds_filter_t: float | None = None):
+        from .generate import StepGenerator
+
+        self.rails = list(rails)
+        self.generator = StepGenerator(self.rails, sink_fn, sds_filter_t=sds_filter_t)
+        self._pending = False
+
+    def add(self, piece: Piece) -> None:
+        reset, self._pending = homing_resets(piece.moves, piece.segments, piece.first_move, self._pending)
+        self.generator.feed(piece.segments, reset)
+
+    def close(self, result) -> None:
+        self.generator.finish()
+
+    @property
+    def stats(self):
+        """Per stepper, the running step statistics (:func:`gcodeplan.stepper.kernel.step_stats`)."""
+        return self.generator.stats

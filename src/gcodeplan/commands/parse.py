@@ -9,7 +9,7 @@ import sys
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    from ..cli import add_machine_arguments
+    from .common import add_machine_arguments
 
     p.add_argument("file", help="G-code file")
     add_machine_arguments(p)   # also adds --strict
@@ -42,8 +42,8 @@ def run(args: argparse.Namespace) -> int:
     if own and "numpy" not in sys.modules:
         # the parser does no linear algebra: spare the start-up of OpenBLAS's thread pool
         os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
-    from .reader import GcodeReader
-    from .scan import quick_numba_start
+    from ..gcode.reader import GcodeReader
+    from ..gcode.scan import quick_numba_start
 
     machine = _machine(args)
     reader = GcodeReader(args.file, machine, strict=bool(getattr(args, "strict", False)))

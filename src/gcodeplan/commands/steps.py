@@ -17,19 +17,15 @@ import sys
 
 import numpy as np
 
-from ..errors import GcodeplanError, located
-from . import DEFAULT_CLOCK_HZ, DEFAULT_MAX_ERROR_S, KLIPPER_SDS_FILTER_T
+from ..errors import GcodeplanError
+from .common import add_machine_arguments, add_plan_arguments, check_plan_arguments, machine_from_args, progress_bar
+from ..stepper import DEFAULT_CLOCK_HZ, DEFAULT_MAX_ERROR_S, KLIPPER_SDS_FILTER_T
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    from ..cli import add_machine_arguments
-    from ..machine import POLICIES
-
     p.add_argument("file", help="G-code file")
     add_machine_arguments(p)
-    p.add_argument("--policy", choices=POLICIES, help="junction policy (default: the machine's)")
-    p.add_argument("--jerk", type=float, metavar="J",
-                   help="plan jerk-limited S-curves with this path jerk limit (mm/s³) instead of trapezoids")
+    add_plan_arguments(p)
     out = p.add_argument_group("output")
     out.add_argument("-o", "--output", required=True, metavar="steps.npz",
                      help="step times per stepper (.npz, written atomically)")
@@ -58,22 +54,9 @@ def _check_args(args) -> None:
         raise GcodeplanError(f"--max-error must be ≥ 0 s, got {args.max_error:g}")
     if args.sds_filter is not None and not (args.sds_filter > 0 and math.isfinite(args.sds_filter)):
         raise GcodeplanError(f"--sds-filter must be a positive time in s, got {args.sds_filter:g}")
-    if args.jerk is not None and not (args.jerk > 0 and math.isfinite(args.jerk)):
-        raise GcodeplanError(f"--jerk must be a positive number (mm/s³), got {args.jerk:g}")
+    check_plan_arguments(args)
     if args.max_step_rate is not None and not (args.max_step_rate > 0):
         raise GcodeplanError(f"--max-step-rate must be > 0, got {args.max_step_rate:g}")
-    if not os.path.isfile(args.file):
-        raise GcodeplanError("no such file", file=args.file)
-
-
-def _progress_bar(path: str, quiet: bool):
-    """A bytes progress bar on stderr, only on a terminal and only for runs longer than a second."""
-    if quiet or not sys.stderr.isatty():
-        return None
-    from tqdm import tqdm
-
-    return tqdm(total=os.path.getsize(path), unit="B", unit_scale=True, delay=1.0,
-                desc=os.path.basename(path), file=sys.stderr, leave=False)
 
 
 def summary_line(name: str, st: np.ndarray) -> str:
@@ -88,16 +71,14 @@ def summary_line(name: str, st: np.ndarray) -> str:
 
 
 def run(args) -> int:
-    from ..config import machine_from_args
-    from ..kinematics import rails_for
-    from . import compress as cmp
-    from .export import CsvStepWriter, NpzStreamWriter
-    from .generate import StepGenerator
-    from .source import segment_batches
+    from .. import pipeline
+    from ..stepper import compress as cmp
+    from ..stepper.export import CsvStepWriter, NpzStreamWriter
+    from ..stepper.source import StepSink, rails_from
 
     _check_args(args)
     machine = machine_from_args(args)
-    rails = rails_for(machine, klipper_names=bool(getattr(args, "klipper_config", None)))
+    rails = rails_from(machine, klipper_names=bool(getattr(args, "klipper_config", None)))
     names = [r.name for r in rails]
     max_rate = args.max_step_rate if args.max_step_rate is not None else machine.max_step_rate
 
@@ -124,15 +105,10 @@ def run(args) -> int:
             if compressors is not None:
                 writer.append(name + "_runs", compressors[si].feed(times, dirs))
 
-        gen = StepGenerator(rails, sink, sds_filter_t=args.sds_filter)
-        bar = _progress_bar(args.file, args.quiet)
-        progress = (lambda done: bar.update(done - bar.n)) if bar is not None else None
-        # the planner's errors know the line only: name the file
-        with located(args.file):
-            for segments, reset in segment_batches(args.file, machine, policy=args.policy, jerk=args.jerk,
-                                                   strict=args.strict, progress=progress):
-                gen.feed(segments, reset)
-        gen.finish()
+        gen = StepSink(rails, sink, sds_filter_t=args.sds_filter)
+        bar, progress = progress_bar(args.file, args.quiet)
+        pipeline.run(args.file, machine, policy=args.policy, jerk=args.jerk, strict=args.strict, sinks=[gen],
+                     progress=progress)
 
         writer.put("steppers", np.array(names))
         writer.put("steps_per_mm", np.array([r.steps_per_mm for r in rails], np.float64))

@@ -15,12 +15,12 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .. import __version__
-from ..cli import add_machine_arguments
+from .common import add_machine_arguments
 from ..errors import GcodeplanError
 from ..machine import POLICIES
 from ..schema import KIND_WAIT
-from . import html, plots
-from .plot_cmd import parse_size, segments_for, stream_plan
+from ..report import html, plots
+from .plot import parse_size, segments_for, stream_plan
 
 MAX_KEEP_MOVES = 200_000   # moves kept for one drawn layer (a longer layer is drawn from its start)
 
@@ -102,7 +102,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def _fmt_s(seconds: float) -> str:
-    from .summary import hms
+    from ..report.summary import hms
 
     return f"{hms(seconds)} ({seconds:.1f} s)"
 
@@ -151,8 +151,8 @@ def _tables(est, d: dict) -> list[str]:
 def build_report(path: str, machine, policy: str | None = None, jerk: float | None = None, strict: bool = False,
                  slowest: int = 2, size_in=plots.FIGSIZE_IN) -> str:
     """Plan ``path`` once and return the HTML page."""
-    from .estimate_cmd import Estimate, print_text
-    from .summary import TimeSummary
+    from .estimate import Estimate, print_text
+    from ..report.summary import TimeSummary
 
     policy = policy or machine.junction_policy
     time = TimeSummary()

@@ -13,10 +13,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..cli import add_machine_arguments
+from .common import add_machine_arguments
 from ..errors import GcodeplanError
 from ..machine import POLICIES
-from . import plots
+from ..report import plots
 
 WHATS = ("velocity", "axes", "path", "layers")
 MAX_WINDOW_MOVES = 500_000     # beyond this a window is refused: choose a smaller one
@@ -100,34 +100,17 @@ def stream_plan(path: str, machine, policy: str | None, jerk: float | None, stri
     for trapezoid plans (the caller makes them for what it keeps with ``segments_for``), so a caller
     keeps only the pieces it wants and memory stays bounded. Returns the reader.
     """
-    from ..gcode import GcodeReader
-    from ..planner import StreamPlanner
+    from .. import pipeline
 
     policy, jerk = _policy_jerk(machine, policy, jerk)
-    reader = GcodeReader(path, machine, strict=strict)
-    first = 0
-    try:
-        planner = StreamPlanner(machine, policy=policy, jerk=jerk)
 
-        def hand_over(pairs) -> bool:
-            nonlocal first
-            for m, p in pairs:
-                # blend / S-curve pieces exist only now (the planner drops them at its next step)
-                segs = planner.segments_for(m, p, first) if planner.mode in ("scurve", "blend") else None
-                stop = on_chunk(m, p, first, segs)
-                first += m.size
-                if stop:
-                    return True
-            return False
+    def hand_over(piece):
+        # blend / S-curve pieces exist only now; trapezoid pieces the caller makes for what it keeps
+        segs = piece.segments if piece.mode in ("scurve", "blend") else None
+        return on_chunk(piece.moves, piece.plan, piece.first_move, segs)
 
-        for batch in reader.batches():
-            if hand_over(planner.feed(batch, reader.limits)):
-                break
-        else:
-            hand_over(planner.finish())
-    except NotImplementedError as err:
-        raise GcodeplanError(f"cannot plan with these settings yet: {err}") from None
-    return reader
+    return pipeline.run(path, machine, policy=policy, jerk=jerk, strict=strict,
+                        sinks=[pipeline.FunctionSink(hand_over)]).reader
 
 
 def segments_for(moves: np.ndarray, plan: np.ndarray, first_index: int, own_segs: list | None = None):

@@ -7,9 +7,9 @@ import math
 import numpy as np
 
 from ..errors import GcodeplanError
-from .core import Profile
-from .scurve import scurve
-from .trapezoid import trapezoid
+from ..profiles.core import Profile
+from ..profiles.scurve import scurve
+from ..profiles.trapezoid import trapezoid
 
 
 def _number(text: str) -> float:

@@ -1,0 +1,70 @@
+"""Options and helpers every command that reads G-code shares."""
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import sys
+
+from ..errors import GcodeplanError
+
+
+def add_machine_arguments(p: argparse.ArgumentParser) -> None:
+    """--machine / --klipper-config / --flavor / --strict."""
+    g = p.add_argument_group("machine")
+    src = g.add_mutually_exclusive_group()
+    src.add_argument("--machine", metavar="M.toml",
+                     help="machine description in gcodeplan's TOML format, or a preset name "
+                          "(klipper, marlin, grbl); default: the klipper preset")
+    src.add_argument("--klipper-config", metavar="printer.cfg",
+                     help="read the machine from a Klipper printer.cfg (G-code then has Klipper's meanings)")
+    g.add_argument("--flavor", choices=("marlin", "klipper", "reprap", "grbl", "linuxcnc"),
+                   help="G-code dialect, overriding the machine's (G4 P units, M204 meaning, G0 rate)")
+    g.add_argument("--strict", action="store_true",
+                   help="unknown commands are an error instead of being counted")
+
+
+def add_plan_arguments(p: argparse.ArgumentParser) -> None:
+    """--policy and --jerk: how the planner joins moves and shapes their speed."""
+    from ..planner.policies import policy_names
+
+    p.add_argument("--policy", metavar="NAME",
+                   help=f"junction policy, overriding the machine's ({', '.join(policy_names())}, or one "
+                        "registered with gcodeplan.register_policy)")
+    p.add_argument("--jerk", type=float, metavar="J",
+                   help="plan jerk-limited S-curves with this path jerk limit (mm/s³) instead of trapezoids")
+
+
+def check_plan_arguments(args) -> None:
+    """Refuse a bad --jerk or an unknown --policy before any file is read."""
+    jerk = getattr(args, "jerk", None)
+    if jerk is not None and not (jerk > 0 and math.isfinite(jerk)):
+        raise GcodeplanError(f"--jerk must be a positive number (mm/s³), got {jerk:g}")
+    policy = getattr(args, "policy", None)
+    if policy is not None:
+        from ..planner.policies import get_policy
+
+        get_policy(policy)
+
+
+def machine_from_args(args):
+    """The machine a command runs with (see :func:`gcodeplan.config.machine_from_args`)."""
+    from ..config import machine_from_args as build
+
+    return build(args)
+
+
+def progress_bar(source, quiet: bool):
+    """A bytes progress bar on stderr, only on a terminal, only for runs over a second, only when the
+    source's size is known. Returns (bar or None, callback(bytes_read) or None)."""
+    if quiet or not sys.stderr.isatty() or not isinstance(source, (str, os.PathLike)) or str(source) == "-":
+        return None, None
+    try:
+        total = os.path.getsize(source)
+    except OSError:
+        return None, None
+    from tqdm import tqdm
+
+    bar = tqdm(total=total, unit="B", unit_scale=True, delay=1.0, desc=os.path.basename(str(source)),
+               file=sys.stderr, leave=False)
+    return bar, (lambda done: bar.update(min(done, total) - bar.n))

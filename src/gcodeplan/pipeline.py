@@ -1,0 +1,232 @@
+"""The one driver every command, tool and test uses: reader → planner → sinks.
+
+A *source* (path, ``-``, file object or iterable of lines: :mod:`gcodeplan.gcode.reader`) is parsed in
+batches of MOVE rows; the streaming planner turns them into final (MOVE, PLAN) pieces with a bounded
+look-ahead window; every piece goes to each *sink* in order. ``piece.segments`` gives its SEGMENT
+rows, the planner's own pieces (blends and S-curve
+phases are not trapezoids) on first access. Memory is bounded by the window and whatever the sinks keep.
+
+    from gcodeplan.pipeline import run, Sink
+
+    class Count(Sink):
+        def __init__(self):
+            self.moves = 0
+        def add(self, piece):
+            self.moves += len(piece.moves)
+
+    result = run("part.gcode", machine, sinks=[Count()])
+
+``result.reader`` holds what the parser learned (summary, layer heights, feature names, limits table).
+"""
+from __future__ import annotations
+
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from .errors import located
+
+
+class Piece:
+    """One final stretch of the plan, in program order.
+
+    ``moves`` (MOVE rows) and ``plan`` (PLAN rows) are aligned 1:1; ``first_move`` is the index of
+    ``moves[0]`` in the whole program (0-based); ``mode`` is the planning mode ('trapezoid', 'scurve',
+    'blend'). ``segments``: the SEGMENT rows (time-ordered, ``SEGMENT.move`` global), made on first
+    access — the planner's own pieces for blends and S-curves, which exist only while the sinks are
+    being called: read them in ``add``, not later.
+    """
+
+    __slots__ = ("moves", "plan", "first_move", "mode", "_segments", "_make")
+
+    def __init__(self, moves: np.ndarray, plan: np.ndarray, first_move: int, mode: str | None = None,
+                 segments: np.ndarray | None = None, make_segments=None):
+        self.moves = moves
+        self.plan = plan
+        self.first_move = first_move
+        self.mode = mode
+        self._segments = segments
+        self._make = make_segments
+
+    @property
+    def segments(self) -> np.ndarray:
+        if self._segments is None:
+            if self._make is None:
+                from .planner import to_segments
+
+                self._segments = to_segments(self.moves, self.plan, self.first_move)
+            else:
+                self._segments = self._make(self.moves, self.plan, self.first_move)
+            self._make = None
+        return self._segments
+
+
+class Sink:
+    """Receives the plan piece by piece. Subclass and override :meth:`add` (and :meth:`close`).
+
+    ``add`` may return True to say it needs nothing more: when every sink has said so, reading stops
+    early (a plot of the first layers does not plan the rest of a 50 MB file).
+    """
+
+    def add(self, piece: Piece) -> bool | None:  # pragma: no cover - interface
+        raise NotImplementedError
+
+    def close(self, result: "RunResult") -> None:
+        """Called once after the last piece (not called when the run failed)."""
+
+
+@dataclass
+class RunResult:
+    """What a run leaves behind: the reader (``summary``, ``layer_z``, ``features``, ``limits``), the
+    policy and planning mode used, the number of MOVE rows planned, and whether it stopped early."""
+
+    reader: object
+    machine: object
+    policy: str
+    mode: str | None
+    rows: int
+    stopped_early: bool
+    name: str
+
+
+class FunctionSink(Sink):
+    """A sink from a function ``fn(piece) -> bool | None``."""
+
+    def __init__(self, fn: Callable[[Piece], bool | None]):
+        self._fn = fn
+
+    def add(self, piece: Piece) -> bool | None:
+        return self._fn(piece)
+
+
+class Run:
+    """The driver as an iterator: ``for piece in Run(source, machine): ...`` yields the final pieces in
+    order; afterwards ``.result`` is the :class:`RunResult`. Leaving the loop early stops reading.
+    Arguments as :func:`run`. Read ``piece.segments`` before asking for the next piece."""
+
+    def __init__(self, source, machine, *, policy: str | None = None, jerk: float | None = None,
+                 strict: bool = False, progress: Callable[[int], None] | None = None, batch_moves: int = 8192):
+        from .gcode import GcodeReader
+        from .planner import StreamPlanner
+
+        self.machine = machine
+        self.policy = policy or machine.junction_policy
+        self.reader = GcodeReader(source, machine, strict=strict, batch_moves=batch_moves)
+        self.planner = StreamPlanner(machine, policy=self.policy, jerk=jerk)
+        self.progress = progress
+        self.rows = 0
+        self.finished = False
+
+    def _pieces(self, pairs: Iterable[tuple[np.ndarray, np.ndarray]]):
+        for moves, plan in pairs:
+            piece = Piece(moves, plan, self.rows, self.planner.mode, make_segments=self.planner.segments_for)
+            self.rows += len(moves)
+            yield piece
+
+    def __iter__(self):
+        reader, planner = self.reader, self.planner
+        with located(reader.path):
+            for moves in reader.batches():
+                yield from self._pieces(planner.feed(moves, reader.limits))
+                if self.progress is not None:
+                    self.progress(reader.bytes_read)
+            yield from self._pieces(planner.finish())
+        self.finished = True
+
+    @property
+    def result(self) -> RunResult:
+        return RunResult(self.reader, self.machine, self.policy, self.planner.mode, self.rows, not self.finished,
+                         self.reader.path)
+
+
+def run(source, machine, *, policy: str | None = None, jerk: float | None = None, strict: bool = False,
+        sinks: Sequence[Sink] = (), progress: Callable[[int], None] | None = None,
+        batch_moves: int = 8192) -> RunResult:
+    """Parse and plan ``source`` for ``machine``, handing every final piece to ``sinks``.
+
+    ``policy``: junction policy name (None = the machine's); ``jerk``: mm/s³ for S-curves (None =
+    trapezoids unless the machine sets max_jerk); ``strict``: unknown commands are errors;
+    ``progress(bytes_read)`` after every parser batch. Errors name the file and line
+    (:class:`gcodeplan.errors.GcodeplanError`). Reading stops early once every sink said it is done.
+    """
+    sinks = list(sinks)
+    done = [False] * len(sinks)
+    drive = Run(source, machine, policy=policy, jerk=jerk, strict=strict, progress=progress,
+                batch_moves=batch_moves)
+    pieces = iter(drive)
+    try:
+        for piece in pieces:
+            for k, sink in enumerate(sinks):
+                if not done[k] and sink.add(piece):
+                    done[k] = True
+            if sinks and all(done):
+                break
+    finally:
+        pieces.close()
+    result = drive.result
+    for sink in sinks:
+        sink.close(result)
+    return result
+
+
+class Collect(Sink):
+    """Keeps every piece: the whole plan in memory (for small programs, tests and notebooks)."""
+
+    def __init__(self, segments: bool = True):
+        self.keep_segments = segments
+        self.pieces: list[Piece] = []
+
+    def add(self, piece: Piece) -> None:
+        if self.keep_segments:
+            piece.segments   # made now: blend / S-curve pieces are gone after this call
+        self.pieces.append(piece)
+
+    def arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+        """(MOVE rows, PLAN rows, SEGMENT rows or None), concatenated."""
+        from .schema import MOVE_DTYPE, PLAN_DTYPE, SEGMENT_DTYPE
+
+        if not self.pieces:
+            empty_s = np.zeros(0, SEGMENT_DTYPE) if self.keep_segments else None
+            return np.zeros(0, MOVE_DTYPE), np.zeros(0, PLAN_DTYPE), empty_s
+        moves = np.concatenate([p.moves for p in self.pieces])
+        plan = np.concatenate([p.plan for p in self.pieces])
+        segs = np.concatenate([p.segments for p in self.pieces]) if self.keep_segments else None
+        return moves, plan, segs
+
+
+class LineTimes(Sink):
+    """End time of the last move (or dwell) each source line made: Klipper's per-line CSV.
+
+    ``arrays()`` → (line int64, end_time_s float64), lines increasing, one row per line that made a
+    move or dwell (waits such as M109 or G28 make no row, as in Klipper's reference files).
+    """
+
+    def __init__(self):
+        self._lines: list[np.ndarray] = []
+        self._ends: list[np.ndarray] = []
+
+    def add(self, piece: Piece) -> None:
+        from .schema import KIND_WAIT
+
+        m, p = piece.moves, piece.plan
+        keep = (m["kind"] != KIND_WAIT) & ((p["duration"] > 0) | (m["move_d"] > 0))
+        if not np.any(keep):
+            return
+        line = m["line"][keep]
+        end = (p["t_start"] + p["duration"])[keep]
+        last = np.r_[line[1:] != line[:-1], True]
+        self._lines.append(line[last].astype(np.int64))
+        self._ends.append(end[last])
+
+    def arrays(self) -> tuple[np.ndarray, np.ndarray]:
+        if not self._lines:
+            return np.zeros(0, np.int64), np.zeros(0, np.float64)
+        line = np.concatenate(self._lines)
+        end = np.concatenate(self._ends)
+        # a line whose moves straddle two pieces appears twice: keep its last end
+        last = np.r_[line[1:] != line[:-1], True]
+        return line[last], end[last]
+
+
+__all__ = ["run", "Run", "Sink", "Piece", "RunResult", "FunctionSink", "Collect", "LineTimes"]

@@ -1,0 +1,138 @@
+"""The estimate of one program: time accounting, JSON and text forms.
+
+:class:`Estimate` is what :func:`gcodeplan.estimate` returns and what ``gcodeplan estimate`` prints.
+Every breakdown in :meth:`Estimate.to_json` sums to ``total_time_s``.
+"""
+from __future__ import annotations
+
+import sys
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .summary import TimeSummary, hms
+
+
+@dataclass
+class Estimate:
+    """The planned time of one program and its breakdowns (all times in s).
+
+    ``path``: the source's name; ``parse``: the parser's summary (counts, distances, filament);
+    ``time``: the running totals (:class:`~gcodeplan.report.summary.TimeSummary`); ``layer_z`` (mm) and
+    ``features`` name the layers and feature tags; ``policy`` and ``machine_name`` say how it was planned.
+    """
+    path: str
+    parse: object          # ParseSummary
+    time: TimeSummary
+    layer_z: list
+    features: list
+    policy: str
+    machine_name: str
+    line_ends: tuple = field(default=(None, None), repr=False)   # (line, end_time_s) arrays
+
+    @property
+    def total_time_s(self) -> float:
+        """Planned time of the whole program (s), from the first move's start to the last move's end."""
+        return self.time.total_time_s
+
+    def line_times(self) -> tuple[np.ndarray, np.ndarray]:
+        """(line int64, end_time_s float64): when the last move or dwell each source line made ends
+        (s from the first move's start), one row per such line, lines increasing. The format of
+        Klipper's per-line reference CSVs (``source_line,end_time_s``)."""
+        return self.line_ends
+
+    def to_text(self) -> str:
+        """The human-readable summary ``gcodeplan estimate`` prints."""
+        import io
+
+        buf = io.StringIO()
+        print_text(self, buf)
+        return buf.getvalue()
+
+    def to_json(self) -> dict:
+        """The dict ``gcodeplan estimate --json`` prints (see the README for its keys)."""
+        d = dict(self.parse.to_json())
+        t = self.time
+        d.update(
+            file=self.path,
+            machine=self.machine_name,
+            policy=self.policy,
+            total_time_s=t.total_time_s,
+            total_time_hms=hms(t.total_time_s),
+            moves=self.parse.moves,
+            print_time_s=t.print_time_s,
+            travel_time_s=t.travel_time_s,
+            extrude_only_time_s=t.extrude_only_time_s,
+            rapid_time_s=t.rapid_t,
+            dwell_s=t.dwell_s,
+            waits_s=t.waits_s,
+            accelerating_s=t.accel_t,
+            cruising_s=t.cruise_t,
+            decelerating_s=t.decel_t,
+            blending_s=t.blend_t,
+            limits_s=t.limits(),
+            peak_speed_mm_s=t.peak_v,
+            full_stops=t.stops,
+            before_first_layer_s=t.before_first_layer_s,
+            layers=t.layers(self.layer_z),
+            features=t.features(self.features),
+        )
+        return d
+
+
+
+def print_text(est: Estimate, out=None) -> None:
+    t, s = est.time, est.parse
+    w = (out or sys.stdout).write
+    w(f"{est.path}\n")
+    w(f"  machine {est.machine_name}, policy {est.policy}\n")
+    w(f"  total time      {hms(t.total_time_s):>10}  ({t.total_time_s:.3f} s)\n")
+    naive = s.naive_time_s
+    w(f"  naive time      {hms(naive):>10}  ({naive:.3f} s, distance / feed rate, for contrast)\n")
+    slicer = getattr(s, "slicer_estimate_s", None)
+    if slicer:
+        w(f"  slicer's own    {hms(slicer):>10}  ({slicer:.0f} s)\n")
+    waits = getattr(s, "waits", None) or {}
+    timed = {k: v for k, v in waits.items() if k in ("heat", "homing", "M109", "M190", "G28")}
+    note = ""
+    if waits and t.waits_s == 0:
+        what = ", ".join(f"{k}×{v}" for k, v in sorted(waits.items()))
+        note = f" ({what}: no time modelled" + ("; set [time] in the machine file)" if timed else ")")
+    if t.print_time_s == 0 and t.extrude_only_time_s == 0:   # no extrusion: a mill, laser or plotter
+        w(f"  feed moves {hms(t.travel_time_s - t.rapid_t)}, rapids (G0) {hms(t.rapid_t)}, "
+          f"dwell {hms(t.dwell_s)}, waits {hms(t.waits_s)}{note}\n")
+    else:
+        w(f"  print {hms(t.print_time_s)}, travel {hms(t.travel_time_s)}, extrude-only {hms(t.extrude_only_time_s)}, "
+          f"dwell {hms(t.dwell_s)}, waits {hms(t.waits_s)}{note}\n")
+    motion = max(t.accel_t + t.cruise_t + t.decel_t + t.blend_t, 1e-300)
+    blending = f", blending {100 * t.blend_t / motion:.1f} %" if t.blend_t > 0 else ""
+    w(f"  accelerating {100 * t.accel_t / motion:.1f} %, cruising {100 * t.cruise_t / motion:.1f} %, "
+      f"decelerating {100 * t.decel_t / motion:.1f} %{blending}\n")
+    w(f"  moves {s.moves}, full stops {t.stops}, peak speed {t.peak_v:.1f} mm/s (line {t.peak_v_line})\n")
+    lim = t.limits()
+    if lim:
+        tot = sum(lim.values())
+        w("  what limited the speed (share of time):\n")
+        for name, sec in sorted(lim.items(), key=lambda kv: -kv[1]):
+            w(f"    {name:<14} {hms(sec):>10}  {100 * sec / tot:5.1f} %\n")
+    feats = t.features(est.features)
+    if feats:
+        w("  time per feature:\n")
+        for name, sec in sorted(feats.items(), key=lambda kv: -kv[1]):
+            w(f"    {name:<28} {hms(sec):>10}  {100 * sec / max(t.total_time_s, 1e-300):5.1f} %\n")
+    layers = t.layers(est.layer_z)
+    if layers:
+        w(f"  layers: {len(layers)}")
+        if t.before_first_layer_s > 0:
+            w(f" (+ {hms(t.before_first_layer_s)} before the first)")
+        times = [L["time_s"] for L in layers]
+        slow = max(range(len(times)), key=times.__getitem__)
+        w(f", slowest #{slow} ({hms(times[slow])}), mean {hms(sum(times) / len(times))}\n")
+        if len(layers) <= 40:
+            for L in layers:
+                z = "" if L["z"] is None else f" z={L['z']:.3f}"
+                w(f"    layer {L['index']:>4}{z:<12} {hms(L['time_s']):>10}\n")
+    unknown = getattr(s, "unknown_commands", {}) or {}
+    if unknown:
+        items = ", ".join(f"{k}×{v}" for k, v in sorted(unknown.items(), key=lambda kv: -kv[1])[:12])
+        w(f"  not modelled (counted): {items}\n")
