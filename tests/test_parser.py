@@ -19,19 +19,6 @@ from gcodeplan.schema import (FLAG_ARC, FLAG_CANNED, FLAG_FIRMWARE_RETRACT, FLAG
                               KIND_DWELL, KIND_EXTRUDE_ONLY, KIND_PRINT, KIND_TRAVEL, KIND_WAIT, MOVE_DTYPE)
 
 
-def same_rows(a: np.ndarray, b: np.ndarray) -> bool:
-    if a.shape != b.shape:
-        return False
-    for f in MOVE_DTYPE.names:
-        x, y = a[f], b[f]
-        if x.dtype.kind == "f":
-            if not np.array_equal(x, y, equal_nan=True):
-                return False
-        elif not np.array_equal(x, y):
-            return False
-    return True
-
-
 def _write(tmp_path, text, name="t.gcode"):
     p = tmp_path / name
     if isinstance(text, bytes):

@@ -13,7 +13,7 @@ from conftest import SAMPLES, shared_path
 from gcodeplan.gcode import GcodeReader, read_moves
 from gcodeplan.machine import Machine
 from gcodeplan.schema import KIND_DWELL, KIND_EXTRUDE_ONLY, KIND_PRINT, KIND_TRAVEL, KIND_WAIT
-from test_parser import same_rows
+from conftest import same_rows
 
 FDM_SMALL = ["prusaslicer25_cube20_marlin2.gcode", "cura413_ender3_cylinder30.gcode"]
 FDM_BIG = ["prusaslicer25_twisted_vase_spiral.gcode", "prusaslicer25_multi_object_plate_relE.gcode",

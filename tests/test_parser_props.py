@@ -12,7 +12,7 @@ from gcodeplan.errors import GcodeError
 from gcodeplan.gcode import read_moves
 from gcodeplan.gcode.scan import parse_decimal
 from gcodeplan.machine import Machine
-from test_parser import same_rows
+from conftest import same_rows
 
 _TMP = Path(tempfile.mkdtemp(prefix="gcodeplan-props-"))
 

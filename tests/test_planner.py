@@ -10,7 +10,7 @@ from gcodeplan.errors import ConfigError, GcodeError
 from gcodeplan.planner import StreamPlanner, plan_moves, prepare
 from gcodeplan.schema import (KIND_WAIT, LIMIT_ACCEL, LIMIT_AXIS, LIMIT_EXTRUDER, LIMIT_FEED, LIMIT_MCR,
                               LIMIT_NONE)
-from test_planner_util import dwell_row, klipper_machine, limits_variants, moves_from_points, random_program
+from conftest import dwell_row, klipper_machine, limits_variants, moves_from_points, random_program
 
 A = 3000.0
 POLICIES_TRAP = ("klipper", "junction-deviation", "classic-jerk", "exact-stop")

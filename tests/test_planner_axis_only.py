@@ -6,7 +6,7 @@ import pytest
 from gcodeplan.config import load_machine
 from gcodeplan.errors import GcodeError
 from gcodeplan.planner import plan_moves
-from test_planner_util import moves_from_points
+from conftest import moves_from_points
 
 
 def test_per_axis_limits_bound_a_move_when_the_toolhead_has_none():

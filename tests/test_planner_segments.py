@@ -6,7 +6,7 @@ import pytest
 
 from gcodeplan.planner import plan_moves, sample_segments, to_segments
 from gcodeplan.schema import PHASE_ACCEL, PHASE_CRUISE, PHASE_DECEL, PHASE_DWELL
-from test_planner_util import dwell_row, klipper_machine, moves_from_points, random_program
+from conftest import dwell_row, klipper_machine, moves_from_points, random_program
 
 
 def test_single_move_three_pieces_hand_worked():

@@ -18,7 +18,7 @@ from gcodeplan.profiles.scurve import ramp_distance_kernel, scurve_max_start_spe
 from gcodeplan.schema import PHASE_BLEND
 
 from conftest import shared_path
-from test_planner_util import klipper_machine, limits_variants, moves_from_points, random_program
+from conftest import klipper_machine, limits_variants, moves_from_points, random_program
 
 CHUNKS = (1, 7, 100, 5000)
 

@@ -21,7 +21,7 @@ Two ways to choose the chord count:
   and the arc, ``r·(1 − cos(φ/2))`` for a chord spanning φ) stays within ``tolerance``; every chord spans at
   most 90° whatever the tolerance (see ``MAX_CHORD_ANGLE``);
 * Klipper mode (``resolution > 0``): Klipper's ``[gcode_arcs] resolution`` rule, exactly, so the chords and
-  hence the planned times are Klipper's (reference/klipper-planner.md §6).
+  hence the planned times are Klipper's (docs/design.md §5, "Arcs").
 
 The numba kernels work on a caller-provided buffer and return a count or a negative error code; the Python
 wrapper :func:`arc_chords` raises :class:`ArcError` with the text of :func:`arc_error_message`.

@@ -1,6 +1,6 @@
 """Blend mode: parabolic blends at corners under a path tolerance (G64 P).
 
-Model (DESIGN.md "Parabolic blends", seed trapezoidal-and-parabolic-blends.es "ajuste parabólico"):
+Model (docs/design.md §7, the course notes' "parabolic fit"):
 the toolhead follows each segment along its straight line; around the via point between move j−1 and
 move j it leaves the line at speed v_c, changes its velocity vector from V_in = v_c·u_in to
 V_out = v_c·u_out under the constant acceleration a = (V_out − V_in)/(2τ) for 2τ seconds, and joins the
@@ -239,7 +239,7 @@ def blend_timing_kernel(move_d, accel, max_cruise_v2, corner_c, corner_v2, dwell
     """Per-move trapezoid on the straight part and the blend half-times around it.
 
     Returns an (n, 9) array: start_v, cruise_v, end_v, accel_t, cruise_t, decel_t, tau_in, tau_out, duration.
-    Peak of the straight part (equal accel and decel, DESIGN.md trapezoid with v0, v1):
+    Peak of the straight part (equal accel and decel, docs/design.md §3, trapezoid with v0, v1):
     v_p² = min(V², (w_a + w_b)/2 + A·S).
     """
     n = move_d.shape[0]

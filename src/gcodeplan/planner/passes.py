@@ -3,7 +3,7 @@
 Two flush rules work on the *compact* move arrays (only rows with ``is_move``), over a window
 ``[lo, hi)`` that ends with a full stop (or, lazily, whose tail may still change):
 
-* ``klipper_flush``: Klipper's LookAheadQueue.flush (klipper-planner.md §3), with the
+* ``klipper_flush``: Klipper's LookAheadQueue.flush (docs/design.md §5), with the
   minimum_cruise_ratio "peak" smoothing and the lazy "2nd peak from the end" safe point;
 * ``standard_flush``: the plain backward pass (the forward pass is already folded into
   ``max_start_v2``, see prepare.py), cruise at the trapezoid peak; lazy safe point = the last
@@ -34,7 +34,9 @@ def set_junction(start_v2: float, cruise_v2: float, end_v2: float, accel: float,
     half_inv_accel = 0.5 / accel
     accel_d = (cruise_v2 - start_v2) * half_inv_accel
     decel_d = (cruise_v2 - end_v2) * half_inv_accel
-    cruise_d = move_d - accel_d - decel_d
+    # Klipper's formula; with no cruise the difference is rounding noise that can fall below 0 (−1e-18 s cruise
+    # times seen by tools/fuzz.py): clamped, which moves a time by less than one ulp of any clock value
+    cruise_d = max(move_d - accel_d - decel_d, 0.0)
     start_v = math.sqrt(start_v2)
     cruise_v = math.sqrt(cruise_v2)
     end_v = math.sqrt(end_v2)
@@ -118,7 +120,7 @@ def klipper_flush(prep, rows, lo, hi, lazy, out_start_v2, out_cruise_v2, out_end
 def standard_flush(prep, rows, lo, hi, lazy, out_start_v2, out_cruise_v2, out_end_v2, out_limit):
     """Plain look-ahead over the moves ``prep[rows[lo:hi]]``: backward pass
     start_v2[i] = min(max_start_v2[i], start_v2[i+1] + Δv²[i]), cruise at the trapezoid peak
-    v_c² = min(V², (v_s² + v_e² + 2·a·d)/2) (DESIGN.md "Multi-segment paths").
+    v_c² = min(V², (v_s² + v_e² + 2·a·d)/2) (docs/design.md §5, look-ahead flush).
 
     A full flush ends the last move at its stop speed (0, or the classic-jerk safe speed when
     reachable); a lazy one assumes 0 after the window (a lower bound of the truth) and emits the

@@ -9,6 +9,8 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from ..profiles.core import piece_acceleration, piece_position, piece_velocity
+
 # a time this far past a piece's end still belongs to it (the next piece's t0 is a rounded sum)
 _END_SLACK_T = 1e-9
 
@@ -30,14 +32,14 @@ def _sample_kernel(t0, dt, p, v, a, j, times, o_pos, o_vel, o_acc, o_jerk):
             tau = dt[k]
             at_rest = True
         for ax in range(4):
-            o_pos[m, ax] = p[k, ax] + tau * (v[k, ax] + tau * (0.5 * a[k, ax] + tau * j[k, ax] / 6.0))
+            o_pos[m, ax] = piece_position(p[k, ax], v[k, ax], a[k, ax], j[k, ax], tau)
             if at_rest:
                 o_vel[m, ax] = 0.0
                 o_acc[m, ax] = 0.0
                 o_jerk[m, ax] = 0.0
             else:
-                o_vel[m, ax] = v[k, ax] + tau * (a[k, ax] + 0.5 * tau * j[k, ax])
-                o_acc[m, ax] = a[k, ax] + tau * j[k, ax]
+                o_vel[m, ax] = piece_velocity(v[k, ax], a[k, ax], j[k, ax], tau)
+                o_acc[m, ax] = piece_acceleration(a[k, ax], j[k, ax], tau)
                 o_jerk[m, ax] = j[k, ax]
 
 

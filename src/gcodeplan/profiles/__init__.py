@@ -66,7 +66,7 @@ from .braking import (  # noqa: F401
 )
 from .core import PIECE_DTYPE, InfeasibleProfile, Profile  # noqa: F401
 from .multiaxis import AxisProfiles, synchronize  # noqa: F401
-from .notes import ViaPointTrajectory, equivalent_scurve, parabolic_ramp_figures, timed_scurve, via_points  # noqa: F401
+from .constructions import ViaPointTrajectory, equivalent_scurve, parabolic_ramp_figures, timed_scurve, via_points  # noqa: F401
 from .scurve import (  # noqa: F401
     scurve,
     scurve_durations,

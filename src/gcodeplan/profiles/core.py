@@ -106,6 +106,27 @@ def batch_arrays(**named) -> tuple[tuple[int, ...], list[np.ndarray]]:
     return shape, [np.ascontiguousarray(a).reshape(-1) for a in arrs]
 
 
+# --------------------------------------------------------------------------- the one piece evaluator
+# Every polynomial piece in the package (Profile pieces, SEGMENT rows, stepper pieces) is evaluated by these
+# three functions; callable from numba kernels on floats and from Python on NumPy arrays (broadcasting).
+@numba.njit(cache=True)
+def piece_position(p, v, a, j, tau):
+    """Position p + v·τ + a·τ²/2 + j·τ³/6 (mm), Horner form; τ in s from the piece's start."""
+    return p + tau * (v + tau * (0.5 * a + tau * (j * (1.0 / 6.0))))
+
+
+@numba.njit(cache=True)
+def piece_velocity(v, a, j, tau):
+    """Velocity v + a·τ + j·τ²/2 (mm/s)."""
+    return v + tau * (a + 0.5 * j * tau)
+
+
+@numba.njit(cache=True)
+def piece_acceleration(a, j, tau):
+    """Acceleration a + j·τ (mm/s²); the jerk is j itself."""
+    return a + j * tau
+
+
 # --------------------------------------------------------------------------- sampling
 @numba.njit(cache=True)
 def _sample_pieces(t, t0, dt, p0, v0, a0, jerk, pos, vel, acc, jrk):
@@ -120,9 +141,9 @@ def _sample_pieces(t, t0, dt, p0, v0, a0, jerk, pos, vel, acc, jrk):
         j = jerk[k]
         a = a0[k]
         v = v0[k]
-        pos[i] = p0[k] + tau * (v + tau * (a / 2.0 + tau * j / 6.0))
-        vel[i] = v + tau * (a + tau * j / 2.0)
-        acc[i] = a + tau * j
+        pos[i] = piece_position(p0[k], v, a, j, tau)
+        vel[i] = piece_velocity(v, a, j, tau)
+        acc[i] = piece_acceleration(a, j, tau)
         jrk[i] = j
 
 

@@ -4,7 +4,7 @@
 * slew: all axes start together with their own fastest profiles and end at different times.
 * interpolated (what G1 does): one profile along the straight path; axis i moves by its share u_i = |d_i|/L, so
   all start and end together. The path limits are the largest that no axis exceeds:
-  v = min_i V_i/u_i, a = min_i A_i/u_i, j = min_i J_i/u_i (DESIGN.md, "Path limits from axis limits").
+  v = min_i V_i/u_i, a = min_i A_i/u_i, j = min_i J_i/u_i (docs/design.md §2, "Path limits from axis limits").
   In the notes' example (Lx = 16, Ly = 12, V = 4, t_a = 0.2 -> A = 20) this gives the path V = 5, A = 25,
   T = 20/5 + 5/25 = 4.2 s for both axes, v_y = 3: the notes' "interpolated" answer.
 """

@@ -100,10 +100,10 @@ def eval_segments(segs: np.ndarray, seg_idx: np.ndarray, tau_t: np.ndarray):
     s = segs[seg_idx]
     tau = np.asarray(tau_t, dtype=np.float64)[:, None]
     p, v, a, j = _columns(s, "p"), _columns(s, "v"), _columns(s, "a"), _columns(s, "j")
-    pos = p + tau * (v + tau * (a / 2.0 + tau * j / 6.0))
-    vel = v + tau * (a + tau * j / 2.0)
-    acc = a + tau * j
-    return pos, vel, acc, j.copy()
+    from ..profiles.core import piece_acceleration, piece_position, piece_velocity
+
+    tau = np.ascontiguousarray(np.broadcast_to(tau, p.shape))
+    return piece_position(p, v, a, j, tau), piece_velocity(v, a, j, tau), piece_acceleration(a, j, tau), j.copy()
 
 
 @dataclass
@@ -441,7 +441,7 @@ def plot_axes(win: Window, machine=None, title: str | None = None, size_in=FIGSI
     Velocity limits drawn: the per-axis limit in force (LIMITS axis_v_*, a step line since the
     G-code may change it), the extrude-only limit on E, and, when the machine has a finite
     ``max_step_rate``, the speed at which a stepper reaches it (max_step_rate / steps_per_mm).
-    Corexy steppers: a = x + y, b = x − y (DESIGN.md). Lines carry gids ``pos_<axis>``/``vel_<axis>``.
+    Corexy steppers: a = x + y, b = x − y (docs/design.md §9). Lines carry gids ``pos_<axis>``/``vel_<axis>``.
     """
     _need_segments(win)
     s = sample_plan(win.segs)

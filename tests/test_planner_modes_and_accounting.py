@@ -18,7 +18,7 @@ import pytest
 from gcodeplan.config import load_machine
 from gcodeplan.planner import StreamPlanner, plan_moves, plan_with_segments
 
-from test_planner_util import moves_from_points
+from conftest import moves_from_points
 
 AX = "xyze"
 

@@ -1,0 +1,173 @@
+"""``Toolhead``: the planner fed incrementally, like a firmware's planner buffer.
+
+G-code goes in a line or a file at a time; moves come out once their speeds can no longer change
+(Klipper's lazy flush for the ``klipper`` policy, the equivalent rule of every other mode), and
+everything becomes final at :meth:`Toolhead.flush` (a full stop, as Klipper's ``M400``) or
+:meth:`Toolhead.close` (end of program). It is the very planner :func:`gcodeplan.plan` runs (same
+scanner, interpreter and streaming planner), so its moves equal ``gp.plan`` on the same text bit
+for bit, whatever the chunking.
+
+Text is interpreted lazily, in blocks of ``block_lines`` lines or when moves are asked for, so that
+a call with one line costs about a microsecond and planning runs over many moves at once.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .schema import KIND_NAMES, LIMIT_NAMES, MOVE_DTYPE, PLAN_DTYPE
+
+
+@dataclass(frozen=True, slots=True)
+class CommittedMove:
+    """One planned row whose speeds are final. Speeds mm/s, times s (from the first move's start),
+    positions mm (machine coordinates), ``accel`` mm/s²; ``kind``: 'travel', 'print', 'extrude_only',
+    'dwell' or 'wait'; ``limit``: what bounded the cruise speed ('feed', 'max_velocity', 'accel',
+    'junction', 'cruise_ratio', ...)."""
+
+    index: int
+    line: int
+    kind: str
+    x: float
+    y: float
+    z: float
+    e: float
+    move_d: float
+    start_v: float
+    cruise_v: float
+    end_v: float
+    accel: float
+    start_time: float
+    end_time: float
+    limit: str
+
+
+class Toolhead:
+    """An incremental planner: ``gcode(text)``/``move(...)`` in, ``committed()`` moves out.
+
+    ``machine``: a :class:`~gcodeplan.machine.Machine` or preset name (None = ``klipper``);
+    ``policy``, ``jerk`` as in :func:`gcodeplan.plan`; ``strict``: unknown commands are errors;
+    ``block_lines``: lines buffered before they are interpreted and planned.
+    """
+
+    def __init__(self, machine=None, policy: str | None = None, jerk: float | None = None, *,
+                 strict: bool = False, block_lines: int = 512, name: str = "<toolhead>"):
+        from .api import _machine
+        from .gcode import GcodeReader
+        from .planner import StreamPlanner
+
+        self.machine = _machine(machine)
+        self.policy = policy or self.machine.junction_policy
+        self._reader = GcodeReader([], self.machine, strict=strict)
+        self._reader.path = self._reader.interp.path = name
+        self._planner = StreamPlanner(self.machine, policy=self.policy, jerk=jerk)
+        self.block_lines = max(1, int(block_lines))
+        self._text: list[bytes] = []
+        self._lines_waiting = 0
+        self._out: list[tuple[np.ndarray, np.ndarray]] = []   # final (moves, plan) not yet handed out
+        self._rows = 0            # rows made final so far
+        self._handed = 0          # rows handed out by committed()
+        self._closed = False
+
+    # ------------------------------------------------------------------ input
+    def gcode(self, text: str | bytes) -> None:
+        """Queue G-code: one or many lines (a str or bytes; a missing last newline is added)."""
+        if self._closed:
+            raise RuntimeError("Toolhead.gcode() after close()")
+        data = text.encode("utf-8") if isinstance(text, str) else bytes(text)
+        if not data.endswith(b"\n"):
+            data += b"\n"
+        self._text.append(data)
+        self._lines_waiting += data.count(b"\n")
+        if self._lines_waiting >= self.block_lines:
+            self._interpret()
+
+    def move(self, x: float | None = None, y: float | None = None, z: float | None = None, e: float | None = None,
+             speed: float | None = None, rapid: bool = False) -> None:
+        """Queue one linear move to (x, y, z, e) mm (None = unchanged) at ``speed`` mm/s (None = the modal
+        feed rate). It is written as a ``G1``/``G0`` line in the current modes (G90/G91, M82/M83, G20
+        units), so it behaves exactly like the same G-code line."""
+        words = ["G0" if rapid else "G1"]
+        for letter, v in (("X", x), ("Y", y), ("Z", z), ("E", e)):
+            if v is not None:
+                words.append(f"{letter}{float(v)!r}")
+        if speed is not None:
+            words.append(f"F{float(speed) * 60.0!r}")
+        self.gcode(" ".join(words))
+
+    # ------------------------------------------------------------------ planning
+    def _interpret(self) -> None:
+        if not self._text:
+            return
+        data = b"".join(self._text)
+        self._text.clear()
+        self._lines_waiting = 0
+        for rows in self._reader.feed(data):
+            self._plan(self._planner.feed(rows, self._reader.limits))
+
+    def _plan(self, pairs) -> None:
+        for moves, plan in pairs:
+            if len(moves):
+                self._out.append((moves, plan))
+                self._rows += len(moves)
+
+    def flush(self) -> None:
+        """A full stop: everything queued is planned to rest and becomes final (Klipper's ``M400``)."""
+        self._interpret()
+        self._plan(self._planner.finish())
+
+    def close(self) -> None:
+        """End of program: interpret a last line without a newline, plan everything to rest."""
+        if self._closed:
+            return
+        self._interpret()
+        for rows in self._reader.end():
+            self._plan(self._planner.feed(rows, self._reader.limits))
+        self._plan(self._planner.finish())
+        self._closed = True
+
+    # ------------------------------------------------------------------ output
+    def committed_arrays(self) -> tuple[np.ndarray, np.ndarray]:
+        """(MOVE rows, PLAN rows) made final since the last ``committed()`` / ``committed_arrays()`` call
+        (interprets what is queued first). The PLAN rows' times continue across calls."""
+        self._interpret()
+        if not self._out:
+            return np.zeros(0, MOVE_DTYPE), np.zeros(0, PLAN_DTYPE)
+        moves = np.concatenate([m for m, _ in self._out])
+        plan = np.concatenate([p for _, p in self._out])
+        self._out.clear()
+        self._handed += len(moves)
+        return moves, plan
+
+    def committed(self) -> list[CommittedMove]:
+        """The rows made final since the last call, as :class:`CommittedMove` objects."""
+        first = self._handed
+        moves, plan = self.committed_arrays()
+        end_t = plan["t_start"] + plan["duration"]
+        out = []
+        for k in range(len(moves)):
+            m, p = moves[k], plan[k]
+            out.append(CommittedMove(first + k, int(m["line"]), KIND_NAMES[m["kind"]], float(m["x1"]), float(m["y1"]),
+                                     float(m["z1"]), float(m["e1"]), float(m["move_d"]), float(p["start_v"]),
+                                     float(p["cruise_v"]), float(p["end_v"]), float(p["accel"]),
+                                     float(p["t_start"]), float(end_t[k]), LIMIT_NAMES[p["limit"]]))
+        return out
+
+    @property
+    def pending(self) -> int:
+        """Rows planned but not final yet (held in the look-ahead window)."""
+        return self._planner.pending
+
+    @property
+    def print_time(self) -> float:
+        """End time (s) of the last final move: the planned time so far."""
+        return self._planner._clock
+
+    @property
+    def summary(self):
+        """The parser's running summary (complete after :meth:`close`)."""
+        return self._reader.summary
+
+
+__all__ = ["Toolhead", "CommittedMove"]

@@ -1,0 +1,228 @@
+"""The public API (``import gcodeplan as gp``): one pipeline, the Toolhead, plug-in policies.
+
+Truth: the planner's own whole-program plan (Toolhead and API must equal it bit for bit), Klipper's
+per-line reference CSVs, the CLI's JSON, and the built-in junction kernel (registered policies).
+"""
+from __future__ import annotations
+
+import csv
+import gzip
+import json
+import random
+
+import numba
+import numpy as np
+import pytest
+
+import gcodeplan as gp
+from conftest import CORPUS, REFERENCE, SAMPLES, shared_path
+from gcodeplan.cli import main
+
+CUBE = SAMPLES / "prusaslicer25_cube20_marlin2.gcode"
+PLAN_FIELDS = ("t_start", "start_v", "cruise_v", "end_v", "accel", "decel", "accel_t", "cruise_t", "decel_t",
+               "duration", "limit")
+
+
+def _same_plan(a: np.ndarray, b: np.ndarray) -> None:
+    assert len(a) == len(b)
+    for f in PLAN_FIELDS:
+        assert np.array_equal(a[f], b[f]), f
+
+
+def _lines(path) -> list[bytes]:
+    lines = path.read_bytes().split(b"\n")
+    if lines and lines[-1] == b"":
+        lines.pop()
+    return lines
+
+
+def test_public_names_have_docstrings_with_units():
+    for name in gp.__all__:
+        if name == "__version__":
+            continue
+        obj = getattr(gp, name)
+        assert obj.__doc__ and len(obj.__doc__.strip()) > 20, name
+    for fn in (gp.estimate, gp.plan, gp.steps, gp.load_machine, gp.Toolhead, gp.register_policy):
+        assert any(u in fn.__doc__ for u in ("mm", " s", "(s)", "mm/s")), fn
+
+
+def test_estimate_json_equals_the_cli(capsys):
+    est = gp.estimate(str(CUBE))
+    assert main(["estimate", "--json", "-q", str(CUBE)]) == 0
+    cli = json.loads(capsys.readouterr().out)
+    assert json.loads(json.dumps(est.to_json())) == cli
+    assert est.total_time_s == pytest.approx(1177.230059, abs=1e-6)     # Klipper's own total (README)
+
+
+def test_line_times_equal_klippers_per_line_csv():
+    ref_csv = shared_path("reference", "klipper", "per_line",
+                          "prusaslicer25_cube20_marlin2.per_line_end_time.csv.gz")
+    machine = gp.load_machine(klipper_config=str(REFERENCE / "klipper" / "cartesian_corpus.cfg"))
+    line, end = gp.estimate(str(CUBE), machine).line_times()
+    with gzip.open(ref_csv, "rt") as fh:
+        rows = list(csv.reader(fh))[1:]
+    ref_line = np.array([int(r[0]) for r in rows])
+    ref_end = np.array([float(r[1]) for r in rows])
+    assert np.array_equal(line, ref_line)                    # the same lines: those that move or dwell
+    assert np.max(np.abs(end - ref_end)) <= 5e-7             # the CSV's 6 decimals
+
+
+def test_plan_sample_is_the_plans_own_motion():
+    p = gp.plan(str(SAMPLES / "b_square.gcode"))
+    assert p.total_time_s == pytest.approx(4.123583333, abs=1e-8)     # Klipper's total
+    t = np.linspace(0, p.total_time_s, 2001)
+    pos, vel, acc, jerk = p.sample(t)
+    assert pos.shape == (2001, 4)
+    speed = np.hypot(vel[:, 0], vel[:, 1])
+    assert speed.max() <= p.plan["cruise_v"].max() + 1e-9
+    # position is the integral of velocity (trapezoid rule on a fine grid)
+    integ = np.cumsum((vel[1:, 0] + vel[:-1, 0]) / 2 * np.diff(t))
+    assert np.allclose(pos[1:, 0] - pos[0, 0], integ, atol=5e-3)   # velocity is piecewise linear: exact but at kinks
+
+
+@pytest.mark.parametrize("policy,jerk", [(None, None), ("junction-deviation", None), ("classic-jerk", None),
+                                         ("blend", None), ("exact-stop", None), (None, 50000.0)])
+def test_toolhead_line_by_line_equals_plan(policy, jerk):
+    machine = gp.load_machine("marlin" if policy == "classic-jerk" else "klipper")
+    ref = gp.plan(str(CUBE), machine, policy=policy, jerk=jerk)
+    th = gp.Toolhead(machine, policy=policy, jerk=jerk, block_lines=97)
+    for line in _lines(CUBE):
+        th.gcode(line)
+    th.close()
+    moves, plan = th.committed_arrays()
+    _same_plan(plan, ref.plan)
+    assert np.array_equal(moves["line"], ref.moves["line"])
+
+
+def test_toolhead_random_chunks_and_lazy_commit():
+    ref = gp.plan(str(SAMPLES / "d_slicer_like.gcode"))
+    lines = _lines(SAMPLES / "d_slicer_like.gcode")
+    rng = random.Random(7)
+    th = gp.Toolhead(block_lines=1)
+    got = []
+    k = 0
+    while k < len(lines):
+        n = rng.randint(1, 40)
+        th.gcode(b"\n".join(lines[k:k + n]))
+        k += n
+        got.extend(th.committed())
+        # what is committed never changes later: the prefix so far equals the whole-file plan
+        if got:
+            assert got[-1].end_time == pytest.approx(float(ref.plan["t_start"][len(got) - 1]
+                                                           + ref.plan["duration"][len(got) - 1]), abs=0)
+    th.close()
+    got.extend(th.committed())
+    assert [m.line for m in got] == ref.moves["line"].tolist()
+    assert [m.end_v for m in got] == ref.plan["end_v"].tolist()
+    assert got[-1].end_time == pytest.approx(43.283454874, abs=1e-8)   # Klipper's total for this file
+
+
+def test_toolhead_flush_is_a_full_stop_and_move_is_a_g1_line():
+    th = gp.Toolhead("klipper")
+    th.move(x=10, y=0, speed=100)
+    th.move(x=20, y=0)
+    th.flush()
+    first = th.committed()
+    assert first[-1].end_v == 0.0 and first[0].start_v == 0.0
+    assert first[0].cruise_v == pytest.approx(100.0)
+    th.gcode("G1 X30")
+    th.close()
+    second = th.committed()
+    assert second[0].start_v == 0.0                  # the flush stopped the head
+    assert second[0].start_time == pytest.approx(first[-1].end_time)
+    # the same text through gp.plan, with an M400 (Klipper's full stop) where flush() was
+    ref = gp.plan(["G1 X10.0 Y0.0 F6000.0", "G1 X20.0 Y0.0", "M400", "G1 X30"])
+    ends = ref.plan["t_start"] + ref.plan["duration"]
+    assert second[-1].end_time == pytest.approx(float(ends.max()), abs=1e-12)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", ["cura413_ender3_cylinder30.gcode", "prusaslicer25_twisted_vase_spiral.gcode",
+                                  "prusaslicer25_multi_object_plate_relE.gcode", "cncjs_jscut_tball_pocket_laser.gcode",
+                                  "prusaslicer25_plate150_gyroid_big.gcode"])
+def test_toolhead_equals_plan_on_the_corpus(name):
+    path = shared_path("gcode", name)
+    sink = gp.pipeline.Collect(segments=False)
+    gp.pipeline.run(str(path), gp.load_machine(), sinks=[sink])
+    _, ref_plan, _ = sink.arrays()
+    th = gp.Toolhead()
+    with open(path, "rb") as fh:
+        for line in fh:                 # one line per call, as a host feeding a firmware
+            th.gcode(line)
+    th.close()
+    _, plan = th.committed_arrays()
+    _same_plan(plan, ref_plan)
+
+
+# ----------------------------------------------------------------------------- policies as plug-ins
+def _user_jd():
+    import math
+
+    from gcodeplan.planner.policies import ACCEL, JUNCTION_DEV, KINEMATIC, MOVE_D, U_X, U_Y, U_Z
+
+    @numba.njit
+    def cap(prev, cur, lim):
+        if prev[KINEMATIC] == 0.0 or cur[KINEMATIC] == 0.0:
+            return 0.0
+        cos_theta = -(cur[U_X] * prev[U_X] + cur[U_Y] * prev[U_Y] + cur[U_Z] * prev[U_Z])
+        if cos_theta > 0.999999:
+            return 0.0
+        if cos_theta < -0.999999:
+            return math.inf
+        s = math.sqrt(0.5 * (1.0 - cos_theta))
+        v2 = cur[ACCEL] * cur[JUNCTION_DEV] * s / (1.0 - s)
+        if cur[MOVE_D] < 1.0 and cos_theta < -0.7071067812:
+            turn = max(math.acos(min(1.0, max(-1.0, -cos_theta))), 0.033)
+            v2 = min(v2, cur[MOVE_D] * cur[ACCEL] / turn)
+        return v2
+
+    return cap
+
+
+@pytest.fixture
+def registered():
+    names = []
+
+    def reg(name, fn, **kw):
+        gp.register_policy(name, fn, **kw)
+        names.append(name)
+
+    yield reg
+    for n in names:
+        gp.unregister_policy(n)
+
+
+def test_a_registered_policy_equal_to_junction_deviation_plans_identically(registered):
+    registered("my-jd", _user_jd())
+    for path in (CUBE, SAMPLES / "e_spiral20k.gcode"):
+        _same_plan(gp.plan(str(path), policy="my-jd").plan, gp.plan(str(path), policy="junction-deviation").plan)
+
+
+@pytest.mark.parametrize("name", ["klipper", "junction-deviation", "classic-jerk"])
+def test_builtins_through_the_plugin_door_equal_their_kernels(registered, name):
+    from gcodeplan.planner import policies
+
+    builtin = policies.get_policy(name)
+    registered(f"door-{name}", builtin.cap_v2, moves_like=name)
+    machine = gp.load_machine("marlin") if name == "classic-jerk" else gp.load_machine()
+    _same_plan(gp.plan(str(CUBE), machine, policy=f"door-{name}").plan, gp.plan(str(CUBE), machine, policy=name).plan)
+
+
+def test_a_registered_policy_is_usable_from_the_cli_and_bad_ones_are_refused(registered, capsys):
+    registered("stop-all", lambda prev, cur, lim: 0.0)
+    assert main(["estimate", "--json", "-q", "--policy", "stop-all", str(SAMPLES / "b_square.gcode")]) == 0
+    stop_all = json.loads(capsys.readouterr().out)["total_time_s"]
+    assert main(["estimate", "--json", "-q", "--policy", "exact-stop", str(SAMPLES / "b_square.gcode")]) == 0
+    assert stop_all == pytest.approx(json.loads(capsys.readouterr().out)["total_time_s"], rel=1e-12)
+    with pytest.raises(gp.GcodeplanError):
+        gp.register_policy("klipper", lambda p, c, l: 0.0)          # built-ins cannot be replaced
+    with pytest.raises(gp.GcodeplanError):
+        gp.register_policy("x", lambda p, c, l: 0.0, moves_like="nope")
+    with pytest.raises(gp.GcodeplanError):
+        gp.estimate(str(CUBE), policy="never-registered")
+
+
+def test_sources_other_than_paths():
+    text = (SAMPLES / "b_square.gcode").read_text()
+    a = gp.estimate(text.splitlines()).total_time_s
+    assert a == gp.estimate(str(SAMPLES / "b_square.gcode")).total_time_s
