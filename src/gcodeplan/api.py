@@ -16,7 +16,8 @@ from . import pipeline
 def load_machine(spec: str | None = None, *, klipper_config: str | None = None, flavor: str | None = None):
     """A :class:`~gcodeplan.machine.Machine`: a preset name (``klipper``, ``marlin``, ``grbl``), a machine
     ``.toml`` path, or ``klipper_config=`` a Klipper ``printer.cfg`` (includes followed; the G-code then
-    has Klipper's meanings). ``flavor`` overrides the G-code dialect. Default: the ``klipper`` preset."""
+    has Klipper's meanings). ``flavor`` overrides the G-code dialect. Default: the ``klipper`` preset.
+    Its limits are in mm, mm/s, mm/s² (docs/machine.md lists every key)."""
     from dataclasses import replace
 
     from .config import load_klipper_config
@@ -35,7 +36,8 @@ def load_machine(spec: str | None = None, *, klipper_config: str | None = None, 
     return machine
 
 
-def _machine(machine):
+def as_machine(machine):
+    """A Machine from a Machine, a preset name or .toml path, or None (the klipper preset)."""
     return load_machine() if machine is None else (load_machine(machine) if isinstance(machine, str) else machine)
 
 
@@ -54,22 +56,25 @@ class _EstimateSink(pipeline.Sink):
 
 
 def estimate(source, machine=None, policy: str | None = None, jerk: float | None = None, *, strict: bool = False,
-             progress=None):
+             progress=None, exclude_objects=()):
     """Plan ``source`` and account for its time: an :class:`~gcodeplan.report.estimate.Estimate`.
 
     ``est.total_time_s`` (s), ``est.to_json()`` (what ``gcodeplan estimate --json`` prints),
     ``est.line_times()`` ((line, end_time_s) arrays, Klipper's per-line CSV), ``est.to_text()``.
     ``policy``: junction policy name (None = the machine's); ``jerk``: path jerk limit (mm/s³) for
-    S-curves; ``strict``: unknown commands are errors; ``progress(bytes_read)`` as the file is read.
+    S-curves; ``strict``: unknown commands are errors; ``progress(bytes_read)`` as the file is read;
+    ``exclude_objects``: object names cancelled as Klipper's exclude_object runs them.
     """
     from .report.estimate import Estimate
 
-    machine = _machine(machine)
+    machine = as_machine(machine)
     sink = _EstimateSink()
-    res = pipeline.run(source, machine, policy=policy, jerk=jerk, strict=strict, sinks=[sink], progress=progress)
+    res = pipeline.run(source, machine, policy=policy, jerk=jerk, strict=strict, sinks=[sink], progress=progress,
+                       exclude_objects=exclude_objects)
     r = res.reader
     return Estimate(res.name, r.summary, sink.time, list(r.layer_z), list(r.features), res.policy, machine.name,
-                    line_ends=sink.lines.arrays())
+                    line_ends=sink.lines.arrays(), objects=list(r.interp.objects.names),
+                    wait_time_s=dict(r.interp.wait_time_s), filament_diameter_mm=machine.filament_diameter)
 
 
 @dataclass
@@ -117,7 +122,7 @@ class Plan:
 def plan(source, machine=None, policy: str | None = None, jerk: float | None = None, *, strict: bool = False) -> Plan:
     """Plan ``source`` whole, in memory: a :class:`Plan` with its MOVE, PLAN and SEGMENT rows.
     For big files prefer :func:`gcodeplan.pipeline.run` with a sink of your own (bounded memory)."""
-    machine = _machine(machine)
+    machine = as_machine(machine)
     sink = pipeline.Collect(segments=True)
     res = pipeline.run(source, machine, policy=policy, jerk=jerk, strict=strict, sinks=[sink])
     moves, plan_rows, segs = sink.arrays()
@@ -135,7 +140,7 @@ def steps(source, machine=None, kinematics=None, policy: str | None = None, jerk
     for big files use ``gcodeplan steps`` (streams to disk)."""
     from .stepper.source import StepSink, rails_from
 
-    machine = _machine(machine)
+    machine = as_machine(machine)
     parts: dict[int, list] = {}
 
     def collect(si, t, d):

@@ -38,14 +38,15 @@ class Piece:
     being called: read them in ``add``, not later.
     """
 
-    __slots__ = ("moves", "plan", "first_move", "mode", "_segments", "_make")
+    __slots__ = ("moves", "plan", "first_move", "mode", "own_segments", "_segments", "_make")
 
     def __init__(self, moves: np.ndarray, plan: np.ndarray, first_move: int, mode: str | None = None,
-                 segments: np.ndarray | None = None, make_segments=None):
+                 segments: np.ndarray | None = None, make_segments=None, own_segments: bool = False):
         self.moves = moves
         self.plan = plan
         self.first_move = first_move
         self.mode = mode
+        self.own_segments = own_segments   # the mode's own pieces (blends, S-curves), not rebuilt trapezoids
         self._segments = segments
         self._make = make_segments
 
@@ -106,13 +107,16 @@ class Run:
     Arguments as :func:`run`. Read ``piece.segments`` before asking for the next piece."""
 
     def __init__(self, source, machine, *, policy: str | None = None, jerk: float | None = None,
-                 strict: bool = False, progress: Callable[[int], None] | None = None, batch_moves: int = 8192):
+                 strict: bool = False, progress: Callable[[int], None] | None = None, batch_moves: int = 8192,
+                 exclude_objects: Sequence[str] = ()):
         from .gcode import GcodeReader
         from .planner import StreamPlanner
 
         self.machine = machine
         self.policy = policy or machine.junction_policy
         self.reader = GcodeReader(source, machine, strict=strict, batch_moves=batch_moves)
+        if exclude_objects:   # objects cancelled as Klipper's exclude_object runs them (gcode/objects.py)
+            self.reader.interp.exclude_objects(exclude_objects)
         self.planner = StreamPlanner(machine, policy=self.policy, jerk=jerk)
         self.progress = progress
         self.rows = 0
@@ -120,7 +124,8 @@ class Run:
 
     def _pieces(self, pairs: Iterable[tuple[np.ndarray, np.ndarray]]):
         for moves, plan in pairs:
-            piece = Piece(moves, plan, self.rows, self.planner.mode, make_segments=self.planner.segments_for)
+            piece = Piece(moves, plan, self.rows, self.planner.mode, make_segments=self.planner.segments_for,
+                          own_segments=self.planner.own_segments)
             self.rows += len(moves)
             yield piece
 
@@ -132,6 +137,7 @@ class Run:
                 if self.progress is not None:
                     self.progress(reader.bytes_read)
             yield from self._pieces(planner.finish())
+            reader.interp.check_excluded()
         self.finished = True
 
     @property
@@ -142,26 +148,28 @@ class Run:
 
 def run(source, machine, *, policy: str | None = None, jerk: float | None = None, strict: bool = False,
         sinks: Sequence[Sink] = (), progress: Callable[[int], None] | None = None,
-        batch_moves: int = 8192) -> RunResult:
+        batch_moves: int = 8192, exclude_objects: Sequence[str] = ()) -> RunResult:
     """Parse and plan ``source`` for ``machine``, handing every final piece to ``sinks``.
 
     ``policy``: junction policy name (None = the machine's); ``jerk``: mm/s³ for S-curves (None =
     trapezoids unless the machine sets max_jerk); ``strict``: unknown commands are errors;
-    ``progress(bytes_read)`` after every parser batch. Errors name the file and line
+    ``progress(bytes_read)`` after every parser batch; ``exclude_objects``: names of objects cancelled
+    (Klipper's exclude_object; a name the file never labels is an error). Errors name the file and line
     (:class:`gcodeplan.errors.GcodeplanError`). Reading stops early once every sink said it is done.
     """
     sinks = list(sinks)
     done = [False] * len(sinks)
     drive = Run(source, machine, policy=policy, jerk=jerk, strict=strict, progress=progress,
-                batch_moves=batch_moves)
+                batch_moves=batch_moves, exclude_objects=exclude_objects)
     pieces = iter(drive)
     try:
-        for piece in pieces:
-            for k, sink in enumerate(sinks):
-                if not done[k] and sink.add(piece):
-                    done[k] = True
-            if sinks and all(done):
-                break
+        with located(drive.reader.path):     # a sink's error (e.g. an absurd total) names the file too
+            for piece in pieces:
+                for k, sink in enumerate(sinks):
+                    if not done[k] and sink.add(piece):
+                        done[k] = True
+                if sinks and all(done):
+                    break
     finally:
         pieces.close()
     result = drive.result

@@ -53,11 +53,11 @@ class Toolhead:
 
     def __init__(self, machine=None, policy: str | None = None, jerk: float | None = None, *,
                  strict: bool = False, block_lines: int = 512, name: str = "<toolhead>"):
-        from .api import _machine
+        from .api import as_machine
         from .gcode import GcodeReader
         from .planner import StreamPlanner
 
-        self.machine = _machine(machine)
+        self.machine = as_machine(machine)
         self.policy = policy or self.machine.junction_policy
         self._reader = GcodeReader([], self.machine, strict=strict)
         self._reader.path = self._reader.interp.path = name

@@ -106,7 +106,7 @@ def stream_plan(path: str, machine, policy: str | None, jerk: float | None, stri
 
     def hand_over(piece):
         # blend / S-curve pieces exist only now; trapezoid pieces the caller makes for what it keeps
-        segs = piece.segments if piece.mode in ("scurve", "blend") else None
+        segs = piece.segments if piece.own_segments else None
         return on_chunk(piece.moves, piece.plan, piece.first_move, segs)
 
     return pipeline.run(path, machine, policy=policy, jerk=jerk, strict=strict,

@@ -17,8 +17,6 @@ are not trapezoids) before the next ``feed``/``finish``.
 """
 from __future__ import annotations
 
-import importlib
-
 import numpy as np
 
 from ..errors import ConfigError
@@ -27,23 +25,15 @@ from .passes import plan_from_prep
 from .prepare import POLICY_BLEND, PREP_DTYPE, policy_code, prepare
 from .sampling import sample_segments
 from .segments import to_segments
-from .stream import StreamPlanner, _no_blend_with_jerk
+from .blend import plan_blend
+from .scurve import plan_scurve
+from .stream import StreamPlanner, no_blend_with_jerk
 
 __all__ = ["plan_moves", "StreamPlanner", "to_segments", "sample_segments", "POLICIES", "prepare",
            "PREP_DTYPE", "plan_from_prep"]
 
 
-def _external(module: str, func: str):
-    """The blend / S-curve planners live in sibling modules written separately; import lazily."""
-    try:
-        mod = importlib.import_module(f"gcodeplan.planner.{module}")
-        return getattr(mod, func)
-    except (ImportError, AttributeError):
-        raise NotImplementedError(
-            f"gcodeplan.planner.{module}.{func} is not available yet: this policy cannot be planned") from None
-
-
-def _scurve_jerk(moves: np.ndarray, limits: np.ndarray, jerk: float | None) -> float | None:
+def scurve_jerk(moves: np.ndarray, limits: np.ndarray, jerk: float | None) -> float | None:
     """The S-curve jerk asked for (argument, else the limits in force), or None for trapezoids."""
     if jerk is not None:
         if not (jerk > 0.0 and np.isfinite(jerk)):
@@ -77,12 +67,12 @@ def plan_moves(moves: np.ndarray, limits: np.ndarray, machine, policy: str | Non
     pcode = policy_code(name)
     moves = np.asarray(moves)
     limits = np.asarray(limits)
-    j = _scurve_jerk(moves, limits, jerk)
+    j = scurve_jerk(moves, limits, jerk)
     if j is not None:
-        _no_blend_with_jerk(policy_code(name))
-        return _plan_only(_external("scurve", "plan_scurve")(moves, limits, machine, j, policy=name))
+        no_blend_with_jerk(policy_code(name))
+        return _plan_only(plan_scurve(moves, limits, machine, j, policy=name))
     if pcode == POLICY_BLEND:
-        return _plan_only(_external("blend", "plan_blend")(moves, limits, machine))
+        return _plan_only(plan_blend(moves, limits, machine))
     prep = prepare(moves, limits, machine, name)
     plan, _ = plan_from_prep(moves, prep, pcode)
     return plan
@@ -95,11 +85,11 @@ def plan_with_segments(moves: np.ndarray, limits: np.ndarray, machine, policy: s
     name = policy or machine.junction_policy
     moves = np.asarray(moves)
     limits = np.asarray(limits)
-    j = _scurve_jerk(moves, limits, jerk)
+    j = scurve_jerk(moves, limits, jerk)
     if j is not None:
-        _no_blend_with_jerk(policy_code(name))
-        return _external("scurve", "plan_scurve")(moves, limits, machine, j, first_move=first_index, policy=name)
+        no_blend_with_jerk(policy_code(name))
+        return plan_scurve(moves, limits, machine, j, first_move=first_index, policy=name)
     if policy_code(name) == POLICY_BLEND:
-        return _external("blend", "plan_blend")(moves, limits, machine, first_move=first_index)
+        return plan_blend(moves, limits, machine, first_move=first_index)
     plan = plan_moves(moves, limits, machine, name)
     return plan, to_segments(moves, plan, first_index)

@@ -12,10 +12,11 @@ emitted is bit-identical to ``plan_moves`` on the whole file:
 * S-curves (``jerk`` or a finite ``max_jerk``): up to the last junction certain to sit at its cap
   whatever follows (a full stop, or enough distance ahead to brake from the cap to any speed:
   :func:`gcodeplan.planner.scurve.scurve_window_speeds_kernel`).
-* 'blend': up to the last corner of the window that is a full stop (cap 0: reversal, extrude-only or
-  dwell neighbour, exact stop, zero tolerance, a corner where blending loses to stopping); the runs
-  between such corners are planned independently (:func:`gcodeplan.planner.blend.blend_runs_kernel`),
-  so the window is bounded by the longest run without a stop.
+* 'blend': up to the last corner of the window that nothing after the window can lower: a full stop
+  (reversal, extrude-only or dwell neighbour, exact stop, zero tolerance, a losing corner) or a corner
+  with enough distance ahead to brake from its cap (:func:`gcodeplan.planner.blend.blend_settled_kernel`);
+  the runs between such corners are planned in turn (:func:`gcodeplan.planner.blend.blend_runs_kernel`),
+  so the window is bounded by the braking distance, even in a run that never stops.
 
 Times continue from the previous emission (the first move starts at 0). ``segments_for`` gives the
 SEGMENT rows of an emission: the blend / S-curve planner's own pieces, trapezoid pieces otherwise.
@@ -34,6 +35,144 @@ from .segments import to_segments
 MODE_TRAPEZOID, MODE_SCURVE, MODE_BLEND = "trapezoid", "scurve", "blend"
 
 
+class _Mode:
+    """One planning mode: how a chunk is prepared, how much of the window can be planned for good, and
+    the SEGMENT rows of what was emitted. The StreamPlanner owns the window; a mode owns its own state."""
+
+    name = ""
+    own_segments = False     # True: the mode's pieces are not trapezoids (to_segments cannot rebuild them)
+
+    def __init__(self, sp: "StreamPlanner"):
+        self.sp = sp
+
+    def prepare(self, moves_chunk: np.ndarray, limits: np.ndarray) -> np.ndarray:
+        """PREP rows of a chunk, continuing from what came before."""
+        sp = self.sp
+        pcode = POLICY_JD if sp._pcode == POLICY_BLEND else sp._pcode   # S-curves with blend: refused earlier
+        validate(moves_chunk, limits, pcode)
+        prep, sp._stop_pending = prepare_with_context(moves_chunk, limits, pcode, sp._last_move, sp._last_prep,
+                                                      sp._stop_pending, cap_v2=sp._cap_v2)
+        real = np.flatnonzero(prep["is_move"])
+        if real.size:
+            sp._last_move = moves_chunk[real[-1]:real[-1] + 1].copy()
+            sp._last_prep = prep[real[-1]:real[-1] + 1].copy()
+        return prep
+
+    def plan(self, final: bool):
+        """(rows planned for good, their PLAN rows, end time, context for segments())."""
+        raise NotImplementedError
+
+    def drop(self, n_rows: int) -> None:
+        """The first n_rows of the window were emitted."""
+
+    def reset(self) -> None:
+        """A full stop at finish(): the next move starts from rest."""
+
+    def segments(self, moves: np.ndarray, plan: np.ndarray, prep: np.ndarray, ctx, first_index: int) -> np.ndarray:
+        return to_segments(moves, plan, first_index)
+
+
+class _TrapezoidMode(_Mode):
+    """Trapezoids: Klipper's lazy flush for 'klipper', the pinned-start rule for the other policies."""
+
+    name = MODE_TRAPEZOID
+
+    def plan(self, final: bool):
+        sp = self.sp
+        prep = sp._prep
+        rows = np.flatnonzero(prep["is_move"])
+        m = len(rows)
+        bufs = speed_buffers(m)
+        # Moves before the open run (the one not yet followed by a known full stop) are final.
+        if final or sp._stop_pending:
+            closed = m
+        else:
+            starts = np.flatnonzero(prep["stop_before"][rows])
+            closed = int(starts[-1]) if starts.size else 0
+        plan_runs(sp._pcode, prep, rows, 0, closed, *bufs)
+        done = closed
+        if closed < m:
+            flush = klipper_flush if sp._pcode == POLICY_KLIPPER else standard_flush
+            done = flush(prep, rows, closed, m, True, *bufs)
+        # Emit every row before the first move still pending (dwell / dropped rows included).
+        n_rows = len(sp._moves) if done == m else int(rows[done])
+        if n_rows == 0:
+            return 0, None, sp._clock, None
+        plan, t_end = layout_rows(sp._moves[:n_rows], prep, n_rows, *bufs, sp._clock)
+        return n_rows, plan, t_end, None
+
+
+class _SCurveMode(_Mode):
+    """Jerk-limited S-curves: up to the last junction certain to sit at its cap."""
+
+    name = MODE_SCURVE
+    own_segments = True
+
+    def __init__(self, sp):
+        super().__init__(sp)
+        self.start_v = 0.0        # final start speed of the first pending move
+
+    def prepare(self, moves_chunk, limits):
+        self.sp._check_same_jerk(moves_chunk, limits)
+        return super().prepare(moves_chunk, limits)
+
+    def plan(self, final: bool):
+        from .scurve import scurve_plan_window
+
+        sp = self.sp
+        n_rows, plan, t_end, v_end, ctx = scurve_plan_window(sp._moves, sp._prep, sp._jerk, self.start_v, sp._clock,
+                                                             lazy=not final)
+        self.start_v = v_end
+        return n_rows, plan, t_end, ctx
+
+    def reset(self) -> None:
+        self.start_v = 0.0
+
+    def segments(self, moves, plan, prep, ctx, first_index):
+        from .scurve import scurve_segments
+
+        return scurve_segments(moves, prep, plan, ctx, self.sp._jerk, first_index)
+
+
+class _BlendMode(_Mode):
+    """Parabolic blends: up to the last corner of the window that nothing after it can lower."""
+
+    name = MODE_BLEND
+    own_segments = True
+
+    def __init__(self, sp):
+        super().__init__(sp)
+        self.aux = np.zeros((0, 5))     # per-row tolerance and axis accelerations
+        self.head = None                # the corner the window starts from (blend.blend_plan_window)
+
+    def prepare(self, moves_chunk, limits):
+        from .blend import blend_row_limits
+
+        prep, aux = blend_row_limits(moves_chunk, limits, self.sp.machine)
+        self.aux = np.concatenate([self.aux, aux]) if len(self.aux) else aux
+        return prep
+
+    def plan(self, final: bool):
+        from .blend import blend_plan_window
+
+        sp = self.sp
+        n_rows, plan, t_end, ctx = blend_plan_window(sp._moves, sp._prep, self.aux, sp._clock, lazy=not final,
+                                                     head=self.head)
+        self.head = ctx["head"]
+        return n_rows, plan, t_end, ctx
+
+    def drop(self, n_rows: int) -> None:
+        self.aux = self.aux[n_rows:].copy()
+
+    def reset(self) -> None:
+        self.head = None
+
+    def segments(self, moves, plan, prep, ctx, first_index):
+        from .blend import blend_segments
+
+        return blend_segments(moves, plan, ctx, first_index)
+
+
 class StreamPlanner:
     """``for moves_out, plan_out in sp.feed(chunk, limits): ...`` then the same with ``sp.finish()``."""
 
@@ -46,22 +185,25 @@ class StreamPlanner:
         self._cap_v2 = custom_cap(self.policy)            # a registered policy's rule, None for built-ins
         self._jerk = None if jerk is None else check_jerk(jerk)
         self._jerk_from_limits = False
-        self._mode: str | None = None                     # decided by the first chunk with rows
+        self._mode: _Mode | None = None                   # decided by the first chunk with rows
         self._moves = np.zeros(0, dtype=MOVE_DTYPE)      # pending rows (not emitted yet)
         self._prep = np.zeros(0, dtype=PREP_DTYPE)
-        self._aux = np.zeros((0, 5))                      # blend: per-row tolerance and axis accels
         self._last_move: np.ndarray | None = None         # the last real move prepared (1 row)
         self._last_prep: np.ndarray | None = None
         self._stop_pending = True                         # a full stop precedes the next move
-        self._start_v = 0.0                               # S-curve: final start speed of the first pending move
         self._clock = 0.0
-        self._emitted: list[tuple[np.ndarray, np.ndarray, object]] = []  # last call's (moves, plan, ctx)
+        self._emitted: list[tuple[np.ndarray, np.ndarray, np.ndarray, object]] = []  # last call's pieces
 
     # ------------------------------------------------------------------ public
     @property
     def mode(self) -> str | None:
         """'trapezoid', 'scurve' or 'blend' once the first rows arrived (None before)."""
-        return self._mode
+        return None if self._mode is None else self._mode.name
+
+    @property
+    def own_segments(self) -> bool:
+        """True when the plan's pieces are the mode's own (blends, S-curves), not rebuilt trapezoids."""
+        return self._mode is not None and self._mode.own_segments
 
     def feed(self, moves_chunk: np.ndarray, limits: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
         """Add MOVE rows; return the (moves, plan) pieces whose plan can no longer change."""
@@ -72,26 +214,7 @@ class StreamPlanner:
             return []
         if self._mode is None:
             self._mode = self._choose_mode(moves_chunk, limits)
-        if self._mode == MODE_BLEND:
-            from .blend import blend_row_limits
-
-            prep, aux = blend_row_limits(moves_chunk, limits, self.machine)
-            self._aux = np.concatenate([self._aux, aux]) if len(self._aux) else aux
-        else:
-            # S-curves take the junction caps of the policy as well ('blend' takes junction deviation's)
-            pcode = self._pcode
-            if self._mode == MODE_SCURVE:
-                self._check_same_jerk(moves_chunk, limits)
-            validate(moves_chunk, limits, pcode)
-            if pcode == POLICY_BLEND:
-                pcode = POLICY_JD
-            prep, self._stop_pending = prepare_with_context(moves_chunk, limits, pcode, self._last_move,
-                                                            self._last_prep, self._stop_pending,
-                                                            cap_v2=self._cap_v2)
-            real = np.flatnonzero(prep["is_move"])
-            if real.size:
-                self._last_move = moves_chunk[real[-1]:real[-1] + 1].copy()
-                self._last_prep = prep[real[-1]:real[-1] + 1].copy()
+        prep = self._mode.prepare(moves_chunk, limits)
         self._moves = concat_rows(self._moves, moves_chunk)
         self._prep = concat_rows(self._prep, prep) if len(self._prep) else prep
         return self._emit(final=False)
@@ -102,16 +225,17 @@ class StreamPlanner:
         out = self._emit(final=True)
         self._last_move = self._last_prep = None
         self._stop_pending = True
-        self._start_v = 0.0
+        if self._mode is not None:
+            self._mode.reset()
         return out
 
     def segments_for(self, moves: np.ndarray, plan: np.ndarray, first_index: int = 0) -> np.ndarray:
         """SEGMENT rows of an emitted (moves, plan) pair, SEGMENT.move = first_index + row: the blend /
         S-curve planner's own pieces (ask before the next feed()/finish()), trapezoid pieces otherwise."""
-        if self._mode in (MODE_SCURVE, MODE_BLEND):
-            for moves_out, plan_out, ctx in self._emitted:
+        if self.own_segments:
+            for moves_out, plan_out, prep_out, ctx in self._emitted:
                 if plan_out is plan:
-                    return self._segments(moves_out, plan_out, ctx, first_index)
+                    return self._mode.segments(moves_out, plan_out, prep_out, ctx, first_index)
             if len(plan) == 0:
                 return to_segments(moves, plan, first_index)
             raise ConfigError("segments_for: blend and S-curve pieces exist only for the (moves, plan) pairs the "
@@ -124,26 +248,26 @@ class StreamPlanner:
         return len(self._moves)
 
     # ------------------------------------------------------------------ internals
-    def _choose_mode(self, moves: np.ndarray, limits: np.ndarray) -> str:
+    def _choose_mode(self, moves: np.ndarray, limits: np.ndarray) -> _Mode:
         """plan_moves' dispatch: a jerk (argument, else the limits in force) selects S-curves, then 'blend'."""
-        from . import _scurve_jerk
+        from . import scurve_jerk
 
         if self._jerk is None:
-            self._jerk = _scurve_jerk(moves, limits, None)
+            self._jerk = scurve_jerk(moves, limits, None)
             self._jerk_from_limits = self._jerk is not None
         if self._jerk is not None:
-            _no_blend_with_jerk(self._pcode)
-            return MODE_SCURVE
-        return MODE_BLEND if self._pcode == POLICY_BLEND else MODE_TRAPEZOID
+            no_blend_with_jerk(self._pcode)
+            return _SCurveMode(self)
+        return _BlendMode(self) if self._pcode == POLICY_BLEND else _TrapezoidMode(self)
 
     def _check_same_jerk(self, moves: np.ndarray, limits: np.ndarray) -> None:
         """Whole-file planning takes the least max_jerk of the limits rows the program uses; a stream cannot
         know later rows, so a jerk from the limits must not change along the program."""
         if not self._jerk_from_limits:
             return
-        from . import _scurve_jerk
+        from . import scurve_jerk
 
-        j = _scurve_jerk(moves, limits, None)
+        j = scurve_jerk(moves, limits, None)
         if j is not None and j != self._jerk:
             line = int(moves["line"][0])
             raise ConfigError(f"max_jerk changes from {self._jerk:g} to {j:g} mm/s³ near line {line}: "
@@ -152,21 +276,7 @@ class StreamPlanner:
     def _emit(self, final: bool) -> list[tuple[np.ndarray, np.ndarray]]:
         if len(self._moves) == 0:
             return []
-        if self._mode == MODE_SCURVE:
-            from .scurve import scurve_plan_window
-
-            n_rows, plan, t_end, v_end, ctx = scurve_plan_window(self._moves, self._prep, self._jerk,
-                                                                 self._start_v, self._clock, lazy=not final)
-            self._start_v = v_end
-        elif self._mode == MODE_BLEND:
-            from .blend import blend_plan_window
-
-            n_rows, plan, t_end, ctx = blend_plan_window(self._moves, self._prep, self._aux, self._clock,
-                                                         lazy=not final)
-            self._aux = self._aux[n_rows:].copy()
-        else:
-            n_rows, plan, t_end = self._emit_trapezoid(final)
-            ctx = None
+        n_rows, plan, t_end, ctx = self._mode.plan(final)
         if n_rows == 0:
             return []
         moves_out = self._moves[:n_rows]
@@ -174,42 +284,10 @@ class StreamPlanner:
         self._moves = self._moves[n_rows:].copy()
         prep_out = self._prep[:n_rows]
         self._prep = self._prep[n_rows:].copy()
-        if ctx is not None:
-            self._emitted.append((moves_out, plan, (prep_out, ctx)))
+        self._mode.drop(n_rows)
+        if self._mode.own_segments:
+            self._emitted.append((moves_out, plan, prep_out, ctx))
         return [(moves_out, plan)]
-
-    def _segments(self, moves: np.ndarray, plan: np.ndarray, ctx, first_index: int) -> np.ndarray:
-        prep, detail = ctx
-        if self._mode == MODE_SCURVE:
-            from .scurve import scurve_segments
-
-            return scurve_segments(moves, prep, plan, detail, self._jerk, first_index)
-        from .blend import blend_segments
-
-        return blend_segments(moves, plan, detail, first_index)
-
-    def _emit_trapezoid(self, final: bool) -> tuple[int, np.ndarray | None, float]:
-        prep = self._prep
-        rows = np.flatnonzero(prep["is_move"])
-        m = len(rows)
-        bufs = speed_buffers(m)
-        # Moves before the open run (the one not yet followed by a known full stop) are final.
-        if final or self._stop_pending:
-            closed = m
-        else:
-            starts = np.flatnonzero(prep["stop_before"][rows])
-            closed = int(starts[-1]) if starts.size else 0
-        plan_runs(self._pcode, prep, rows, 0, closed, *bufs)
-        done = closed
-        if closed < m:
-            flush = klipper_flush if self._pcode == POLICY_KLIPPER else standard_flush
-            done = flush(prep, rows, closed, m, True, *bufs)
-        # Emit every row before the first move still pending (dwell / dropped rows included).
-        n_rows = len(self._moves) if done == m else int(rows[done])
-        if n_rows == 0:
-            return 0, None, self._clock
-        plan, t_end = layout_rows(self._moves[:n_rows], prep, n_rows, *bufs, self._clock)
-        return n_rows, plan, t_end
 
 
 def plan_stream(chunks, limits_for_chunk, machine, policy: str | None = None, jerk: float | None = None):
@@ -224,7 +302,7 @@ def plan_stream(chunks, limits_for_chunk, machine, policy: str | None = None, je
     return np.concatenate([o[0] for o in outs]), np.concatenate([o[1] for o in outs])
 
 
-def _no_blend_with_jerk(pcode: int) -> None:
+def no_blend_with_jerk(pcode: int) -> None:
     """Blends are constant-acceleration parabolas: a jerk limit cannot hold in them, and S-curve moves
     would silently fall back to junction-deviation corners while the result claimed 'blend'."""
     if pcode == POLICY_BLEND:
