@@ -226,3 +226,20 @@ def test_sources_other_than_paths():
     text = (SAMPLES / "b_square.gcode").read_text()
     a = gp.estimate(text.splitlines()).total_time_s
     assert a == gp.estimate(str(SAMPLES / "b_square.gcode")).total_time_s
+
+
+def test_cli_plugin_registers_a_policy_in_the_command_line(tmp_path, capsys):
+    plugin = tmp_path / "my_rules.py"
+    plugin.write_text("import gcodeplan as gp\n"
+                      "gp.register_policy('plugin-stop', lambda prev, cur, lim: 0.0, replace=True)\n")
+    f = str(SAMPLES / "b_square.gcode")
+    try:
+        assert main(["estimate", "--json", "-q", "--plugin", str(plugin), "--policy", "plugin-stop", f]) == 0
+        ours = json.loads(capsys.readouterr().out)
+        assert ours["policy"] == "plugin-stop"
+        assert main(["estimate", "--json", "-q", "--policy", "exact-stop", f]) == 0
+        assert ours["total_time_s"] == pytest.approx(json.loads(capsys.readouterr().out)["total_time_s"], rel=1e-12)
+    finally:
+        gp.unregister_policy("plugin-stop")
+    assert main(["estimate", "--plugin", str(tmp_path / "missing.py"), f]) == 2
+    assert "--plugin" in capsys.readouterr().err

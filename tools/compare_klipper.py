@@ -23,22 +23,13 @@ REF = SHARED / "reference" / "klipper"
 
 
 def plan_file(path: Path, machine):
-    from gcodeplan.gcode import GcodeReader
-    from gcodeplan.planner import StreamPlanner
+    """(line, end_time_s) of every planned row, through the library's one pipeline."""
+    import gcodeplan as gp
 
-    reader = GcodeReader(str(path), machine)
-    planner = StreamPlanner(machine)
-    lines, ends = [], []
-    for batch in reader.batches():
-        for m, p in planner.feed(batch, reader.limits):
-            lines.append(m["line"].copy())
-            ends.append(p["t_start"] + p["duration"])
-    for m, p in planner.finish():
-        lines.append(m["line"].copy())
-        ends.append(p["t_start"] + p["duration"])
-    line = np.concatenate(lines)
-    end = np.concatenate(ends)
-    return line, end
+    sink = gp.pipeline.Collect(segments=False)
+    gp.pipeline.run(str(path), machine, sinks=[sink])
+    moves, plan, _ = sink.arrays()
+    return moves["line"], plan["t_start"] + plan["duration"]
 
 
 def per_line_max_diff(line: np.ndarray, end: np.ndarray, csv_path: Path) -> tuple[float, int]:

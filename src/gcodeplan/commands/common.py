@@ -22,6 +22,8 @@ def add_machine_arguments(p: argparse.ArgumentParser) -> None:
                    help="G-code dialect, overriding the machine's (G4 P units, M204 meaning, G0 rate)")
     g.add_argument("--strict", action="store_true",
                    help="unknown commands are an error instead of being counted")
+    g.add_argument("--no-bounds", action="store_true",
+                   help="do not check moves against the machine's travel limits (position_min/position_max)")
 
 
 def add_plan_arguments(p: argparse.ArgumentParser) -> None:
@@ -33,10 +35,37 @@ def add_plan_arguments(p: argparse.ArgumentParser) -> None:
                         "registered with gcodeplan.register_policy)")
     p.add_argument("--jerk", type=float, metavar="J",
                    help="plan jerk-limited S-curves with this path jerk limit (mm/s³) instead of trapezoids")
+    p.add_argument("--plugin", action="append", default=[], metavar="MODULE|FILE.py",
+                   help="import this Python module or file first (repeatable): it may register policies with "
+                        "gcodeplan.register_policy, which --policy can then name")
+
+
+def load_plugins(specs) -> None:
+    """Import each ``--plugin``: a module name, or a path to a ``.py`` file."""
+    import importlib
+    import importlib.util
+
+    for spec in specs or ():
+        try:
+            if spec.endswith(".py") or os.sep in spec or "/" in spec:
+                if not os.path.isfile(spec):
+                    raise GcodeplanError(f"--plugin {spec}: no such file")
+                name = "gcodeplan_plugin_" + os.path.splitext(os.path.basename(spec))[0]
+                mod_spec = importlib.util.spec_from_file_location(name, spec)
+                module = importlib.util.module_from_spec(mod_spec)
+                sys.modules[name] = module
+                mod_spec.loader.exec_module(module)
+            else:
+                importlib.import_module(spec)
+        except GcodeplanError:
+            raise
+        except Exception as err:  # a plugin is the user's code: say which one failed and how
+            raise GcodeplanError(f"--plugin {spec}: {type(err).__name__}: {err}") from None
 
 
 def check_plan_arguments(args) -> None:
-    """Refuse a bad --jerk or an unknown --policy before any file is read."""
+    """Load --plugin modules, then refuse a bad --jerk or an unknown --policy before any file is read."""
+    load_plugins(getattr(args, "plugin", None))
     jerk = getattr(args, "jerk", None)
     if jerk is not None and not (jerk > 0 and math.isfinite(jerk)):
         raise GcodeplanError(f"--jerk must be a positive number (mm/s³), got {jerk:g}")
@@ -51,7 +80,18 @@ def machine_from_args(args):
     """The machine a command runs with (see :func:`gcodeplan.config.machine_from_args`)."""
     from ..config import machine_from_args as build
 
-    return build(args)
+    machine = build(args)
+    if getattr(args, "no_bounds", False):
+        machine = without_bounds(machine)
+    return machine
+
+
+def without_bounds(machine):
+    """A copy of ``machine`` with no travel limits on any axis (``--no-bounds``)."""
+    from dataclasses import replace
+
+    axes = {a: replace(ax, position_min=-math.inf, position_max=math.inf) for a, ax in machine.axes.items()}
+    return replace(machine, axes=axes)
 
 
 def progress_bar(source, quiet: bool):

@@ -13,9 +13,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .common import add_machine_arguments
+from .common import add_machine_arguments, add_plan_arguments, check_plan_arguments
 from ..errors import GcodeplanError
-from ..machine import POLICIES
 from ..report import plots
 
 WHATS = ("velocity", "axes", "path", "layers")
@@ -248,8 +247,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     win.add_argument("--to", dest="t_to", type=float, metavar="T1", help="end time (s)")
     win.add_argument("--lines", metavar="A:B", help="source lines A to B (inclusive)")
     win.add_argument("--layer", type=int, metavar="N", help="layer index N (0 = first layer)")
-    p.add_argument("--policy", choices=POLICIES, help="junction policy, overriding the machine's")
-    p.add_argument("--jerk", type=float, metavar="J", help="plan S-curves with this path jerk limit (mm/s³)")
+    add_plan_arguments(p)
     p.add_argument("--size", default="1600x900", metavar="WxH", help="picture size in pixels (default 1600x900)")
 
 
@@ -302,8 +300,9 @@ def draw(what: str, win: plots.Window | None, machine, size_in, layer_times=None
 
 
 def run(args) -> int:
-    from ..config import machine_from_args
+    from .common import machine_from_args
 
+    check_plan_arguments(args)
     machine = machine_from_args(args)
     size_in = parse_size(args.size)
     out, fmt = output_path(args)

@@ -15,9 +15,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .. import __version__
-from .common import add_machine_arguments
+from .common import add_machine_arguments, add_plan_arguments, check_plan_arguments
 from ..errors import GcodeplanError
-from ..machine import POLICIES
 from ..schema import KIND_WAIT
 from ..report import html, plots
 from .plot import parse_size, segments_for, stream_plan
@@ -94,8 +93,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("file", metavar="FILE", help="G-code file")
     add_machine_arguments(p)
     p.add_argument("-o", "--output", metavar="REPORT.html", help="page to write; default FILE.html beside the input")
-    p.add_argument("--policy", choices=POLICIES, help="junction policy, overriding the machine's")
-    p.add_argument("--jerk", type=float, metavar="J", help="plan S-curves with this path jerk limit (mm/s³)")
+    add_plan_arguments(p)
     p.add_argument("--slowest", type=int, default=2, metavar="N",
                    help="draw the velocity, axes and path plots of the N slowest layers (default 2)")
     p.add_argument("--size", default="1600x900", metavar="WxH", help="plot size in pixels (default 1600x900)")
@@ -196,7 +194,7 @@ def build_report(path: str, machine, policy: str | None = None, jerk: float | No
             *(html.figure(plots.png_bytes(f), f"{what}: {cap}", f"{what}: {cap}") for f, cap in figs)))
     title = f"gcodeplan report: {name}"
     footer = html.pre(f"gcodeplan {__version__}; machine {machine.name}, policy {policy}; "
-                      "times are the plan's (see DESIGN.md), curves sampled from the plan's segments.")
+                      "times are the plan's (docs/design.md), curves sampled from the plan's segments.")
     return html.page(title, *parts, footer)
 
 
@@ -207,8 +205,9 @@ def _text(est, print_text) -> str:
 
 
 def run(args) -> int:
-    from ..config import machine_from_args
+    from .common import machine_from_args
 
+    check_plan_arguments(args)
     if args.slowest < 0:
         raise GcodeplanError(f"--slowest must be 0 or more, got {args.slowest}")
     machine = machine_from_args(args)
