@@ -217,9 +217,13 @@ TOML_ERRORS = [
     ("[junction]\npolicy = \"jerk\"\n", "junction.policy: unknown value 'jerk': must be one of klipper, "),
     ("[junction]\njunction_deviation = inf\n", "junction.junction_deviation: must be a finite number >= 0, got inf"),
     ("[junction]\nsquare_corner_velocity = -1\n", "junction.square_corner_velocity: must be a finite number >= 0"),
-    ("kinematics = \"delta\"\n", "kinematics: delta is not supported yet (supported: cartesian, corexy)"),
-    ("kinematics = \"coreXY\"\n", "kinematics: unknown value 'coreXY': must be one of cartesian, corexy "
-                                  "(did you mean 'corexy'?)"),
+    ("kinematics = \"delta\"\n", "delta.radius: kinematics 'delta' needs delta_radius > 0 mm, got 0.0"),
+    ("kinematics = \"delta\"\n[delta]\nradius = 100\narm_length = [250, 90, 250]\n",
+     "delta.arm_length: tower b's arm (90 mm) must be longer than delta_radius (100 mm)"),
+    ("[delta]\nangle = [1, 2]\n", "delta.angle: must be a number or an array of three numbers (towers a, b, c), "
+                                  "got an array"),
+    ("kinematics = \"coreXY\"\n", "kinematics: unknown value 'coreXY': must be one of cartesian, corexy, "
+                                  "corexz, delta (did you mean 'corexy'?)"),
     ("kinematics = 3\n", "kinematics: must be a string, got 3"),
     ("flavor = \"marlinn\"\n", "flavor: unknown value 'marlinn'"),
     ("flavour = \"marlin\"\n", "flavour: unknown key (did you mean 'flavor'?)"),
@@ -309,7 +313,7 @@ def test_directory_named_like_a_preset_does_not_shadow_it(tmp_path, monkeypatch)
     (dict(max_accel=-1.0), "toolhead.max_accel"),
     (dict(minimum_cruise_ratio=1.0), "junction.minimum_cruise_ratio"),
     (dict(flavor="makerbot"), "flavor"),
-    (dict(kinematics="delta"), "kinematics"),
+    (dict(kinematics="delta"), "delta.radius"),
     (dict(arc_tolerance=float("nan")), "arcs.tolerance"),
     (dict(accel_travel=0.0), "toolhead.accel_travel"),
     (dict(max_velocity="300"), "toolhead.max_velocity"),
@@ -347,7 +351,7 @@ def test_klipper_include_glob_save_config_comments():
     m = load_klipper_config(str(DATA / "include_main.cfg"))
     assert m.kinematics == "corexy"
     assert m.max_velocity == 250.0                     # '=' separator, ';' comment
-    assert m.max_accel == 2500.0                       # SAVE_CONFIG overrides MAX_ACCEL: 2000
+    assert m.max_accel == 2000.0                       # Klipper drops a saved key the config sets (configfile.py)
     assert m.square_corner_velocity == 8.0
     assert (m.axes["z"].max_velocity, m.axes["z"].max_accel) == (10.0, 50.0)
     assert m.axes["x"].steps_per_mm == 80.0 and m.axes["x"].home == -5.0
@@ -355,11 +359,11 @@ def test_klipper_include_glob_save_config_comments():
     assert m.axes["y"].home == 210.0
     # continuation line: gear_ratio 3:1 · 2:4 = 1.5 → 3200·1.5/8
     assert m.axes["z"].steps_per_mm == 600.0
-    assert m.axes["z"].home == 0.735                   # SAVE_CONFIG overrides 0.5
+    assert m.axes["z"].home == 0.5                     # the included 0.5 wins over the saved 0.735, as in Klipper
     assert m.axes["e"].steps_per_mm == pytest.approx(3200 * 5 / 22.6789511, rel=1e-15)
     ratio0 = 4 * 0.6 ** 2 / FILAMENT_AREA_175
     assert m.max_extrude_only_velocity == 120.0
-    assert m.max_extrude_only_accel == pytest.approx(2500 * ratio0, rel=1e-15)   # uses the final max_accel
+    assert m.max_extrude_only_accel == pytest.approx(2000 * ratio0, rel=1e-15)   # uses the final max_accel
     assert m.max_extrude_ratio == pytest.approx(ratio0, rel=1e-15)               # default cross-section 4·nozzle²
     assert (m.retract_length, m.retract_speed, m.unretract_extra_length, m.unretract_speed) == (0.8, 35, 0, 10)
     assert m.arc_resolution == 0.5
@@ -440,7 +444,7 @@ KLIPPER_ERRORS = [
     (lambda t: t.replace("max_velocity: 300\n", ""), "[printer] max_velocity is required"),
     (lambda t: t.replace("max_accel: 3000\n", ""), "[printer] max_accel is required"),
     (lambda t: t.replace("kinematics: cartesian", "kinematics: delta"),
-     "[printer] kinematics: delta is not supported yet (supported: cartesian, corexy)"),
+     "[stepper_a] section is required (kinematics: delta)"),
     (lambda t: t.replace("kinematics: cartesian", "kinematics: scara"),
      "[printer] kinematics: kinematics 'scara' is not supported"),
     (lambda t: t.replace("kinematics: cartesian\n", ""), "[printer] kinematics is required"),

@@ -15,6 +15,7 @@ from gcodeplan import cli
 from gcodeplan.errors import GcodeError
 from gcodeplan.gcode import GcodeReader, read_moves
 from gcodeplan.machine import Machine
+from conftest import same_rows  # noqa: E402
 from gcodeplan.schema import (FLAG_ARC, FLAG_CANNED, FLAG_FIRMWARE_RETRACT, FLAG_HOMING, FLAG_RAPID, FLAG_RETRACT,
                               KIND_DWELL, KIND_EXTRUDE_ONLY, KIND_PRINT, KIND_TRAVEL, KIND_WAIT, MOVE_DTYPE)
 
@@ -202,9 +203,14 @@ def test_m201_m203_m205_marlin_rows_klipper_ignored(tmp_path):
 def test_g61_g64_blend_and_exact_stop(tmp_path):
     text = "G21\nG64 P0.05 Q0.01\nG1 X1\nG61\nG1 X2\nG64\nG1 X3\nG20\nG64 P0.001\nG1 X1\n"
     m, r = _parse(tmp_path, text, Machine(flavor="linuxcnc"))
-    assert list(m["exact_stop"]) == [0, 1, 0, 0]
+    # LinuxCNC's G61 is exact *path* (2: tangent joins pass, corners stop), not exact stop (1)
+    assert list(m["exact_stop"]) == [0, 2, 0, 0]
     assert m["blend_p"][0] == 0.05 and math.isnan(m["blend_p"][2]) and m["blend_p"][3] == pytest.approx(0.0254)
-    assert r.summary.ignored_commands["G64 Q"] == 1
+    # G64 Q is LinuxCNC's naive-CAM tolerance (used by the linuxcnc policy); P alone sets Q = P
+    assert m["blend_q"][0] == 0.01 and m["blend_q"][3] == pytest.approx(0.0254)
+    assert "G64 Q" not in r.summary.ignored_commands
+    m2, r2 = _parse(tmp_path, "G64 P0.05 Q0.01\nG1 X1\n", Machine(flavor="marlin"))
+    assert r2.summary.ignored_commands["G64 Q"] == 1
 
 
 # ------------------------------------------------------------------ layers, features

@@ -86,3 +86,20 @@ def test_stream_from_reader_batches_matches_whole(batch, machine):
     got = np.concatenate([o[1] for o in outs])
     for f in plan.dtype.names:
         assert np.array_equal(got[f], plan[f]), f
+
+
+def test_vendored_copies_are_identical():
+    """tests/data/reference is a byte-for-byte subset of ../shared/reference (its README): when both exist,
+    every vendored file must equal its original, or a bare clone would check against stale figures."""
+    from conftest import SHARED, VENDORED
+
+    if not (SHARED / "reference").is_dir():
+        pytest.skip("../shared/reference not available")
+    files = [p for p in VENDORED.rglob("*") if p.is_file() and p.name != "README.md"]
+    assert len(files) >= 15
+    total = 0
+    for p in files:
+        rel = p.relative_to(VENDORED)
+        assert (SHARED / "reference" / rel).read_bytes() == p.read_bytes(), rel
+        total += p.stat().st_size
+    assert total <= 5 * 1024 * 1024

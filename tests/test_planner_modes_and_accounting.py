@@ -176,13 +176,13 @@ def test_steps_command_blend_and_scurve_with_compress(part_file, tmp_path, extra
     """`gcodeplan steps` with blends and S-curves (--jerk): net steps = round(end·steps_per_mm), and every
     decompressed step within [t − max_error − ½ tick, t + ½ tick] of its exact time."""
     from gcodeplan.cli import main
-    from gcodeplan.stepper.export import load_steps
+    from gcodeplan.stepper.export import load_npz
     from gcodeplan.stepper.compress import decompress_runs
 
     out = tmp_path / "s.npz"
     rc = main([str(a) for a in ["steps", part_file, "--machine", "marlin", "-o", out, "--compress", "-q", *extra]])
     assert rc == 0
-    z = load_steps(out)
+    z = load_npz(out)
     spm = dict(zip(list(z["steppers"]), z["steps_per_mm"]))
     f = float(z["clock_hz"])
     max_err = float(z["max_error_s"])

@@ -9,7 +9,7 @@ import pytest
 
 from gcodeplan.errors import GcodeplanError
 from gcodeplan.stepper.compress import decompress_runs
-from gcodeplan.stepper.export import CsvStepWriter, NpzStreamWriter, load_steps
+from gcodeplan.stepper.export import CsvStepWriter, NpzStreamWriter, load_npz
 
 
 def _leftovers(directory):
@@ -28,7 +28,7 @@ def test_npz_stream_round_trip(tmp_path):
             w.append("x", c)
             w.append("x_dir", np.where(c > 0.5, 1, -1))
         w.put("steppers", np.array(["x"]))
-    got = load_steps(out)
+    got = load_npz(out)
     assert np.array_equal(got["x"], np.concatenate(chunks))
     assert got["x_dir"].dtype == np.int8 and len(got["x_dir"]) == 1022
     assert got["empty"].shape == (0,) and list(got["steppers"]) == ["x"]
@@ -103,7 +103,7 @@ def test_steps_command_writes_everything(gfile, tmp_path, capsys):
     rc = _main(["steps", gfile, "--machine", "klipper", "-o", out, "--csv", tmp_path / "csv", "--compress",
                 "--max-error", "10e-6"])
     assert rc == 0
-    z = load_steps(out)
+    z = load_npz(out)
     names = list(z["steppers"])
     assert len(names) == 4 and str(z["kinematics"]) in ("cartesian", "corexy")
     spm = dict(zip(names, z["steps_per_mm"]))

@@ -42,38 +42,41 @@ def as_machine(machine):
 
 
 class _EstimateSink(pipeline.Sink):
-    """Time accounting and per-line end times of one run."""
+    """Time accounting and (when asked) per-line end times of one run."""
 
-    def __init__(self):
+    def __init__(self, line_times: bool = True):
         from .report.summary import TimeSummary
 
         self.time = TimeSummary()
-        self.lines = pipeline.LineTimes()
+        self.lines = pipeline.LineTimes() if line_times else None
 
     def add(self, piece: pipeline.Piece) -> None:
         self.time.add(piece.moves, piece.plan)
-        self.lines.add(piece)
+        if self.lines is not None:
+            self.lines.add(piece)
 
 
 def estimate(source, machine=None, policy: str | None = None, jerk: float | None = None, *, strict: bool = False,
-             progress=None, exclude_objects=()):
+             progress=None, exclude_objects=(), line_times: bool = True):
     """Plan ``source`` and account for its time: an :class:`~gcodeplan.report.estimate.Estimate`.
 
     ``est.total_time_s`` (s), ``est.to_json()`` (what ``gcodeplan estimate --json`` prints),
     ``est.line_times()`` ((line, end_time_s) arrays, Klipper's per-line CSV), ``est.to_text()``.
     ``policy``: junction policy name (None = the machine's); ``jerk``: path jerk limit (mm/s³) for
     S-curves; ``strict``: unknown commands are errors; ``progress(bytes_read)`` as the file is read;
-    ``exclude_objects``: object names cancelled as Klipper's exclude_object runs them.
+    ``exclude_objects``: object names cancelled as Klipper's exclude_object runs them; ``line_times``: False
+    keeps no per-line end times (16 bytes per line: 30 MB and a few tenths of a second on a 50 MB file), and
+    ``est.line_times()`` then raises.
     """
     from .report.estimate import Estimate
 
     machine = as_machine(machine)
-    sink = _EstimateSink()
+    sink = _EstimateSink(line_times)
     res = pipeline.run(source, machine, policy=policy, jerk=jerk, strict=strict, sinks=[sink], progress=progress,
                        exclude_objects=exclude_objects)
     r = res.reader
     return Estimate(res.name, r.summary, sink.time, list(r.layer_z), list(r.features), res.policy, machine.name,
-                    line_ends=sink.lines.arrays(), objects=list(r.interp.objects.names),
+                    line_ends=sink.lines.arrays() if sink.lines is not None else (None, None), objects=list(r.interp.objects.names),
                     wait_time_s=dict(r.interp.wait_time_s), filament_diameter_mm=machine.filament_diameter)
 
 
@@ -119,12 +122,15 @@ class Plan:
         return lt.arrays()
 
 
-def plan(source, machine=None, policy: str | None = None, jerk: float | None = None, *, strict: bool = False) -> Plan:
+def plan(source, machine=None, policy: str | None = None, jerk: float | None = None, *, strict: bool = False,
+         exclude_objects=()) -> Plan:
     """Plan ``source`` whole, in memory: a :class:`Plan` with its MOVE, PLAN and SEGMENT rows.
+    ``exclude_objects``: object names cancelled as Klipper's exclude_object runs them.
     For big files prefer :func:`gcodeplan.pipeline.run` with a sink of your own (bounded memory)."""
     machine = as_machine(machine)
     sink = pipeline.Collect(segments=True)
-    res = pipeline.run(source, machine, policy=policy, jerk=jerk, strict=strict, sinks=[sink])
+    res = pipeline.run(source, machine, policy=policy, jerk=jerk, strict=strict, sinks=[sink],
+                       exclude_objects=exclude_objects)
     moves, plan_rows, segs = sink.arrays()
     r = res.reader
     return Plan(moves, plan_rows, segs, np.array(r.limits), list(r.layer_z), list(r.features), r.summary,
@@ -147,7 +153,7 @@ def steps(source, machine=None, kinematics=None, policy: str | None = None, jerk
         parts.setdefault(si, []).append((t.copy(), d.copy()))
 
     rails = rails_from(machine, kinematics)
-    sink = StepSink(rails, collect, sds_filter_t=sds_filter)
+    sink = StepSink(rails, collect, sds_filter_t=sds_filter, machine=machine)
     pipeline.run(source, machine, policy=policy, jerk=jerk, strict=strict, sinks=[sink])
     out = {}
     for si, rail in enumerate(rails):

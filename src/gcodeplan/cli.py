@@ -24,6 +24,10 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "steps": ("gcodeplan.commands.steps", "write exact per-stepper step times for a G-code file"),
     "plot": ("gcodeplan.commands.plot", "draw velocity / axes / toolpath / layer plots"),
     "report": ("gcodeplan.commands.report", "write a self-contained HTML report"),
+    "view": ("gcodeplan.commands.view", "write an interactive plan viewer: one self-contained HTML page"),
+    "post-process": ("gcodeplan.commands.post_process",
+                     "rewrite a G-code file with gcodeplan's times (M73 progress, the slicer's time lines)"),
+    "dump-moves": ("gcodeplan.commands.dump_moves", "write one CSV row per planned move (klipper_estimator's dump-moves)"),
 }
 
 
@@ -68,6 +72,22 @@ def _skip_blas_probe() -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Run one command; returns the exit status. SIGINT, SIGTERM and SIGHUP clean up (no temporary file
+    stays) and give 128 + the signal number (gcodeplan/signals.py)."""
+    from .signals import caught, exit_status, install
+
+    restore = install()
+    try:
+        return _main(argv)
+    except KeyboardInterrupt as err:
+        caught()
+        print(f"gcodeplan: {getattr(err, 'reason', 'interrupted')}", file=sys.stderr)
+        return exit_status(err)
+    finally:
+        restore()
+
+
+def _main(argv: list[str] | None = None) -> int:
     from .errors import GcodeplanError
 
     argv = sys.argv[1:] if argv is None else list(argv)
@@ -88,9 +108,6 @@ def main(argv: list[str] | None = None) -> int:
     except GcodeplanError as err:
         print(f"gcodeplan: {err}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
-        print("gcodeplan: interrupted", file=sys.stderr)
-        return 130
     except BrokenPipeError:
         return 0
     except MemoryError:

@@ -21,7 +21,7 @@ from pathlib import Path
 from typing import Any, Callable
 
 from .errors import ConfigError
-from .machine import AXES, FLAVORS, KINEMATICS, POLICIES, Axis, Machine
+from .machine import AXES, FLAVORS, KINEMATICS, POLICIES, SHAPER_TYPES, Axis, Machine
 
 __all__ = [
     "load_machine",
@@ -39,11 +39,9 @@ __all__ = [
 
 # Kinematics Klipper and others offer that we know about but cannot plan yet.
 _UNSUPPORTED_KINEMATICS = {
-    "delta": "delta is not supported yet",
     "deltesian": "deltesian is not supported yet",
     "rotary_delta": "rotary_delta is not supported yet",
     "polar": "polar is not supported yet",
-    "corexz": "corexz is not supported yet",
     "hybrid_corexy": "hybrid_corexy is not supported yet",
     "hybrid_corexz": "hybrid_corexz is not supported yet",
     "winch": "winch is not supported yet",
@@ -136,6 +134,12 @@ def _rule_finite(v: Any) -> str | None:
     return None
 
 
+def _rule_number_or_inf(v: Any) -> str | None:
+    if not _is_number(v) or math.isnan(v):
+        return "must be a number (-inf / inf = no limit)"
+    return None
+
+
 def _rule_ratio01(v: Any) -> str | None:
     if not _is_number(v) or not (0 <= v < 1):
         return "must be a number in [0, 1)"
@@ -154,14 +158,47 @@ def _rule_choice(allowed: tuple[str, ...], unsupported: dict[str, str] | None = 
             return None
         if unsupported and v in unsupported:
             return f"{unsupported[v]} (supported: {', '.join(allowed)})"
-        close = difflib.get_close_matches(v, allowed, n=1)
+        # a value that differs only in case ('coreXY') means that value, not the nearest spelling
+        close = [a for a in allowed if a.lower() == v.lower()] or difflib.get_close_matches(v, allowed, n=1)
         hint = f" (did you mean {close[0]!r}?)" if close else ""
         return f"unknown value {v!r}: must be one of {', '.join(allowed)}{hint}"
     return rule
 
 
+def _rule_smooth_time(v: Any) -> str | None:
+    # Klipper's extruder.py: pressure_advance_smooth_time above 0, at most 0.2 s
+    if not _is_number(v) or not (0.0 < v <= 0.2):
+        return "must be a time in (0, 0.2] s"
+    return None
+
+
+def _rule_macros(v: Any) -> str | None:
+    # [time] macros = { PRINT_START = 240 }: command name -> seconds (gcode/interp.py times them as waits)
+    if not isinstance(v, dict):
+        return "must be a table of command name = seconds"
+    for k, t in v.items():
+        if not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_.]*", str(k)):
+            return f"{k!r} is not a command name"
+        if not _is_number(t) or not (t >= 0 and math.isfinite(t)):
+            return f"{k}: must be a finite number of seconds >= 0"
+    return None
+
+
 def _rule_string(v: Any) -> str | None:
     return None if isinstance(v, str) else "must be a string"
+
+
+def _rule_triple(inner: Rule) -> Rule:
+    """One value per delta tower (a, b, c): three numbers, each passing ``inner``."""
+    def rule(v: Any) -> str | None:
+        if not isinstance(v, tuple) or len(v) != 3:
+            return "must be a number or an array of three numbers (towers a, b, c)"
+        for x in v:
+            problem = inner(x)
+            if problem is not None:
+                return problem + " (each tower)"
+        return None
+    return rule
 
 
 @dataclass(frozen=True)
@@ -195,6 +232,8 @@ _FIELDS: tuple[_Field, ...] = (
     _Field("axis", "jerk", "jerk", _rule_non_negative_or_inf, "number", "mm/s"),
     _Field("axis", "steps_per_mm", "steps_per_mm", _rule_positive, "number", "steps/mm"),
     _Field("axis", "home", "home", _rule_finite, "number", "mm"),
+    _Field("axis", "position_min", "position_min", _rule_number_or_inf, "number", "mm"),
+    _Field("axis", "position_max", "position_max", _rule_number_or_inf, "number", "mm"),
     _Field("extruder", "nozzle_diameter", "nozzle_diameter", _rule_positive, "number", "mm"),
     _Field("extruder", "filament_diameter", "filament_diameter", _rule_positive, "number", "mm"),
     _Field("extruder", "max_extrude_only_velocity", "max_extrude_only_velocity", _rule_positive_or_inf,
@@ -213,7 +252,29 @@ _FIELDS: tuple[_Field, ...] = (
     _Field("firmware_retraction", "unretract_speed", "unretract_speed", _rule_positive, "number", "mm/s"),
     _Field("time", "homing_time", "homing_time", _rule_non_negative, "number", "s"),
     _Field("time", "heat_wait_time", "heat_wait_time", _rule_non_negative, "number", "s"),
+    _Field("time", "tool_change_time", "tool_change_time", _rule_non_negative, "number", "s"),
+    _Field("time", "filament_change_time", "filament_change_time", _rule_non_negative, "number", "s"),
+    _Field("time", "start_time", "start_time", _rule_non_negative, "number", "s"),
+    _Field("time", "macros", "macros", lambda v: _rule_macros(v), "table", "s"),
     _Field("stepper", "max_step_rate", "max_step_rate", _rule_positive_or_inf, "number", "steps/s"),
+    # step stream only (the planned times do not change): Klipper's pressure advance and input shaper
+    _Field("extruder", "pressure_advance", "pressure_advance", _rule_non_negative, "number", "s"),
+    _Field("extruder", "pressure_advance_smooth_time", "pressure_advance_smooth_time", _rule_smooth_time,
+           "number", "s"),
+    _Field("input_shaper", "shaper_type_x", "shaper_type_x", _rule_choice(SHAPER_TYPES[1:]), "string", ""),
+    _Field("input_shaper", "shaper_type_y", "shaper_type_y", _rule_choice(SHAPER_TYPES[1:]), "string", ""),
+    _Field("input_shaper", "shaper_freq_x", "shaper_freq_x", _rule_non_negative, "number", "Hz"),
+    _Field("input_shaper", "shaper_freq_y", "shaper_freq_y", _rule_non_negative, "number", "Hz"),
+    _Field("input_shaper", "damping_ratio_x", "damping_ratio_x", _rule_ratio01, "number", ""),
+    _Field("input_shaper", "damping_ratio_y", "damping_ratio_y", _rule_ratio01, "number", ""),
+    # linear delta (kinematics = "delta"): Klipper's [printer] delta_radius … and [stepper_a|b|c]
+    _Field("delta", "radius", "delta_radius", _rule_non_negative, "number", "mm"),
+    _Field("delta", "print_radius", "print_radius", _rule_optional_positive_or_inf, "number", "mm"),
+    _Field("delta", "minimum_z_position", "minimum_z_position", _rule_finite, "number", "mm"),
+    _Field("delta", "arm_length", "delta_arm_length", _rule_triple(_rule_non_negative), "triple", "mm"),
+    _Field("delta", "angle", "delta_angle", _rule_triple(_rule_finite), "triple", "°"),
+    _Field("delta", "position_endstop", "delta_position_endstop", _rule_triple(_rule_finite), "triple", "mm"),
+    _Field("delta", "steps_per_mm", "delta_steps_per_mm", _rule_triple(_rule_positive), "triple", "steps/mm"),
 )
 
 # Keys that are read but are not Machine fields: they are turned into one.
@@ -221,7 +282,8 @@ _AXIS_STEP_KEYS = ("rotation_distance", "microsteps", "full_steps_per_rotation",
 _EXTRUDER_EXTRA_KEYS = ("max_extrude_cross_section",)
 _TOP_EXTRA_KEYS = ("base",)
 
-_SECTIONS = ("toolhead", "junction", "axis", "extruder", "arcs", "firmware_retraction", "time", "stepper")
+_SECTIONS = ("toolhead", "junction", "axis", "extruder", "arcs", "firmware_retraction", "time", "stepper",
+             "input_shaper", "delta")
 
 
 def _section_keys(section: str) -> list[str]:
@@ -280,10 +342,21 @@ def validate(machine: Machine, source: str | None = None) -> None:
         for f in _FIELDS:
             if f.section == "axis":
                 _check(f, getattr(ax, f.attr), source, axis=a)
+        # Klipper's stepper.py: position_max must be above position_min.
+        if not ax.position_max > ax.position_min:
+            raise ConfigError(f"axis.{a}.position_max: must be above position_min ({_show(ax.position_min)}), "
+                              f"got {_show(ax.position_max)}", source)
     # Klipper's corner rule takes δ = scv²·(√2−1)/max_accel and multiplies it back by the accel:
     # with an infinite max_accel that is inf·0, no answer at all.
     if machine.junction_policy == "klipper" and not math.isfinite(machine.max_accel):
         raise ConfigError("toolhead.max_accel: must be finite with junction.policy 'klipper', got inf", source)
+    if machine.kinematics == "delta":
+        from .kinematics.delta import check_machine
+
+        try:
+            check_machine(machine)
+        except ConfigError as err:
+            raise ConfigError(err.message, source) from None
 
 
 def _check(f: _Field, value: Any, source: str | None, axis: str | None = None) -> None:
@@ -443,6 +516,17 @@ def _coerce(f: _Field, value: Any, path: str, source: str) -> Any:
         if not isinstance(value, str):
             raise ConfigError(f"{path}: must be a string, got {_show(value)}", source)
         return value
+    if f.kind == "table":
+        if not isinstance(value, dict):
+            raise ConfigError(f"{path}: must be a table, got {_show(value)}", source)
+        return {str(k): (float(t) if _is_number(t) else t) for k, t in value.items()}
+    if f.kind == "triple":
+        # one number for the three towers, or [a, b, c]
+        vals = value if isinstance(value, list) else [value] * 3
+        if len(vals) != 3 or not all(_is_number(x) for x in vals):
+            raise ConfigError(f"{path}: must be a number or an array of three numbers (towers a, b, c), "
+                              f"got {_show(value)}", source)
+        return tuple(float(x) for x in vals)
     if isinstance(value, str) and value.strip().lower() in ("inf", "+inf", "infinity"):
         return math.inf
     if not _is_number(value):
@@ -532,42 +616,73 @@ def _steps_from_toml(a: str, sub: dict[str, Any], source: str) -> float:
 
 # ---------------------------------------------------------------------------- writer
 
-def _toml_value(v: Any) -> str:
-    if isinstance(v, str):
-        return '"' + v.replace("\\", "\\\\").replace('"', '\\"') + '"'
-    if math.isinf(v):
-        return "inf" if v > 0 else "-inf"
-    return repr(float(v))
-
-
 def machine_to_toml(machine: Machine) -> str:
-    """The machine in gcodeplan's TOML format; ``load_machine`` of the text gives an equal Machine."""
+    """The machine in gcodeplan's TOML format; ``load_machine`` of the text gives an equal Machine.
+
+    Written with tomli-w, which escapes every string TOML can hold (tabs, newlines, control
+    characters, quotes) and spells ±inf the TOML way."""
+    import tomli_w
+
     validate(machine)
-    out: list[str] = []
-    current = ""
+    doc: dict[str, Any] = {}
     for f in _FIELDS:
         if f.section == "axis":
             continue
         value = getattr(machine, f.attr)
         if value is None:
             continue     # None = "use max_accel / max_velocity": omitting the key keeps it
-        if f.section != current:
-            current = f.section
-            out.append(f"\n[{f.section}]")
-        out.append(f"{f.key} = {_toml_value(value)}")
-    for a in AXES:
-        out.append(f"\n[axis.{a}]")
-        for f in _FIELDS:
-            if f.section == "axis":
-                out.append(f"{f.key} = {_toml_value(getattr(machine.axes[a], f.attr))}")
-    return "\n".join(out).lstrip("\n") + "\n"
+        table = doc if f.section == "" else doc.setdefault(f.section, {})
+        if f.kind == "table":
+            if value:
+                table[f.key] = {k: float(t) for k, t in value.items()}
+            continue
+        if f.kind == "triple":
+            table[f.key] = [float(x) for x in value]
+            continue
+        table[f.key] = float(value) if f.kind == "number" else value
+    doc["axis"] = {a: {f.key: float(getattr(machine.axes[a], f.attr)) for f in _FIELDS if f.section == "axis"}
+                   for a in AXES}
+    return tomli_w.dumps(doc)
 
 
 # ============================================================================ Klipper printer.cfg
 
 _AUTOSAVE_MARK = re.compile(r"^#\*#\s*<-+\s*SAVE_CONFIG\s*-+>\s*$")
-_SECTION_RE = re.compile(r"^\[(?P<name>[^\]]+)\]$")
-_INLINE_COMMENT = re.compile(r"\s[#;]")
+# Klipper's configfile.py finds the auto-saved block by this exact text (AUTOSAVE_HEADER).
+_AUTOSAVE_HEADER = ("\n#*# <---------------------- SAVE_CONFIG ---------------------->\n"
+                    "#*# DO NOT EDIT THIS BLOCK OR BELOW. The contents are auto-generated.\n#*#\n")
+# configparser's section header (RawConfigParser.SECTCRE): greedy, name not stripped.
+_SECTION_RE = re.compile(r"\[(?P<name>.+)\]")
+# An option line: the key ends at the first ':' or '=' (configparser's OPTCRE).
+_OPTION_SEP = re.compile(r"[:=]")
+
+
+def _cfg_lines(text: str) -> list[str]:
+    """Lines the way Klipper splits a config: CR LF → LF, then on LF only (a lone CR stays in its line)."""
+    return text.replace("\r\n", "\n").split("\n")
+
+
+def _strip_cfg_comment(line: str) -> tuple[str, bool]:
+    """(line without its comment, whether a ';' comment was cut), as Klipper reads it.
+
+    Klipper's configfile.py cuts every line at the first '#', wherever it is (``max_velocity: 300#fast``
+    is 300); then RawConfigParser(inline_comment_prefixes=(';', '#')) cuts at a ';' that starts the
+    line or follows whitespace (``300;fast`` stays "300;fast", which is not a number), and drops a
+    line whose first non-blank character is ';'.
+    """
+    cut = line.find("#")
+    if cut >= 0:
+        line = line[:cut]
+    if line.lstrip().startswith(";"):
+        return "", True
+    start = 0
+    while True:
+        k = line.find(";", start)
+        if k < 0:
+            return line, False
+        if k == 0 or line[k - 1].isspace():
+            return line[:k], True
+        start = k + 1
 
 
 @dataclass
@@ -578,7 +693,15 @@ class _CfgValue:
 
 
 class _KlipperCfg:
-    """The sections of a printer.cfg after includes and the SAVE_CONFIG block, with each value's origin."""
+    """The sections of a printer.cfg after includes and the SAVE_CONFIG block, with each value's origin.
+
+    Reads what Klipper's configfile.py reads (its ConfigFileReader over a RawConfigParser with
+    ``strict=False``, ``inline_comment_prefixes=(';', '#')``; tests/test_config_fidelity.py compares the
+    two): section names as written (case-sensitive, not stripped), keys lower-cased, later values win,
+    multi-line values joined with newlines, includes relative to the including file and sorted, and
+    a SAVE_CONFIG value used only where the regular config (includes too) does not set that key.
+    Where Klipper would silently drop the whole SAVE_CONFIG block (a damaged block) this is an error.
+    """
 
     def __init__(self, main: str):
         self.main = main
@@ -586,72 +709,103 @@ class _KlipperCfg:
 
     # -- reading
     def read(self) -> "_KlipperCfg":
-        text = _read_text(self.main)
-        lines = text.splitlines()
-        numbered = list(enumerate(lines, start=1))
-        autosave: list[tuple[int, str]] = []
-        for i, (_, raw) in enumerate(numbered):
-            if _AUTOSAVE_MARK.match(raw.strip()):
-                autosave = numbered[i + 1:]
-                numbered = numbered[:i]
-                break
-        self._parse(numbered, self.main, visiting=(os.path.abspath(self.main),))
-        # Klipper reads the auto-saved block after everything else, so its values win.
-        self._parse(self._unwrap_autosave(autosave), self.main, visiting=(os.path.abspath(self.main),))
+        text = _read_text(self.main).replace("\r\n", "\n")
+        regular, autosave = self._split_autosave(text)
+        visiting = (os.path.abspath(self.main),)
+        self._parse(list(enumerate(_cfg_lines(regular), start=1)), self.main, visiting)
+        saved = _KlipperCfg(self.main)
+        saved._parse(autosave, self.main, visiting, allow_include=False)
+        # configfile.py _strip_duplicates: an auto-saved key the regular config also sets is commented
+        # out, so the user's own line wins (SAVE_CONFIG itself comments out the regular one it replaces).
+        for section, values in saved.sections.items():
+            target = self.sections.setdefault(section, {})
+            for key, value in values.items():
+                target.setdefault(key, value)
+        for values in self.sections.values():
+            for value in values.values():
+                value.text = value.text.rstrip()     # configparser: trailing blank lines of a value go
         return self
 
-    def _unwrap_autosave(self, lines: list[tuple[int, str]]) -> list[tuple[int, str]]:
+    def _split_autosave(self, text: str) -> tuple[str, list[tuple[int, str]]]:
+        """(regular text, numbered lines of the SAVE_CONFIG block without their '#*# ' prefix)."""
+        pos = text.find(_AUTOSAVE_HEADER)
+        if pos < 0:
+            lines = _cfg_lines(text)
+            for n, raw in enumerate(lines, start=1):
+                if _AUTOSAVE_MARK.match(raw.strip()):
+                    for k, after in enumerate(lines[n:], start=n + 1):
+                        if after.strip() and not after.startswith("#*#"):
+                            raise ConfigError("a line after the SAVE_CONFIG marker must start with '#*#' "
+                                              "(Klipper ignores the whole block otherwise)", self.main, k)
+                    raise ConfigError("the SAVE_CONFIG block does not start with Klipper's exact three header "
+                                      "lines, so Klipper ignores the whole block", self.main, n)
+            return text, []
+        regular = text[:pos]
+        first = regular.count("\n") + 5            # the header's three lines follow the last regular line
+        if "\n#*# " in regular:
+            n = regular[:regular.index("\n#*# ") + 1].count("\n") + 1
+            raise ConfigError("a '#*#' line before the SAVE_CONFIG block: Klipper ignores the whole block",
+                              self.main, n)
+        body = text[pos + len(_AUTOSAVE_HEADER):]
+        lines = _cfg_lines(body)
+        skip = 0
+        while skip < len(lines) and not lines[skip].strip():
+            skip += 1
+        end = len(lines)
+        while end > skip and not lines[end - 1].strip():
+            end -= 1
         out = []
-        for n, raw in lines:
-            if not raw.strip():
-                continue
-            if not raw.startswith("#*#"):
-                raise ConfigError("a line after the SAVE_CONFIG marker must start with '#*#'", self.main, n)
-            body = raw[3:]
-            body = body[1:] if body.startswith(" ") else body
-            if body.strip().upper().startswith("DO NOT EDIT"):
-                continue
-            out.append((n, body))
-        return out
+        for n, raw in enumerate(lines[skip:end], start=first + skip):
+            if skip == 0 and n == first:
+                raw = raw.lstrip()                   # configfile.py strips the block as a whole
+            if not raw.startswith("#*#") or (len(raw) >= 4 and not raw.startswith("#*# ")):
+                raise ConfigError("a line after the SAVE_CONFIG marker must start with '#*#' "
+                                  "(Klipper ignores the whole block otherwise)", self.main, n)
+            out.append((n, raw[4:]))
+        return regular, out
 
-    def _parse(self, lines: list[tuple[int, str]], file: str, visiting: tuple[str, ...]) -> None:
+    def _parse(self, lines: list[tuple[int, str]], file: str, visiting: tuple[str, ...],
+               allow_include: bool = True) -> None:
         section: str | None = None
         key: str | None = None
         key_indent = 0
         for n, raw in lines:
-            stripped = raw.strip()
-            if not stripped or stripped[0] in "#;":
-                continue
-            m = _INLINE_COMMENT.search(raw)
-            content = raw[:m.start()] if m else raw
-            indent = len(content) - len(content.lstrip())
-            content = content.strip()
+            line, had_comment = _strip_cfg_comment(raw)
+            content = line.strip()
             if not content:
+                # configparser keeps a blank line inside a multi-line value (empty_lines_in_values)
+                if not had_comment and key is not None and section is not None:
+                    self.sections[section][key].text += "\n"
                 continue
+            indent = len(line) - len(line.lstrip())
             if indent > key_indent and key is not None and section is not None:
                 prev = self.sections[section][key]
-                prev.text = (prev.text + "\n" + content) if prev.text else content
+                prev.text = prev.text + "\n" + content      # configparser keeps an empty first line too
+                continue
+            # Klipper takes a header at column 0 as an include before configparser sees the text.
+            mi = _SECTION_RE.match(line)
+            if allow_include and mi and mi.group("name").startswith("include "):
+                key = None
+                self._include(mi.group("name")[len("include "):].strip(), file, n, visiting)
+                section = None       # keys after an include need their own [section]
                 continue
             ms = _SECTION_RE.match(content)
             if ms:
-                name = ms.group("name").strip()
+                section = ms.group("name")
                 key = None
-                if name.startswith("include "):
-                    self._include(name[len("include "):].strip(), file, n, visiting)
-                    section = None       # keys after an include need their own [section]
-                    continue
-                section = name
+                if section == "DEFAULT":
+                    raise ConfigError("[DEFAULT]: configparser copies its keys into every section; "
+                                      "gcodeplan does not read it", file, n)
                 self.sections.setdefault(section, {})
                 continue
             if section is None:
                 raise ConfigError(f"'{content}' is outside any [section]", file, n)
-            seps = [i for i in (content.find(":"), content.find("=")) if i > 0]
-            if not seps:
+            sep = _OPTION_SEP.search(content)
+            if sep is None or not content[:sep.start()].strip():
                 raise ConfigError(f"[{section}]: expected 'key: value', got {content!r}", file, n)
-            i = min(seps)
-            key = content[:i].strip().lower()
+            key = content[:sep.start()].strip().lower()
             key_indent = indent
-            self.sections[section][key] = _CfgValue(content[i + 1:].strip(), file, n)
+            self.sections[section][key] = _CfgValue(content[sep.end():].strip(), file, n)
 
     def _include(self, pattern: str, file: str, line: int, visiting: tuple[str, ...]) -> None:
         if not pattern:
@@ -665,7 +819,7 @@ class _KlipperCfg:
             if absolute in visiting:
                 raise ConfigError(f"[include {pattern}]: recursive include of {path}", file, line)
             text = _read_text(path)
-            self._parse(list(enumerate(text.splitlines(), start=1)), path, visiting + (absolute,))
+            self._parse(list(enumerate(_cfg_lines(text), start=1)), path, visiting + (absolute,))
 
     # -- typed access, Klipper's checks (configfile.py getfloat: above / minval / below / maxval)
     def has(self, section: str) -> bool:
@@ -713,6 +867,24 @@ class _KlipperCfg:
         if minval is not None and x < minval:
             raise ConfigError(f"[{section}] {key}: must be at least {minval}, got {v.text}", v.file, v.line)
         return x
+
+
+def _klipper_travel_limits(cfg: _KlipperCfg, section: str, axis: Axis) -> None:
+    """stepper.py PrinterRail: position_min (default 0) < position_max, position_endstop between them (mm).
+
+    Klipper requires position_max; a config without it is read here with no limit on that axis (only
+    position_min, when given, bounds it below)."""
+    has_max = cfg.raw(section, "position_max") is not None
+    lo = cfg.get_float(section, "position_min", 0.0 if has_max else -math.inf)
+    if not has_max:
+        axis.position_min = lo
+        return
+    hi = cfg.get_float(section, "position_max", required=True, above=lo)
+    if not lo <= axis.home <= hi:
+        v = cfg.raw(section, "position_endstop") or cfg.raw(section, "position_max")
+        raise ConfigError(f"position_endstop in section '{section}' must be between position_min and "
+                          f"position_max", v.file, v.line)
+    axis.position_min, axis.position_max = lo, hi
 
 
 def _klipper_steps_per_mm(cfg: _KlipperCfg, section: str) -> float:
@@ -765,12 +937,15 @@ def load_klipper_config(path: str) -> Machine:
     m.minimum_cruise_ratio = cfg.get_float("printer", "minimum_cruise_ratio", mcr_default, minval=0.0, below=1.0)
     m.square_corner_velocity = cfg.get_float("printer", "square_corner_velocity", 5.0, minval=0.0)
 
-    for a in ("x", "y", "z"):
+    if kinematics == "delta":
+        _klipper_delta(cfg, m)
+    for a in ("x", "y", "z") if kinematics != "delta" else ():
         section = f"stepper_{a}"
         if not cfg.has(section):
             raise ConfigError(f"[{section}] section is required", cfg.main)
         m.axes[a].steps_per_mm = _klipper_steps_per_mm(cfg, section)
         m.axes[a].home = cfg.get_float(section, "position_endstop", 0.0)
+        _klipper_travel_limits(cfg, section, m.axes[a])
     # cartesian.py / corexy.py: only Z has limits of its own; X/Y stay unlimited (inf).
     m.axes["z"].max_velocity = cfg.get_float("printer", "max_z_velocity", m.max_velocity,
                                              above=0.0, maxval=m.max_velocity)
@@ -778,6 +953,8 @@ def load_klipper_config(path: str) -> Machine:
 
     if cfg.has("extruder"):
         _klipper_extruder(cfg, m)
+    if cfg.has("input_shaper"):
+        _klipper_input_shaper(cfg, m)
     if cfg.has("gcode_arcs"):
         m.arc_resolution = cfg.get_float("gcode_arcs", "resolution", 1.0, above=0.0)
     if cfg.has("firmware_retraction"):
@@ -788,6 +965,31 @@ def load_klipper_config(path: str) -> Machine:
         m.unretract_speed = cfg.get_float(s, "unretract_speed", 10.0, minval=1.0)
     validate(m, cfg.main)
     return m
+
+
+def _klipper_delta(cfg: _KlipperCfg, m: Machine) -> None:
+    """kinematics/delta.py: towers [stepper_a|b|c] (steps, position_endstop and arm_length default to
+    stepper_a's, angles 210/330/90), [printer] delta_radius, print_radius, minimum_z_position. G28 goes to
+    the home position (the carriages at their endstops)."""
+    for t in "abc":
+        if not cfg.has(f"stepper_{t}"):
+            raise ConfigError(f"[stepper_{t}] section is required (kinematics: delta)", cfg.main)
+    m.delta_steps_per_mm = tuple(_klipper_steps_per_mm(cfg, f"stepper_{t}") for t in "abc")
+    end_a = cfg.get_float("stepper_a", "position_endstop", required=True)
+    m.delta_position_endstop = (end_a,) + tuple(cfg.get_float(f"stepper_{t}", "position_endstop", end_a)
+                                                for t in "bc")
+    m.delta_radius = cfg.get_float("printer", "delta_radius", required=True, above=0.0)
+    m.print_radius = cfg.get_float("printer", "print_radius", m.delta_radius, above=0.0)
+    arm_a = cfg.get_float("stepper_a", "arm_length", required=True, above=m.delta_radius)
+    m.delta_arm_length = (arm_a,) + tuple(cfg.get_float(f"stepper_{t}", "arm_length", arm_a, above=m.delta_radius)
+                                          for t in "bc")
+    m.delta_angle = tuple(cfg.get_float(f"stepper_{t}", "angle", a) for t, a in zip("abc", (210.0, 330.0, 90.0)))
+    m.minimum_z_position = cfg.get_float("printer", "minimum_z_position", 0.0, maxval=min(m.delta_position_endstop))
+    from .kinematics.delta import DeltaGeometry
+
+    home = DeltaGeometry.from_machine(m).home_position
+    for a, h in zip("xyz", home):
+        m.axes[a].home = h
 
 
 def _klipper_extruder(cfg: _KlipperCfg, m: Machine) -> None:
@@ -807,6 +1009,44 @@ def _klipper_extruder(cfg: _KlipperCfg, m: Machine) -> None:
     m.instantaneous_corner_velocity = cfg.get_float(s, "instantaneous_corner_velocity", 1.0, minval=0.0)
     cross_section = cfg.get_float(s, "max_extrude_cross_section", default_cross_section, above=0.0)
     m.max_extrude_ratio = klipper_extrude_ratio(cross_section, m.filament_diameter)
+    # kinematics/extruder.py: pressure advance (step stream only)
+    m.pressure_advance = cfg.get_float(s, "pressure_advance", 0.0, minval=0.0)
+    m.pressure_advance_smooth_time = cfg.get_float(s, "pressure_advance_smooth_time", 0.040, above=0.0,
+                                                   maxval=0.200)
+
+
+def _klipper_input_shaper(cfg: _KlipperCfg, m: Machine) -> None:
+    """extras/input_shaper.py: shaper_type (both axes) or shaper_type_x/_y, shaper_freq_x/_y, damping_ratio_x/_y."""
+    s = "input_shaper"
+
+    def shaper_type(key: str, default: str) -> str:
+        v = cfg.raw(s, key)
+        if v is None:
+            return default
+        name = v.text.strip().lower()
+        if name not in SHAPER_TYPES[1:]:
+            raise ConfigError(f"[{s}] {key}: shaper {name!r} is not modelled (known: {', '.join(SHAPER_TYPES[1:])})",
+                              v.file, v.line)
+        return name
+
+    both = shaper_type("shaper_type", "mzv")
+    for a in ("x", "y"):
+        setattr(m, f"shaper_type_{a}", shaper_type(f"shaper_type_{a}", both))
+        setattr(m, f"shaper_freq_{a}", cfg.get_float(s, f"shaper_freq_{a}", 0.0, minval=0.0))
+        setattr(m, f"damping_ratio_{a}", cfg.get_float(s, f"damping_ratio_{a}", 0.1, minval=0.0, maxval=1.0))
+    # Klipper's custom shapers and a Z shaper change the steps too: refuse rather than ignore
+    for key in ("shaper_freq_z", "shaper_a_x", "shaper_a_y", "shaper_t_x", "shaper_t_y", "shaper_a_z", "shaper_t_z"):
+        v = cfg.raw(s, key)
+        if v is not None and not (key == "shaper_freq_z" and _is_zero(v.text)):
+            raise ConfigError(f"[{s}] {key}: not modelled (gcodeplan shapes X and Y with Klipper's named "
+                              f"shapers only)", v.file, v.line)
+
+
+def _is_zero(text: str) -> bool:
+    try:
+        return float(text) == 0.0
+    except ValueError:
+        return False
 
 
 # ============================================================================ CLI
@@ -816,9 +1056,14 @@ def machine_from_args(args: Any) -> Machine:
     default the ``klipper`` preset; ``--flavor`` overrides the machine's flavor."""
     machine_spec = getattr(args, "machine", None)
     klipper_cfg = getattr(args, "klipper_config", None)
-    if machine_spec and klipper_cfg:
-        raise ConfigError("give --machine or --klipper-config, not both")
-    if klipper_cfg:
+    linuxcnc_ini = getattr(args, "linuxcnc_ini", None)
+    if sum(bool(x) for x in (machine_spec, klipper_cfg, linuxcnc_ini)) > 1:
+        raise ConfigError("give one of --machine, --klipper-config, --linuxcnc-ini, not both")
+    if linuxcnc_ini:
+        from .linuxcnc_ini import load_linuxcnc_ini
+
+        machine = load_linuxcnc_ini(linuxcnc_ini)
+    elif klipper_cfg:
         machine = load_klipper_config(klipper_cfg)
     else:
         machine = load_machine(machine_spec or "klipper")

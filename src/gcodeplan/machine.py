@@ -17,9 +17,12 @@ from .schema import LIMITS_DTYPE
 
 INF = math.inf
 
-KINEMATICS = ("cartesian", "corexy")
+KINEMATICS = ("cartesian", "corexy", "corexz", "delta")
 FLAVORS = ("marlin", "klipper", "reprap", "grbl", "linuxcnc")
-POLICIES = ("klipper", "junction-deviation", "classic-jerk", "blend", "exact-stop")
+# Klipper's input shapers; the index is the code stored in LIMITS.shaper_type_x/_y (0 = none)
+SHAPER_TYPES = ("none", "zv", "mzv", "zvd", "ei", "2hump_ei", "3hump_ei")
+SHAPER_TYPE_CODES = {name: i for i, name in enumerate(SHAPER_TYPES)}
+POLICIES = ("klipper", "junction-deviation", "classic-jerk", "blend", "exact-stop", "linuxcnc")
 AXES = ("x", "y", "z", "e")
 
 
@@ -30,6 +33,10 @@ class Axis:
     jerk: float = 0.0             # mm/s classic jerk (M205 X/Y/Z/E); 0 = not set
     steps_per_mm: float = 80.0    # full steps × microsteps / rotation distance
     home: float = 0.0             # mm, position taken at G28 (modelled as instant)
+    # mm, travel limits (Klipper's position_min/position_max): a move ending outside is an error
+    # (gcode/reader.py); -inf/inf = no limit. Checked per axis (cartesian, corexy, corexz).
+    position_min: float = -INF
+    position_max: float = INF
 
 
 @dataclass
@@ -78,8 +85,34 @@ class Machine:
     # time not spent moving
     homing_time: float = 0.0                 # s per G28 (reported with the waits)
     heat_wait_time: float = 0.0              # s per M109/M190 (reported with the waits)
+    tool_change_time: float = 0.0            # s per T<n> / M6 that changes the tool (a wait named tool_change)
+    filament_change_time: float = 0.0        # s per M600 filament change (a wait named M600)
+    start_time: float = 0.0                  # s before the first line: a fixed start offset (a wait named start)
+    macros: dict[str, float] = field(default_factory=dict)   # s per command name (PRINT_START = 240)
 
     max_step_rate: float = INF               # steps/s per stepper: above it the stepper warns
+
+    # LinuxCNC trajectory-planner settings (planner.linuxcnc.LinuxcncSettings; None = LinuxCNC 2.9's defaults)
+    linuxcnc: object = None
+
+    # step stream (the planner ignores these): Klipper's pressure advance and input shaper
+    pressure_advance: float = 0.0            # s (Klipper [extruder] pressure_advance); 0 = off
+    pressure_advance_smooth_time: float = 0.040  # s (Klipper's default)
+    shaper_type_x: str = "mzv"               # zv, mzv, zvd, ei, 2hump_ei, 3hump_ei (Klipper [input_shaper])
+    shaper_type_y: str = "mzv"
+    shaper_freq_x: float = 0.0               # Hz, 0 = no shaping on X
+    shaper_freq_y: float = 0.0               # Hz, 0 = no shaping on Y
+    damping_ratio_x: float = 0.1
+    damping_ratio_y: float = 0.1
+
+    # linear delta (kinematics "delta", Klipper's delta.py): towers a, b, c; see kinematics/delta.py
+    delta_radius: float = 0.0                # mm, tower circle radius (Klipper [printer] delta_radius); required
+    print_radius: float | None = None        # mm, reachable XY radius; None = delta_radius
+    minimum_z_position: float = 0.0          # mm, lowest Z a move may end at
+    delta_arm_length: tuple[float, float, float] = (0.0, 0.0, 0.0)           # mm per tower; required
+    delta_angle: tuple[float, float, float] = (210.0, 330.0, 90.0)           # degrees per tower
+    delta_position_endstop: tuple[float, float, float] = (0.0, 0.0, 0.0)     # mm, nozzle Z at X=Y=0 with a tower at its endstop
+    delta_steps_per_mm: tuple[float, float, float] = (80.0, 80.0, 80.0)      # steps per mm of carriage travel
 
     # ------------------------------------------------------------------ derived
     def limits_row(self) -> np.ndarray:
@@ -102,6 +135,18 @@ class Machine:
         r["min_feed_v"] = 0.0
         r["min_travel_v"] = 0.0
         r["max_jerk"] = self.max_jerk
+        r["pa_k"] = self.pressure_advance
+        r["pa_smooth_t"] = self.pressure_advance_smooth_time
+        for a in ("x", "y"):
+            r["shaper_type_" + a] = SHAPER_TYPE_CODES.get(getattr(self, "shaper_type_" + a), -1)
+            r["shaper_freq_" + a] = getattr(self, "shaper_freq_" + a)
+            r["damping_" + a] = getattr(self, "damping_ratio_" + a)
+        if self.kinematics == "delta":
+            from .kinematics.delta import DeltaGeometry
+
+            g = DeltaGeometry.from_machine(self)
+            r["delta_slow_xy2"], r["delta_very_slow_xy2"] = g.slow_xy2, g.very_slow_xy2
+            r["delta_slow_v"], r["delta_slow_a"] = self.max_velocity, self.max_accel
         return row
 
     @property

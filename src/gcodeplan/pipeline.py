@@ -33,16 +33,19 @@ class Piece:
 
     ``moves`` (MOVE rows) and ``plan`` (PLAN rows) are aligned 1:1; ``first_move`` is the index of
     ``moves[0]`` in the whole program (0-based); ``mode`` is the planning mode ('trapezoid', 'scurve',
-    'blend'). ``segments``: the SEGMENT rows (time-ordered, ``SEGMENT.move`` global), made on first
+    'blend'); ``limits`` the LIMITS table so far (``MOVE.limits`` indexes it: the step stage reads the
+    input shaper and pressure advance settings there). ``segments``: the SEGMENT rows (time-ordered, ``SEGMENT.move`` global), made on first
     access — the planner's own pieces for blends and S-curves, which exist only while the sinks are
     being called: read them in ``add``, not later.
     """
 
-    __slots__ = ("moves", "plan", "first_move", "mode", "own_segments", "_segments", "_make")
+    __slots__ = ("moves", "plan", "first_move", "mode", "own_segments", "limits", "_segments", "_make")
 
     def __init__(self, moves: np.ndarray, plan: np.ndarray, first_move: int, mode: str | None = None,
-                 segments: np.ndarray | None = None, make_segments=None, own_segments: bool = False):
+                 segments: np.ndarray | None = None, make_segments=None, own_segments: bool = False,
+                 limits: np.ndarray | None = None):
         self.moves = moves
+        self.limits = limits               # the LIMITS table so far: every row these moves index
         self.plan = plan
         self.first_move = first_move
         self.mode = mode
@@ -125,7 +128,7 @@ class Run:
     def _pieces(self, pairs: Iterable[tuple[np.ndarray, np.ndarray]]):
         for moves, plan in pairs:
             piece = Piece(moves, plan, self.rows, self.planner.mode, make_segments=self.planner.segments_for,
-                          own_segments=self.planner.own_segments)
+                          own_segments=self.planner.own_segments, limits=self.reader.limits)
             self.rows += len(moves)
             yield piece
 

@@ -5,7 +5,7 @@ kernels can loop over them without Python objects. Units inside: mm, s, mm/s,
 mm/s², mm/s³, whatever the G-code file said (G20 inches are converted by the
 parser).
 
-Data flow (see DESIGN.md)::
+Data flow (docs/design.md §1)::
 
     gcode/   text  -> MOVE rows   (+ LIMITS table, layer/feature names, events)
     planner/ MOVE  -> PLAN rows   (one per MOVE row: speeds, phase times, start time)
@@ -49,7 +49,10 @@ MOVE_DTYPE = np.dtype(
         ("accel", "f8"),       # mm/s² acceleration in force (M204 resolved for this move's kind and dialect)
         ("dwell_t", "f8"),     # s, for KIND_DWELL / KIND_WAIT rows
         ("blend_p", "f8"),     # mm, path tolerance in force (G64 P); 0 = exact path; nan = machine default
-        ("exact_stop", "u1"),  # 1 when G61/G61.1 (exact stop) is in force: this move ends at rest
+        ("exact_stop", "u1"),  # 1 when G61.1 (or G61 outside LinuxCNC) is in force: this move ends at rest;
+                               # 2 = LinuxCNC's G61 exact path (tangent joins pass, corners stop)
+        ("blend_q", "f8"),     # mm, G64 Q naive-CAM tolerance (LinuxCNC; Q = P when only P is given); 0 = off
+        ("object", "i2"),      # index into the object-name list (EXCLUDE_OBJECT, M486, slicer labels), -1 = none
     ],
     align=True,
 )
@@ -74,6 +77,17 @@ LIMITS_DTYPE = np.dtype(
         ("min_feed_v", "f8"),   # mm/s Marlin M205 S (printing moves), 0 = none
         ("min_travel_v", "f8"), # mm/s Marlin M205 T (travel moves), 0 = none
         ("max_jerk", "f8"),     # mm/s³ path jerk limit for S-curves; inf/0 = trapezoids
+        # step-stream settings: the planner ignores them, the stepper reads them per move
+        ("pa_k", "f8"),         # s, pressure advance (Klipper pressure_advance, Marlin M900 K, RRF M572 S)
+        ("pa_smooth_t", "f8"),  # s, pressure_advance_smooth_time
+        ("shaper_type_x", "f8"), ("shaper_type_y", "f8"),    # code: index in stepper.shaping.SHAPER_TYPES
+        ("shaper_freq_x", "f8"), ("shaper_freq_y", "f8"),    # Hz, 0 = no shaping on that axis
+        ("damping_x", "f8"), ("damping_y", "f8"),            # shaper damping ratio
+        # delta slow zones (Klipper's delta.py check_move): a move reaching beyond √delta_slow_xy2 from the
+        # centre gets speed / accel ≤ ½·(delta_slow_v, delta_slow_a), beyond √delta_very_slow_xy2 ≤ ¼ of them;
+        # delta_slow_v = 0: not a delta (no rule)
+        ("delta_slow_xy2", "f8"), ("delta_very_slow_xy2", "f8"),   # mm²
+        ("delta_slow_v", "f8"), ("delta_slow_a", "f8"),            # mm/s, mm/s²: Klipper's config max_velocity / max_accel
     ],
     align=True,
 )

@@ -18,6 +18,9 @@ def add_machine_arguments(p: argparse.ArgumentParser) -> None:
                           "(klipper, marlin, grbl); default: the klipper preset")
     src.add_argument("--klipper-config", metavar="printer.cfg",
                      help="read the machine from a Klipper printer.cfg (G-code then has Klipper's meanings)")
+    src.add_argument("--linuxcnc-ini", metavar="mill.ini",
+                     help="read the machine from a LinuxCNC .ini ([TRAJ], [AXIS_*], [JOINT_*], [EMCMOT]); "
+                          "plans with the linuxcnc policy")
     g.add_argument("--flavor", choices=("marlin", "klipper", "reprap", "grbl", "linuxcnc"),
                    help="G-code dialect, overriding the machine's (G4 P units, M204 meaning, G0 rate)")
     g.add_argument("--strict", action="store_true",

@@ -22,16 +22,20 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--quiet", "-q", action="store_true", help="no progress bar")
     p.add_argument("--per-line", metavar="OUT.csv",
                    help="also write the end time of every line that moves (line,end_time_s: Klipper's per-line CSV)")
+    p.add_argument("--exclude-object", action="append", default=[], metavar="NAME",
+                   help="estimate the print with this object cancelled, as Klipper's exclude_object runs it "
+                        "(repeatable; names as the file labels them, case-insensitive)")
 
 
 def estimate_source(source, machine, policy: str | None, jerk: float | None, strict: bool,
-                    quiet: bool = True) -> Estimate:
-    """gp.estimate with a progress bar on a terminal."""
+                    quiet: bool = True, exclude_objects=(), line_times: bool = False) -> Estimate:
+    """gp.estimate with a progress bar on a terminal (per-line times only when asked: --per-line)."""
     from ..api import estimate
 
     bar, progress = progress_bar(source, quiet)
     try:
-        return estimate(source, machine, policy, jerk, strict=strict, progress=progress)
+        return estimate(source, machine, policy, jerk, strict=strict, progress=progress,
+                        exclude_objects=exclude_objects, line_times=line_times)
     finally:
         if bar is not None:
             bar.close()
@@ -41,7 +45,8 @@ def _estimate_job(job):
     """Worker for --jobs: returns (path, json dict) or (path, error text)."""
     path, args = job
     try:
-        est = estimate_source(path, machine_from_args(args), args.policy, args.jerk, args.strict, quiet=True)
+        est = estimate_source(path, machine_from_args(args), args.policy, args.jerk, args.strict, quiet=True,
+                              exclude_objects=args.exclude_object)
         return path, est.to_json(), None
     except GcodeplanError as err:
         return path, None, str(err)
@@ -61,10 +66,13 @@ def run(args) -> int:
         raise GcodeplanError("--jobs must be at least 1")
     check_plan_arguments(args)
     machine = machine_from_args(args)  # fail early on a bad machine, before any worker starts
+    if args.files.count("-") > 1:
+        raise GcodeplanError("standard input (-) can be read once: give - at most once")
     if args.per_line and len(args.files) != 1:
         raise GcodeplanError("--per-line takes one FILE")
     if len(args.files) == 1:
-        est = estimate_source(args.files[0], machine, args.policy, args.jerk, args.strict, quiet=args.quiet)
+        est = estimate_source(args.files[0], machine, args.policy, args.jerk, args.strict, quiet=args.quiet,
+                              exclude_objects=args.exclude_object, line_times=bool(args.per_line))
         if args.per_line:
             _write_per_line(args.per_line, est)
         if args.json:

@@ -151,23 +151,29 @@ def build_report(path: str, machine, policy: str | None = None, jerk: float | No
     """Plan ``path`` once and return the HTML page."""
     from .estimate import Estimate, print_text
     from ..report.summary import TimeSummary
+    from ..report.viewer import ViewerSink, viewer_data, viewer_fragment
 
     policy = policy or machine.junction_policy
     time = TimeSummary()
     per_layer = plots.LayerFeatureTimes()
     keep = SlowestLayers(slowest)
+    view = ViewerSink()   # the interactive viewer, embedded above the tables
 
     def fold(m, p, first, segs):
         time.add(m, p)
         per_layer.add(m, p)
         keep(m, p, first, segs)
+        view.add_rows(m, p, first, None, segs)
         return False
 
     reader = stream_plan(path, machine, policy, jerk, strict, fold)
+    view.finish(reader, policy)
     est = Estimate(path, reader.summary, time, list(reader.layer_z), list(reader.features), policy, machine.name)
     d = est.to_json()
     name = os.path.basename(path)
     parts = _tables(est, d)
+    if view.rows:
+        parts.insert(0, html.section("Explore the plan", viewer_fragment(viewer_data(view, path, machine.name, policy))))
     parts.append(html.details("the estimate as `gcodeplan estimate` prints it", html.pre(_text(est, print_text))))
     imgs = []
     if per_layer.t_s.shape[0] > 1:

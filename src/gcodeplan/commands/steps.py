@@ -29,6 +29,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     out = p.add_argument_group("output")
     out.add_argument("-o", "--output", required=True, metavar="steps.npz",
                      help="step times per stepper (.npz, written atomically)")
+    out.add_argument("--format", choices=("plain", "compact"), default="plain",
+                     help="plain: float64 times and int8 directions, Klipper's reference layout (9 bytes a "
+                          "step); compact: the same times bit for bit, deflated (many times smaller; read it "
+                          "with gcodeplan.stepper.export.load_steps)")
     out.add_argument("--csv", metavar="DIR", help="also write DIR/<stepper>.csv (time_s,dir per step)")
     out.add_argument("--compress", action="store_true",
                      help="also store Klipper-style queue_step runs <stepper>_runs (interval, count, add, dir) "
@@ -73,7 +77,8 @@ def summary_line(name: str, st: np.ndarray) -> str:
 def run(args) -> int:
     from .. import pipeline
     from ..stepper import compress as cmp
-    from ..stepper.export import CsvStepWriter, NpzStreamWriter
+    from ..signals import held
+    from ..stepper.export import COMPACT_FORMAT, CompactEncoder, CsvStepWriter, NpzStreamWriter
     from ..stepper.source import StepSink, rails_from
 
     _check_args(args)
@@ -82,14 +87,23 @@ def run(args) -> int:
     names = [r.name for r in rails]
     max_rate = args.max_step_rate if args.max_step_rate is not None else machine.max_step_rate
 
-    writer = NpzStreamWriter(args.output)       # fails early on an unwritable place
+    writer = None
     csv = None
     bar = None
     try:
+        with held():     # no signal between creating the spool and knowing it (the except below cleans up)
+            writer = NpzStreamWriter(args.output)       # fails early on an unwritable place
         csv = CsvStepWriter(args.csv, names) if args.csv else None
-        for name in names:
-            writer.declare(name, np.float64)
-            writer.declare(name + "_dir", np.int8)
+        encoders = None
+        if args.format == "compact":
+            encoders = [CompactEncoder() for _ in rails]
+            for name in names:
+                writer.declare(name + "_times_z", np.uint8)
+                writer.declare(name + "_dir_z", np.uint8)
+        else:
+            for name in names:
+                writer.declare(name, np.float64)
+                writer.declare(name + "_dir", np.int8)
         compressors = None
         if args.compress:
             compressors = [cmp.Compressor(args.clock_hz, args.max_error) for _ in rails]
@@ -98,18 +112,31 @@ def run(args) -> int:
 
         def sink(si: int, times: np.ndarray, dirs: np.ndarray) -> None:
             name = names[si]
-            writer.append(name, times)
-            writer.append(name + "_dir", dirs)
+            if encoders is not None:
+                tz, dz = encoders[si].feed(times, dirs)
+                writer.append(name + "_times_z", np.frombuffer(tz, np.uint8))
+                writer.append(name + "_dir_z", np.frombuffer(dz, np.uint8))
+            else:
+                writer.append(name, times)
+                writer.append(name + "_dir", dirs)
             if csv is not None:
                 csv.append(si, times, dirs)
             if compressors is not None:
                 writer.append(name + "_runs", compressors[si].feed(times, dirs))
 
-        gen = StepSink(rails, sink, sds_filter_t=args.sds_filter)
+        gen = StepSink(rails, sink, sds_filter_t=args.sds_filter, machine=machine)
         bar, progress = progress_bar(args.file, args.quiet)
         pipeline.run(args.file, machine, policy=args.policy, jerk=args.jerk, strict=args.strict, sinks=[gen],
                      progress=progress)
 
+        if encoders is not None:
+            for name, enc in zip(names, encoders):
+                tz, dz = enc.finish()
+                writer.append(name + "_times_z", np.frombuffer(tz, np.uint8))
+                writer.append(name + "_dir_z", np.frombuffer(dz, np.uint8))
+                writer.put(name + "_blocks", np.array(enc.blocks, np.int64))
+                writer.put(name + "_widths", np.array(enc.widths, np.uint8))
+            writer.put("format", np.array(COMPACT_FORMAT))
         writer.put("steppers", np.array(names))
         writer.put("steps_per_mm", np.array([r.steps_per_mm for r in rails], np.float64))
         writer.put("kinematics", np.array(machine.kinematics))
@@ -121,7 +148,8 @@ def run(args) -> int:
         if csv is not None:
             csv.commit()
     except BaseException:
-        writer.abort()
+        if writer is not None:
+            writer.abort()
         if csv is not None:
             csv.abort()
         raise

@@ -27,6 +27,7 @@ from ..machine import Machine
 from ..schema import (FLAG_ARC, FLAG_CANNED, FLAG_FIRMWARE_RETRACT, FLAG_HOMING, FLAG_RAPID, FLAG_RETRACT,
                       KIND_DWELL, KIND_EXTRUDE_ONLY, KIND_PRINT, KIND_TRAVEL, KIND_WAIT, LIMITS_DTYPE)
 from . import scan as S
+from .objects import KlipperExclude, ObjectTable
 
 MAX_EVENTS = 200
 MAX_WARNINGS = 100
@@ -43,9 +44,9 @@ _HMS_RE = re.compile(r"(?:(\d+)d)?\s*(?:(\d+)h)?\s*(?:(\d+)m)?\s*(?:(\d+)s)?")
 
 # no motion, no effect on the plan: accepted quietly. Coolant M7-M9, PSU M80/M81, motors M17/M18/M84,
 # progress M73, heaters and fans M104-M107/M140/M141, reports and messages M105/M110-M119, beeper M300,
-# bed levelling state M420, objects M486, linear advance M900, motor current M907
+# bed levelling state M420, objects M486, motor current M907 (linear advance M900 / M572: _pressure_advance)
 _QUIET_M = {7, 8, 9, 17, 18, 73, 80, 81, 84, 104, 105, 106, 107, 110, 111, 114, 115, 117, 118, 119, 140, 141,
-            300, 420, 486, 900, 907}
+            300, 420, 486, 907}
 # commands whose argument is free text (M23 file name, M117 message...): not tokenised
 _FREE_TEXT_M = {23, 28, 30, 32, 117, 118, 550, 929}
 _FREE_TEXT_RE = re.compile(r"[Mm]\s*0*(\d{1,4})(?:\s|$)")
@@ -53,8 +54,11 @@ _QUIET_G = {40, 94, 98, 99, 17, 18, 19, 20, 21, 49, 80}  # handled below or no e
 # Klipper extended commands with no effect on motion
 _QUIET_EXT = {"EXCLUDE_OBJECT_START", "EXCLUDE_OBJECT_END", "EXCLUDE_OBJECT_DEFINE", "SET_PRINT_STATS_INFO",
               "M486", "SET_FAN_SPEED", "SET_HEATER_TEMPERATURE", "SET_GCODE_VARIABLE", "RESPOND",
-              "SET_PRESSURE_ADVANCE", "SET_RETRACTION", "SET_DISPLAY_TEXT", "SET_LED", "SET_PIN"}
+              "SET_RETRACTION", "SET_DISPLAY_TEXT", "SET_LED", "SET_PIN"}
 _WAIT_M = {109, 190, 191, 116}
+_M486_RE = re.compile(r"[Mm]\s*0*486(?![0-9.])(.*)$", re.S)
+_M486_WORD_RE = re.compile(r"\s*([A-Za-z])\s*(\"[^\"]*\"|'[^']*'|[^\s]*)")
+_OBJECT_COMMENT_RE = re.compile(rb"\s*(stop )?printing object\s*(.*)$", re.S)
 
 
 def _num(text: str, letter: str, interp: "Interpreter") -> float:
@@ -104,6 +108,8 @@ class Interpreter:
         ist[S.I_FEATURE] = -1
         ist[S.I_LAYER_BY_Z] = 1
         ist[S.I_G90_SETS_E] = 1 if m.flavor == "marlin" else 0
+        ist[S.I_OBJECT] = -1
+        st[S.S_MAX_E] = -math.inf
         self.st, self.ist = st, ist
 
         self.feat_raw = np.zeros((S.FEAT_MAX, S.FEAT_NAME_MAX), dtype=np.uint8)
@@ -111,6 +117,17 @@ class Interpreter:
         self.feat_idx = np.zeros(S.FEAT_MAX, dtype=np.int64)
         self.features: list[str] = []
         self.layer_z: list[float] = []
+        # objects (gcode/objects.py): names, the exclude_object transform when objects are cancelled
+        self.objects = ObjectTable()
+        self.exclude: KlipperExclude | None = None
+        self._m486_idx: dict[int, int] = {}          # M486 object number -> object index
+        # time the G-code does not show (machine [time]): waits by name (s), current tool
+        self.wait_time_s: dict[str, float] = {}
+        self.tool = 0
+        self._macros = {str(k).upper(): float(v) for k, v in getattr(m, "macros", {}).items()}
+        self._start_pending = getattr(m, "start_time", 0.0) > 0.0
+        if self._start_pending:
+            ist[S.I_TO_PYTHON] = 1       # the first line comes here, to put the start wait before it
         self._limits_rows: list[np.ndarray] = [m.limits_row()[0].copy()]
 
         # offsets (mm): 9 work systems G54..G59.3, G92, tool length (Z)
@@ -174,7 +191,8 @@ class Interpreter:
         st, ist = self.st, self.ist
         self.rows.append((self.line, kind, flags, int(ist[S.I_FEATURE]), int(ist[S.I_LAYER]),
                           int(ist[S.I_LIMITS]), x0, y0, z0, e0, x1, y1, z1, e1, move_d, feed_v, accel,
-                          dwell_t, float(st[S.S_BLEND_P]), int(ist[S.I_EXACT_STOP])))
+                          dwell_t, float(st[S.S_BLEND_P]), int(ist[S.I_EXACT_STOP]), float(st[S.S_BLEND_Q]),
+                          int(ist[S.I_OBJECT])))
 
     def _flush_rows_to_arrays(self) -> None:
         if self.rows:
@@ -186,7 +204,102 @@ class Interpreter:
         """The rows made since the last call, as MOVE arrays in file order."""
         self._flush_rows_to_arrays()
         out, self.row_arrays = self.row_arrays, []
+        if self.exclude is not None:
+            out = self._exclude_rows(out)
         return out
+
+    # ------------------------------------------------------------------ objects
+    def exclude_objects(self, names) -> None:
+        """Plan the print with the objects ``names`` cancelled, as Klipper's exclude_object runs it."""
+        names = [str(n) for n in names]
+        if not names:
+            return
+        if self.exclude is None:
+            self.exclude = KlipperExclude(names)
+        else:
+            for n in names:
+                self.exclude.wanted.setdefault(n.casefold(), n)
+        for i, name in enumerate(self.objects.names):
+            self.exclude.register(name, i)
+
+    def check_excluded(self) -> None:
+        """After the whole file: an excluded name the file never labelled is an error, not a no-op."""
+        missing = self.exclude.missing() if self.exclude is not None else []
+        if missing:
+            known = ", ".join(repr(n) for n in self.objects.names) or "none"
+            raise GcodeError(f"--exclude-object: no object named {', '.join(repr(n) for n in missing)} "
+                             f"in this file (objects: {known})", self.path)
+
+    def _set_object(self, name: str | None) -> int:
+        """Enter the object ``name`` (None: outside any object); returns its index (-1 for None)."""
+        idx = -1
+        if name is not None:
+            try:
+                idx = self.objects.index(name)
+            except ValueError:
+                self.error("too many object names")
+            if self.exclude is not None:
+                self.exclude.register(self.objects.names[idx], idx)
+        self.ist[S.I_OBJECT] = idx
+        self._exclude_wake()
+        return idx
+
+    def _exclude_wake(self) -> None:
+        """Send lines through the transform from now on if the current object is cancelled."""
+        xf, st = self.exclude, self.st
+        if xf is None or xf.active or int(self.ist[S.I_OBJECT]) not in xf.excluded_idx:
+            return
+        xf.activate(float(st[S.S_X]), float(st[S.S_Y]), float(st[S.S_Z]), float(st[S.S_E]), float(st[S.S_MAX_E]))
+        self.ist[S.I_TO_PYTHON] = 1
+
+    def _exclude_rows(self, out: list[np.ndarray]) -> list[np.ndarray]:
+        xf, st = self.exclude, self.st
+        if not xf.active:
+            # dormant: only keep Klipper's max_position_extruded up to date (the scanner does the same)
+            for a in out:
+                mv = a["e1"][a["kind"] <= KIND_EXTRUDE_ONLY]
+                if mv.size:
+                    st[S.S_MAX_E] = max(float(st[S.S_MAX_E]), float(mv.max()))
+            return out
+        res = [xf.apply(a, self._accel) for a in out]
+        st[S.S_E] = xf.toolhead_e()
+        if xf.can_sleep(int(self.ist[S.I_OBJECT])):
+            xf.active = False
+            st[S.S_MAX_E] = -math.inf
+            self.ist[S.I_TO_PYTHON] = 0
+        return [a for a in res if len(a)]
+
+    def _m486(self, args: str) -> None:
+        """Marlin's object labels: ``M486 S<n>`` enters object n (-1: none), ``A<name>`` names it."""
+        words = {}
+        body = args.split(";", 1)[0].strip()
+        if body[:1] in ("A", "a"):
+            words["A"] = body[1:].strip().strip("\"'")    # PrusaSlicer: "M486 A<name>", the name may hold blanks
+        else:
+            for m in _M486_WORD_RE.finditer(body):
+                words[m.group(1).upper()] = m.group(2).strip("\"'")
+        n = None
+        if "S" in words:
+            try:
+                n = int(float(words["S"]))
+            except ValueError:
+                self.error(f"M486 S needs an object number, got {words['S']!r}")
+            if n < 0:
+                self._set_object(None)
+                n = None
+            else:
+                if n not in self._m486_idx:
+                    self._m486_idx[n] = self.objects.index(str(n))
+                self._set_object(self.objects.names[self._m486_idx[n]])
+        if words.get("A"):
+            idx = self._m486_idx.get(n) if n is not None else int(self.ist[S.I_OBJECT])
+            if idx is not None and idx >= 0:
+                name = words["A"]
+                self.objects.names[idx] = name
+                self.objects._index[name.casefold()] = idx
+                if self.exclude is not None:
+                    self.exclude.register(name, idx)
+                self._exclude_wake()
 
     def _stop_row(self, kind: int, flags: int, dwell_t: float) -> None:
         st = self.st
@@ -195,6 +308,8 @@ class Interpreter:
 
     def _wait(self, name: str, dwell_t: float = 0.0, flags: int = 0) -> None:
         self.waits[name] = self.waits.get(name, 0) + 1
+        if dwell_t > 0.0:
+            self.wait_time_s[name] = self.wait_time_s.get(name, 0.0) + dwell_t
         self._stop_row(KIND_WAIT, flags, dwell_t)
 
     def _update_offsets(self) -> None:
@@ -243,6 +358,11 @@ class Interpreter:
     def handle(self, raw: bytes, lineno: int) -> None:
         """Interpret one line (bytes without the newline). Rows go to :meth:`take_rows`."""
         self.line = lineno
+        if self._start_pending:
+            # the machine's fixed start time ([time] start_time), a wait before the first line
+            self._start_pending = False
+            self._wait("start", float(self.machine.start_time))
+            self.ist[S.I_TO_PYTHON] = 1 if (self.exclude is not None and self.exclude.active) else 0
         if self.ist[S.I_STOPPED]:
             return
         text = raw.decode("utf-8", "replace").strip()
@@ -387,6 +507,13 @@ class Interpreter:
                 self._new_layer(z)
         elif body.startswith(b" feature"):
             self._feature(body[8:].strip())
+        elif body.startswith(b"MESH:"):
+            name = body[5:].decode("utf-8", "replace").strip()
+            self._set_object(None if name in ("NONMESH", "") else name)
+        elif body.startswith((b" printing object", b" stop printing object")):
+            m = _OBJECT_COMMENT_RE.match(body)
+            stop, name = m.group(1), m.group(2).decode("utf-8", "replace").strip()
+            self._set_object(None if stop or not name else name)
 
     # ------------------------------------------------------------------ Klipper extended commands
     def _extended(self, name: str, rest: str) -> None:
@@ -457,6 +584,35 @@ class Interpreter:
             self.waits["SET_KINEMATIC_POSITION"] = self.waits.get("SET_KINEMATIC_POSITION", 0) + 1
             self._row(KIND_WAIT, 0, x0, y0, z0, e0, float(st[S.S_X]), float(st[S.S_Y]), float(st[S.S_Z]), e0,
                       0.0, 0.0, 0.0, 0.0)
+        elif uname == "SET_PRESSURE_ADVANCE":
+            ext = params.get("EXTRUDER", "extruder").lower()
+            if ext != "extruder":
+                self.unknown_command(f"SET_PRESSURE_ADVANCE EXTRUDER={ext}")   # one extruder is modelled
+                return
+            k, smooth = num("ADVANCE"), num("SMOOTH_TIME")
+            if k is not None and k < 0:
+                self.error("SET_PRESSURE_ADVANCE: ADVANCE must be >= 0")
+            if smooth is not None and not 0 <= smooth <= 0.2:
+                self.error("SET_PRESSURE_ADVANCE: SMOOTH_TIME must be in [0, 0.2] s")
+            self._pressure_advance(k, smooth)
+        elif uname == "SET_INPUT_SHAPER":
+            self._set_input_shaper(params, num)
+        elif uname == "EXCLUDE_OBJECT_START":
+            self._set_object(params.get("NAME") or None)
+        elif uname == "EXCLUDE_OBJECT_END":
+            self._set_object(None)
+        elif uname == "EXCLUDE_OBJECT_DEFINE" and params.get("NAME"):
+            idx = self.objects.index(params["NAME"])
+            if self.exclude is not None:
+                self.exclude.register(params["NAME"], idx)
+        elif uname == "EXCLUDE_OBJECT" and params.get("NAME"):
+            # cancelled from inside the file: from here on, as on the printer
+            if self.exclude is None:
+                self.exclude = KlipperExclude([])
+            self.exclude.exclude(params["NAME"], self.objects.index(params["NAME"]))
+            self._exclude_wake()
+        elif uname in self._macros:
+            self._wait(uname, self._macros[uname])
         elif uname in _QUIET_EXT:
             pass
         else:
@@ -487,6 +643,10 @@ class Interpreter:
         return words
 
     def _classic(self, code: str) -> None:
+        m486 = _M486_RE.match(code)
+        if m486:
+            self._m486(m486.group(1))
+            return
         head = _FREE_TEXT_RE.match(code)
         # M30 takes a file name on printers (delete an SD file) but ends the program on CNC flavors
         if head and int(head.group(1)) in _FREE_TEXT_M and not (self.machine.is_cnc and int(head.group(1)) == 30):
@@ -507,7 +667,7 @@ class Interpreter:
                         self.machine.is_cnc and num == 30))):
                     return
                 if not self._known(m.group(1).upper(), num):
-                    self.unknown_command(name)
+                    self._unknown_or_macro(name)
                     return
             raise try_words_error
 
@@ -564,7 +724,7 @@ class Interpreter:
                 continue
             if not self._known("G", int(g)) or (g != int(g) and g not in (43.1, 59.1, 59.2, 59.3, 61.1, 90.1,
                                                                            91.1, 92.1, 92.2, 92.3)):
-                self.unknown_command(f"G{g:g}")
+                self._unknown_or_macro(f"G{g:g}")
                 gset.discard(g)
         if 93 in gset:
             self.error("G93 inverse-time feed is not supported")
@@ -611,6 +771,8 @@ class Interpreter:
             self.warn(f"G43 H{h if h is not None else ''}: no tool table, tool length offset taken as 0")
             self.tool_z = 0.0
             self._update_offsets()
+            if self.machine.flavor == "linuxcnc":
+                self._wait("G43")      # LinuxCNC's task waits for the motion queue to empty
         if 43.1 in gset:
             z = self._value(params, "Z")
             if z is None:
@@ -624,7 +786,8 @@ class Interpreter:
                 self.work_index = i
                 self._update_offsets()
         if 61 in gset or 61.1 in gset:
-            ist[S.I_EXACT_STOP] = 1
+            # LinuxCNC's G61 is exact *path* (tangent joins pass without stopping): 2; G61.1 exact stop: 1
+            ist[S.I_EXACT_STOP] = 2 if (61 in gset and self.machine.flavor == "linuxcnc") else 1
         if 64 in gset:
             ist[S.I_EXACT_STOP] = 0
             p = self._value(params, "P")
@@ -632,9 +795,15 @@ class Interpreter:
             if p is not None and p < 0:
                 self.error("G64 P must be >= 0")
             st[S.S_BLEND_P] = math.nan if p is None else p * scale
+            q = self._value(params, "Q")
+            if q is not None and q < 0:
+                self.error("G64 Q must be >= 0")
+            # LinuxCNC (interp_convert.cc): Q is the naive-CAM tolerance; P without Q sets Q = P
+            st[S.S_BLEND_Q] = q * scale if q is not None else (p * scale if p is not None else 0.0)
             if "Q" in params:
                 used.add("Q")
-                self.g64_q_ignored += 1
+                if self.machine.flavor != "linuxcnc":
+                    self.g64_q_ignored += 1
         if 90 in gset or 91 in gset:
             ist[S.I_ABS_COORD] = 1 if 90 in gset else 0
             if ist[S.I_G90_SETS_E]:
@@ -732,6 +901,8 @@ class Interpreter:
         elif mc in (3, 4, 5):
             used.add("S")
             self.spindle_commands += 1
+            if m.flavor == "linuxcnc":
+                self._wait(f"M{mc}")   # LinuxCNC's task waits for the motion queue to empty
         elif mc == 6:
             t = params.get("T")
             used.add("T")
@@ -746,6 +917,9 @@ class Interpreter:
                 self.unknown_command(f"M{mc}")
             else:
                 self._marlin_limits(mc, params)
+        elif mc in (900, 572):
+            used.update(params)
+            self._m_linear_advance(mc, params)
         elif mc in (220, 221):
             used.add("S")
             s = self._value(params, "S")
@@ -755,9 +929,19 @@ class Interpreter:
                 if not s > 0:
                     self.error(f"M{mc} S must be > 0 (percent)")
                 st[S.S_SPEED_F if mc == 220 else S.S_FLOW_F] = s / 100.0
+        elif mc == 600:
+            used.update(params)
+            self._wait("M600", self._macros.get("M600", float(getattr(m, "filament_change_time", 0.0))))
         else:
             used.update(params)
-            self.unknown_command(f"M{mc}")
+            self._unknown_or_macro(f"M{mc}")
+
+    def _unknown_or_macro(self, name: str) -> None:
+        """A command the machine's [time] macros time (G29 = 90: a wait of 90 s), else unknown."""
+        if name.upper() in self._macros:
+            self._wait(name.upper(), self._macros[name.upper()])
+        else:
+            self.unknown_command(name)
 
     def _m204(self, params: dict[str, Word], used: set[str]) -> None:
         st = self.st
@@ -827,10 +1011,88 @@ class Interpreter:
                 self.warn(f"M{mc} {k} ignored")
         self._new_limits(**changes)
 
+    # ------------------------------------------------------------------ step-stream settings
+    def _pressure_advance(self, k: float | None, smooth: float | None, klipper_flush: bool = True) -> None:
+        """New pressure advance K (s) and/or smoothing time (s) from here on (LIMITS pa_k, pa_smooth_t).
+
+        Klipper (kinematics/extruder.py) flushes the step generation, a full stop, when the smoothing
+        window in effect changes (turning pressure advance on or off included); a new K alone takes
+        effect with the next move, without a stop. Marlin's M900 and RepRapFirmware's M572 plan no stop
+        (``klipper_flush`` False): their times do not change.
+        """
+        cur = self._limits_rows[int(self.ist[S.I_LIMITS])]
+        old_k, old_s = float(cur["pa_k"]), float(cur["pa_smooth_t"])
+        new_k = old_k if k is None else k
+        new_s = old_s if smooth is None else smooth
+        if klipper_flush and (new_s if new_k else 0.0) != (old_s if old_k else 0.0):
+            self._wait("SET_PRESSURE_ADVANCE")
+        self._new_limits(pa_k=new_k, pa_smooth_t=new_s)
+
+    def _m_linear_advance(self, mc: int, params: dict[str, Word]) -> None:
+        """Marlin M900 K (linear advance, mm per mm/s = s) and RepRapFirmware M572 D S (s): the same physics
+        as Klipper's pressure advance, smoothed with the machine's pressure_advance_smooth_time."""
+        if self.dialect == S.DIALECT_KLIPPER or self.dialect == S.DIALECT_CNC:
+            self.ignore(f"M{mc}")       # Klipper: "Unknown command"; CNC controllers have no extruder
+            return
+        letter = "K" if mc == 900 else "S"
+        k = self._value(params, letter)
+        if mc == 572:
+            d = self._value(params, "D")
+            if d is not None and d != 0:
+                self.unknown_command(f"M572 D{d:g}")     # one extruder is modelled
+                return
+        if k is None:
+            return
+        if k < 0:
+            self.error(f"M{mc} {letter} must be >= 0")
+        if "linear_advance" not in self.ignored:
+            self.ignore("linear_advance")
+            self.warn(f"M{mc} {letter}{k:g}: planned as Klipper's pressure advance (K = {k:g} s, smoothed over "
+                      f"{float(self._limits_rows[0]['pa_smooth_t']):g} s)")
+        self._pressure_advance(k, None, klipper_flush=False)
+
+    def _set_input_shaper(self, params: dict[str, str], num) -> None:
+        """Klipper's SET_INPUT_SHAPER: new shaper types / frequencies / damping ratios for X and Y.
+
+        Klipper (extras/input_shaper.py) flushes the step generation first: a full stop.
+        """
+        from ..machine import SHAPER_TYPE_CODES
+
+        changes = {}
+        for a in ("x", "y"):
+            for key in (f"SHAPER_TYPE_{a.upper()}", "SHAPER_TYPE"):
+                if key in params:
+                    name = params[key].lower()
+                    if name not in SHAPER_TYPE_CODES or name == "none":
+                        self.error(f"SET_INPUT_SHAPER: {key}={params[key]} is not a modelled shaper "
+                                   f"(zv, mzv, zvd, ei, 2hump_ei, 3hump_ei)")
+                    changes["shaper_type_" + a] = float(SHAPER_TYPE_CODES[name])
+                    break
+            f = num(f"SHAPER_FREQ_{a.upper()}")
+            if f is not None:
+                if f < 0:
+                    self.error(f"SET_INPUT_SHAPER: SHAPER_FREQ_{a.upper()} must be >= 0")
+                changes["shaper_freq_" + a] = f
+            z = num(f"DAMPING_RATIO_{a.upper()}")
+            if z is not None:
+                if not 0 <= z < 1:
+                    self.error(f"SET_INPUT_SHAPER: DAMPING_RATIO_{a.upper()} must be in [0, 1)")
+                changes["damping_" + a] = z
+        for key in params:
+            if key.endswith("_Z") or key.startswith(("SHAPER_A_", "SHAPER_T_")):
+                self.error(f"SET_INPUT_SHAPER: {key} is not modelled (X and Y named shapers only)")
+        self._wait("SET_INPUT_SHAPER")
+        self._new_limits(**changes)
+
     def _tool_change(self, tool: int) -> None:
         self.tool_changes += 1
         self.event(f"tool change T{tool}" if tool >= 0 else "tool change")
-        self._wait("tool_change")
+        # [time] tool_change_time: only when the tool changes (T0 at the start of a print selects the tool
+        # already in use, as Marlin and Klipper start with tool 0); M6 without T is a change
+        changed = tool < 0 or tool != self.tool
+        if tool >= 0:
+            self.tool = tool
+        self._wait("tool_change", float(getattr(self.machine, "tool_change_time", 0.0)) if changed else 0.0)
 
     def _dwell(self, params: dict[str, Word], used: set[str]) -> None:
         used.update(("P", "S"))
@@ -922,6 +1184,8 @@ class Interpreter:
         self._update_offsets()
         self.event("G28 home " + "".join(axes))
         self.waits["G28"] = self.waits.get("G28", 0) + 1
+        if self.machine.homing_time > 0.0:
+            self.wait_time_s["G28"] = self.wait_time_s.get("G28", 0.0) + self.machine.homing_time
         self._row(KIND_WAIT, FLAG_HOMING, x0, y0, z0, e0, float(st[S.S_X]), float(st[S.S_Y]), float(st[S.S_Z]),
                   e0, 0.0, 0.0, 0.0, self.machine.homing_time)
 
@@ -1140,6 +1404,8 @@ class Interpreter:
                 a["feed_v"] = np.where(rapid_mask, math.inf, feed_v)
         a["accel"] = np.where(xyz, np.where(de != 0.0, st[S.S_ACC_P], st[S.S_ACC_T]), st[S.S_ACC_R])
         a["blend_p"] = st[S.S_BLEND_P]
+        a["blend_q"] = st[S.S_BLEND_Q]
+        a["object"] = ist[S.I_OBJECT]
         a["exact_stop"] = ist[S.I_EXACT_STOP]
         keep = xyz | (de != 0.0)
         if dwell is not None:

@@ -1,8 +1,10 @@
-"""Streaming G-code reader: file -> MOVE batches, LIMITS table, layer Z, feature names, summary.
+"""Streaming G-code reader: source -> MOVE batches, LIMITS table, layer Z, feature names, summary.
 
-The file is read in binary chunks cut at the last newline; the numba scanner interprets the common lines
-and returns to :class:`~.interp.Interpreter` for the rest, one line at a time. Memory is bounded by the
-chunk size and the batch size, whatever the file size.
+The source (a path, ``-`` for stdin, a file object or an iterable of lines; gzip and PrusaSlicer binary
+G-code recognised by their first bytes: :mod:`.sources`) is read in binary chunks cut at the last
+newline; the numba scanner interprets the common lines and returns to :class:`~.interp.Interpreter` for
+the rest, one line at a time. Memory is bounded by the chunk size and the batch size, whatever the file
+size.
 """
 from __future__ import annotations
 
@@ -15,6 +17,7 @@ from ..machine import Machine
 from ..schema import KIND_NAMES, MOVE_DTYPE
 from . import scan as S
 from .interp import Interpreter
+from .sources import open_source
 from .summary import ParseSummary
 
 CHUNK_BYTES = 8 << 20
@@ -22,14 +25,15 @@ _BOM = b"\xef\xbb\xbf"
 _LAYER_MARKS = (b"\n;LAYER_CHANGE", b"\n;LAYER:", b"\n; layer ")
 
 
-def _check_text(path: str, head: bytes) -> None:
-    """A binary file is refused before any line is interpreted."""
+def _check_text(path: str, head: bytes, first_line: int = 0) -> None:
+    """A binary file is refused before any line is interpreted (``first_line``: lines before ``head``)."""
     sample = head[:65536]
     if not sample:
         return
     nul = sample.find(b"\x00")
     if nul >= 0:
-        raise GcodeError("not a text file (NUL byte): is this a binary file?", path, sample.count(b"\n", 0, nul) + 1)
+        raise GcodeError("not a text file (NUL byte): is this a binary file?", path,
+                         first_line + sample.count(b"\n", 0, nul) + 1)
     ctrl = sum(sample.count(bytes([c])) for c in range(32) if c not in (9, 10, 11, 12, 13)) + sample.count(b"\x7f")
     if ctrl > 0.02 * len(sample):
         raise GcodeError("not a text file (control characters): is this a binary file?", path)
@@ -39,7 +43,15 @@ def _check_text(path: str, head: bytes) -> None:
 
 
 class GcodeReader:
-    """Read a G-code file as MOVE batches (see the package docstring for the API contract).
+    """Read G-code from ``source`` as MOVE batches (see the package docstring for the API contract).
+
+    ``source``: a path (``-`` = standard input), a binary or text file object, or an iterable of lines;
+    gzip and binary G-code are recognised by their first bytes (:func:`.sources.open_source`). Messages
+    name :attr:`path`, the source's display name (the path, ``<stdin>``, ``<lines>``). The source is
+    opened here (a missing file or a corrupt binary G-code header fails at once) and closed when
+    :meth:`batches` ends or :meth:`close` is called; a file object given by the caller is never closed.
+    ``bytes_read`` counts input bytes (compressed ones for gzip / binary G-code), ``bytes_total`` is
+    the input size when known: progress is ``bytes_read / bytes_total``.
 
     ``force_python`` sends every line through the Python interpreter (slow; the tests compare it with
     the scanner). ``chunk_bytes`` is the read size. Layers: when the first chunk holds a layer comment
@@ -47,18 +59,26 @@ class GcodeReader:
     move above every earlier printing move's Z starts a layer, until a layer comment appears.
     """
 
-    def __init__(self, path: str, machine: Machine, *, strict: bool = False, batch_moves: int = 8192,
+    def __init__(self, source, machine: Machine, *, strict: bool = False, batch_moves: int = 8192,
                  force_python: bool = False, chunk_bytes: int = CHUNK_BYTES):
-        self.path = str(path)
-        self.machine = machine
-        self.strict = strict
         if batch_moves < 1:
             raise ValueError("batch_moves must be >= 1")
+        self.machine = machine
+        self.strict = strict
         self.batch_moves = int(batch_moves)
-        self.bytes_read = 0          # for progress bars: bytes of the file read so far
+        self.bytes_read = 0          # for progress bars: input bytes read so far
         self.force_python = force_python
         self.chunk_bytes = int(chunk_bytes)
+        self.source = open_source(source)
+        self.path = self.source.name
+        self.bytes_total = self.source.bytes_total
+        self.bytes_read = self.source.bytes_in
         self.interp = Interpreter(machine, self.path, strict)
+        # binary G-code: line numbers continue those of the metadata libbgcode's converter writes first,
+        # and the slicer's estimate comes from the metadata block (ASCII files state it in a comment)
+        self.interp.ist[S.I_LINE] = self.source.first_line
+        if self.source.slicer_estimate_s is not None:
+            self.interp.slicer_estimate_s = self.source.slicer_estimate_s
         self.summary = ParseSummary(file=self.path)
         self._acc = np.zeros(S.N_ACC)
         for i in (S.A_MIN_X, S.A_MIN_Y, S.A_MIN_Z):
@@ -68,15 +88,15 @@ class GcodeReader:
         rv = machine.rapid_velocity if machine.rapid_velocity is not None else machine.max_velocity
         self._rapid_v = float(rv)
         self._started = False
-        try:
-            fh = open(self.path, "rb")
-        except IsADirectoryError:
-            raise GcodeError("is a directory, not a G-code file", self.path) from None
-        except FileNotFoundError:
-            raise GcodeError("no such file", self.path) from None
-        except OSError as err:
-            raise GcodeError(f"cannot read: {err.strerror or err}", self.path) from None
-        fh.close()
+
+    def close(self) -> None:
+        """Close the source if this reader opened it (idempotent)."""
+        self.source.close()
+
+    def __del__(self):
+        src = getattr(self, "source", None)
+        if src is not None:
+            src.close()
 
     # ------------------------------------------------------------------ public state
     @property
@@ -93,13 +113,12 @@ class GcodeReader:
 
     # ------------------------------------------------------------------ streaming
     def _chunks(self):
-        """(buffer, start, end): the file piece by piece in one reused bytearray, each piece ending at a
-        newline (the last one may not). A line longer than the buffer makes it grow."""
-        try:
-            fh = open(self.path, "rb")
-        except OSError as err:
-            raise GcodeError(f"cannot read: {err.strerror or err}", self.path) from None
-        with fh:
+        """(buffer, start, end): the source piece by piece in one reused bytearray, each piece ending at a
+        newline (the last one may not). A line longer than the buffer makes it grow. Each read fills
+        the buffer (or reaches the end), so pipes, gzip and binary G-code give the chunks a file gives."""
+        src = self.source
+        fh = src.stream
+        with src:
             store = bytearray(self.chunk_bytes)
             filled = 0
             start = 0
@@ -109,21 +128,26 @@ class GcodeReader:
                     bigger = bytearray(2 * len(store))
                     bigger[:filled] = store
                     store = bigger
+                got = 0
                 try:
                     with memoryview(store) as mv:
-                        got = fh.readinto(mv[filled:])
+                        while filled + got < len(store):
+                            k = fh.readinto(mv[filled + got:])
+                            if not k:
+                                break
+                            got += k
                 except OSError as err:
                     raise GcodeError(f"cannot read: {err.strerror or err}", self.path) from None
+                self.bytes_read = src.bytes_in
                 if first:
                     first = False
                     if store.startswith(_BOM):
                         start = 3
-                    _check_text(self.path, bytes(store[start:min(got, start + 65536)]))
+                    _check_text(self.path, bytes(store[start:min(got, start + 65536)]), src.first_line)
                     if store.startswith((b";LAYER_CHANGE", b";LAYER:", b"; layer "), start) or \
                             any(store.find(m, start, got) >= 0 for m in _LAYER_MARKS):
                         self.interp.ist[S.I_LAYER_BY_Z] = 0
                 filled += got
-                self.bytes_read += got
                 if got == 0:
                     if filled > start:
                         yield store, start, filled
@@ -142,60 +166,117 @@ class GcodeReader:
         if self._started:
             raise RuntimeError("GcodeReader.batches() can run once")
         self._started = True
+        self._out = np.empty(self.batch_moves, dtype=MOVE_DTYPE)
+        self._n = 0
+        for data, pos, end in self._chunks():
+            yield from self._scan(data, pos, end)
+        if self._n:
+            yield self._finish(self._out, self._n)
+        self._complete_summary()
+
+    # ------------------------------------------------------------------ push mode (gcodeplan.Toolhead)
+    def feed(self, data: bytes) -> list[np.ndarray]:
+        """Push mode: interpret ``data`` (whole lines; a last line without a newline waits for the next
+        call or :meth:`end`) and return the MOVE rows it made. Same scanner and interpreter, so the rows
+        equal those :meth:`batches` makes from the same text."""
+        if self._started and not hasattr(self, "_tail"):
+            raise RuntimeError("GcodeReader.feed() cannot follow batches()")
+        if not self._started:
+            self._started = True
+            self._tail = b""
+            self._out = np.empty(self.batch_moves, dtype=MOVE_DTYPE)
+            self._n = 0
+        data = self._tail + bytes(data)
+        cut = data.rfind(b"\n") + 1
+        self._tail = data[cut:]
+        out = list(self._scan(data, 0, cut)) if cut else []
+        if self._n:
+            out.append(self._finish(self._out[:self._n].copy(), self._n))
+            self._n = 0
+        return out
+
+    def end(self) -> list[np.ndarray]:
+        """Push mode: interpret a pending last line and complete the summary."""
+        out = []
+        if getattr(self, "_tail", b""):
+            tail, self._tail = self._tail, b""
+            out = self.feed(tail + b"\n")
+        self._complete_summary()
+        return out
+
+    def _scan(self, data, pos: int, end: int):
+        """Interpret ``data[pos:end]`` (whole lines), yielding every full batch; rows of a batch not yet
+        full stay in ``self._out[:self._n]``."""
         interp = self.interp
         st, ist = interp.st, interp.ist
         cap = self.batch_moves
-        out = np.empty(cap, dtype=MOVE_DTYPE)
-        n = 0
-        for data, pos, end in self._chunks():
-            buf = np.frombuffer(data, dtype=np.uint8)
-            while True:
-                if ist[S.I_STOPPED]:
-                    ist[S.I_LINE] += S.count_lines(buf, pos, end)
+        out, n = self._out, self._n
+        buf = np.frombuffer(data, dtype=np.uint8)
+        while True:
+            if ist[S.I_STOPPED]:
+                ist[S.I_LINE] += S.count_lines(buf, pos, end)
+                break
+            if self.force_python:
+                status = S.ST_PYTHON
+                if pos >= end:
                     break
-                if self.force_python:
-                    status = S.ST_PYTHON
-                    if pos >= end:
-                        break
-                else:
-                    status, pos, n = S.scan_chunk(buf, pos, end, st, ist, out, n, interp.feat_raw,
-                                                  interp.feat_len, interp.feat_idx)
-                    if status == S.ST_DONE:
-                        break
-                    if status == S.ST_FULL:
+            else:
+                status, pos, n = S.scan_chunk(buf, pos, end, st, ist, out, n, interp.feat_raw,
+                                              interp.feat_len, interp.feat_idx)
+                if status == S.ST_DONE:
+                    break
+                if status == S.ST_FULL:
+                    yield self._finish(out, n)
+                    out = self._out = np.empty(cap, dtype=MOVE_DTYPE)
+                    n = 0
+                    continue
+            # one line through Python
+            eol = data.find(b"\n", pos, end)
+            if eol < 0:
+                eol = end
+            lineno = int(ist[S.I_LINE]) + 1
+            interp.handle(bytes(data[pos:eol]), lineno)
+            ist[S.I_LINE] = lineno
+            pos = eol + 1
+            for arr in interp.take_rows():
+                k0 = 0
+                while k0 < len(arr):
+                    k = min(cap - n, len(arr) - k0)
+                    out[n:n + k] = arr[k0:k0 + k]
+                    n += k
+                    k0 += k
+                    if n == cap:
                         yield self._finish(out, n)
-                        out = np.empty(cap, dtype=MOVE_DTYPE)
+                        out = self._out = np.empty(cap, dtype=MOVE_DTYPE)
                         n = 0
-                        continue
-                # one line through Python
-                eol = data.find(b"\n", pos, end)
-                if eol < 0:
-                    eol = end
-                lineno = int(ist[S.I_LINE]) + 1
-                interp.handle(bytes(data[pos:eol]), lineno)
-                ist[S.I_LINE] = lineno
-                pos = eol + 1
-                for arr in interp.take_rows():
-                    k0 = 0
-                    while k0 < len(arr):
-                        k = min(cap - n, len(arr) - k0)
-                        out[n:n + k] = arr[k0:k0 + k]
-                        n += k
-                        k0 += k
-                        if n == cap:
-                            yield self._finish(out, n)
-                            out = np.empty(cap, dtype=MOVE_DTYPE)
-                            n = 0
-            del buf
-        if n:
-            yield self._finish(out, n)
-        self._complete_summary()
+        self._n = n
+        del buf
 
     def _finish(self, out: np.ndarray, n: int) -> np.ndarray:
         batch = out[:n] if n < len(out) else out
         S.summarise_rows(batch, self._acc, self._rapid_v)
         self._check_extrusion(batch)
+        self._check_motion(batch)
         return batch
+
+    def _check_motion(self, batch: np.ndarray) -> None:
+        """Travel limits, absurd move lengths, bounding boxes, speed caps (gcode/bounds.py)."""
+        from .bounds import MotionChecker
+
+        checker = self.__dict__.get("_motion")
+        if checker is None:
+            self._load_reach_check()
+            checker = self._motion = MotionChecker(self.machine, self.path)
+        checker.check(batch, self.interp._limits_rows)
+        checker.fill(self.summary)
+
+    def _load_reach_check(self) -> None:
+        """Import the machine's kinematics module: one whose reach is not a box (delta: print radius, tower
+        heights) registers its own test with bounds.register_reach_check, which the checker then runs."""
+        from ..kinematics import KINEMATICS_MODULES, kinematics_module
+
+        if self.machine.kinematics in KINEMATICS_MODULES:
+            kinematics_module(self.machine.kinematics)
 
     def _check_extrusion(self, batch: np.ndarray) -> None:
         """Klipper's extruder.check_move: a move with X/Y motion that extrudes more filament per mm of
@@ -218,7 +299,7 @@ class GcodeReader:
 
     def _complete_summary(self) -> None:
         s, a, it = self.summary, self._acc, self.interp
-        s.lines = int(it.ist[S.I_LINE])
+        s.lines = int(it.ist[S.I_LINE]) + self.source.trailing_lines
         by_kind = {name: int(a[i]) for i, name in enumerate(KIND_NAMES)}
         s.moves_by_kind = by_kind
         s.moves = by_kind["travel"] + by_kind["print"] + by_kind["extrude_only"]
@@ -258,9 +339,10 @@ class GcodeReader:
                            (("x", S.A_MIN_X, S.A_MAX_X), ("y", S.A_MIN_Y, S.A_MAX_Y), ("z", S.A_MIN_Z, S.A_MAX_Z))}
 
 
-def read_moves(path: str, machine: Machine, **kw) -> tuple[np.ndarray, GcodeReader]:
-    """The whole file's MOVE rows as one array, and the reader (for limits, layers, summary)."""
-    r = GcodeReader(path, machine, **kw)
+def read_moves(source, machine: Machine, **kw) -> tuple[np.ndarray, GcodeReader]:
+    """The whole source's MOVE rows as one array, and the reader (for limits, layers, summary).
+    ``source``: as for :class:`GcodeReader`."""
+    r = GcodeReader(source, machine, **kw)
     parts = list(r.batches())
     moves = np.concatenate(parts) if parts else np.empty(0, dtype=MOVE_DTYPE)
     return moves, r

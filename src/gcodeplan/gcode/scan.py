@@ -31,7 +31,10 @@ S_UNIT = 11                         # mm per program unit (1, or 25.4 under G20)
 S_ACC_P, S_ACC_T, S_ACC_R = 12, 13, 14   # mm/s² print / travel / retract accel (all equal outside marlin/reprap)
 S_BLEND_P = 15                      # mm, G64 P in force (nan = machine default, 0 = exact path)
 S_MAXZ = 16                         # mm, highest Z of a printing move (layer detection by Z)
-N_ST = 17
+S_BLEND_Q = 17                      # mm, G64 Q naive-CAM tolerance in force (0 = none)
+S_MAX_E = 18                        # mm, highest machine E a move reached since the exclude_object transform
+                                    # last went dormant (gcode/objects.py: Klipper's max_position_extruded)
+N_ST = 19
 
 # ------------------------------------------------------------------ int state (ist)
 I_LINE = 0          # number of the last line fully processed (1-based lines)
@@ -50,7 +53,10 @@ I_M204_IGNORED = 12  # klipper dialect: M204 lines without S and without both P 
 I_STOPPED = 13      # 1 after a program end (M2/M30 on CNC flavors): nothing more is interpreted
 I_G90_SETS_E = 14   # 1 on Marlin 2: G90/G91 also set the E mode (the last of G90/G91/M82/M83 rules E),
                     # 0 elsewhere (Klipper's rule: E is relative while G91 or M83 is in force)
-N_IST = 15
+I_OBJECT = 15       # object index (EXCLUDE_OBJECT_START, M486 S, slicer labels), -1 outside any object
+I_TO_PYTHON = 16    # 1: every line goes to the Python interpreter (inside or just after an excluded object,
+                    # a pending start wait): the scanner returns at once
+N_IST = 17
 
 DIALECT_KLIPPER = 0   # M204: S, else min(P, T) when both; one accel for every move
 DIALECT_MARLIN = 1    # marlin / reprap: M204 S/P/T/R, accel chosen by the move's kind
@@ -164,6 +170,9 @@ PAT_TYPE = _pat("TYPE:")
 PAT_S3D_LAYER = _pat(" layer")
 PAT_S3D_FEATURE = _pat(" feature")
 PAT_ESTIMATED = _pat(" estimated printing time")
+PAT_OBJECT = _pat(" printing object")          # PrusaSlicer's object labels
+PAT_OBJECT_STOP = _pat(" stop printing object")
+PAT_MESH = _pat("MESH:")                        # Cura's ;MESH:name / ;MESH:NONMESH
 
 
 @numba.njit(cache=True, inline="always")
@@ -173,7 +182,7 @@ def _comment_needs_python(buf, p, eol, ist, feat_raw, feat_len, feat_idx):
     if p >= eol:
         return False
     c = buf[p]
-    if c != 84 and c != 76 and c != 90 and c != 32:   # every marker starts with 'T', 'L', 'Z' or ' '
+    if c != 84 and c != 76 and c != 90 and c != 32 and c != 77:   # markers start with 'T', 'L', 'Z', ' ', 'M'
         return False
     if _starts(buf, p, eol, PAT_TYPE):
         a = p + 5
@@ -197,7 +206,8 @@ def _comment_needs_python(buf, p, eol, ist, feat_raw, feat_len, feat_idx):
         return True
     if (_starts(buf, p, eol, PAT_LAYER) or _starts(buf, p, eol, PAT_Z) or _starts(buf, p, eol, PAT_TIME)
             or _starts(buf, p, eol, PAT_S3D_LAYER) or _starts(buf, p, eol, PAT_S3D_FEATURE)
-            or _starts(buf, p, eol, PAT_ESTIMATED)):
+            or _starts(buf, p, eol, PAT_ESTIMATED) or _starts(buf, p, eol, PAT_OBJECT)
+            or _starts(buf, p, eol, PAT_OBJECT_STOP) or _starts(buf, p, eol, PAT_MESH)):
         return True
     return False
 
@@ -226,6 +236,8 @@ def _write_row(out, n, line, kind, flags, ist, st, x0, y0, z0, e0, x1, y1, z1, e
     r.dwell_t = dwell_t
     r.blend_p = st[S_BLEND_P]
     r.exact_stop = ist[I_EXACT_STOP]
+    r.object = ist[I_OBJECT]
+    r.blend_q = st[S_BLEND_Q]
 
 
 @numba.njit(cache=True, inline="always")
@@ -252,6 +264,8 @@ def scan_chunk(buf, pos, end, st, ist, out, n_out, feat_raw, feat_len, feat_idx)
     while pos < end:
         if n_out >= cap:
             return ST_FULL, pos, n_out
+        if ist[I_TO_PYTHON] != 0:
+            return ST_PYTHON, pos, n_out
         line_start = pos
         line = ist[I_LINE] + 1
         p = _skip_blank(buf, pos, end)
@@ -266,8 +280,8 @@ def scan_chunk(buf, pos, end, st, ist, out, n_out, feat_raw, feat_len, feat_idx)
         if c == 59:  # ';' whole-line comment
             eol = _to_eol(buf, p, end)
             c1 = buf[p + 1] if p + 1 < eol else 0
-            # every marker starts with 'T', 'L', 'Z' or ' ' (tested here: a call costs more than the test)
-            if (c1 == 84 or c1 == 76 or c1 == 90 or c1 == 32) and \
+            # every marker starts with 'T', 'L', 'Z', ' ' or 'M' (tested here: a call costs more than the test)
+            if (c1 == 84 or c1 == 76 or c1 == 90 or c1 == 32 or c1 == 77) and \
                     _comment_needs_python(buf, p + 1, eol, ist, feat_raw, feat_len, feat_idx):
                 return ST_PYTHON, line_start, n_out
             ist[I_LINE] = line
@@ -421,6 +435,8 @@ def scan_chunk(buf, pos, end, st, ist, out, n_out, feat_raw, feat_len, feat_idx)
                     move_d = abs(de)
                 if de < 0.0:
                     flags |= FLAG_RETRACT
+                if e1 > st[S_MAX_E]:
+                    st[S_MAX_E] = e1
                 feed_v = feed * st[S_SPEED_F]
                 if code == 0:
                     flags |= FLAG_RAPID

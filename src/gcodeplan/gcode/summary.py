@@ -16,6 +16,17 @@ def hms(seconds: float | None) -> str:
     return f"{h}h {m:02d}m {s:02d}s"
 
 
+def box_text(b: dict[str, list[float]]) -> str:
+    """A bounding box {"x": [min, max], ...} (mm) as one line: ``x 0.0…200.0  y …  z … mm``."""
+    return "  ".join(f"{a} {lo:.1f}…{hi:.1f}" for a, (lo, hi) in b.items()) + " mm"
+
+
+def capped_text(count: int, first_line: int | None) -> str:
+    """The one note about moves whose requested speed was above the machine's limit."""
+    return (f"{count} move{'s' if count != 1 else ''} asked for more than the machine's speed limit and "
+            f"{'were' if count != 1 else 'was'} capped to it, as the firmware does (first at line {first_line})")
+
+
 @dataclass
 class ParseSummary:
     file: str = ""
@@ -48,6 +59,11 @@ class ParseSummary:
     features: list[str] = field(default_factory=list)
     limits_rows: int = 1
     bounds_mm: dict[str, list[float]] | None = None   # {"x": [min, max], ...} of move end points
+    # bounding boxes of motion (mm, start and end points), printing and travel moves apart (gcode/bounds.py)
+    print_bounds_mm: dict[str, list[float]] | None = None
+    travel_bounds_mm: dict[str, list[float]] | None = None
+    speed_capped_moves: int = 0                    # moves whose feed was above the speed limit: capped
+    speed_capped_first_line: int | None = None
 
     def to_json(self) -> dict:
         d = asdict(self)
@@ -68,6 +84,11 @@ class ParseSummary:
                  f"naive time      {hms(self.naive_time_s)}  ({self.naive_time_s:.1f} s: length / feed, no "
                  f"acceleration)",
                  ]
+        for what, b in (("print box", self.print_bounds_mm), ("travel box", self.travel_bounds_mm)):
+            if b:
+                lines.append(f"{what:<16}{box_text(b)}")
+        if self.speed_capped_moves:
+            lines.append(f"speed capped    {capped_text(self.speed_capped_moves, self.speed_capped_first_line)}")
         if self.dwell_s:
             lines.append(f"dwells          {self.dwell_s:.3f} s")
         if self.waits:

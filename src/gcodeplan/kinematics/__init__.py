@@ -1,17 +1,20 @@
 """Kinematics: from toolhead axes (x, y, z, e) to stepper positions.
 
 Each kinematics is one module in this package exposing ``NAME`` and
-``rails(machine, klipper_names) -> list[Rail]``. A *rail* is one stepper: its
+``rails(machine, klipper_names) -> list[Rail]``; a user's own kinematics is any
+object with a ``rails(machine, klipper_names)`` method, e.g. a
+:class:`~.linear.Linear` (``gcodeplan.kinematics.Linear``), passed where the
+step entry points take ``kinematics=``. A *rail* is one stepper: its
 name, its steps per mm and how its position follows from the toolhead axes.
 
 Cartesian and corexy are *linear*: a stepper position is a fixed weighted sum of
 the axes, ``s = w_x·x + w_y·y + w_z·z + w_e·e``. A linear sum of cubic pieces is
 again a cubic piece, so :func:`stepper_pieces` turns the planner's SEGMENT rows
 into the stepper's own polynomial pieces exactly and the step kernel never sees
-the kinematics. A non-linear kinematics (delta: ``s = z + √(L² − (x−x_t)² −
-(y−y_t)²)``) will set ``Rail.weights = None`` and ship its own position
-callback and kernel entry; the step convention and the output layout stay the
-same.
+the kinematics. Delta (:mod:`.delta`, ``s = z + √(L² − (x−x_t)² − (y−y_t)²)``) is not linear: its
+rails have ``weights = None`` and carry their ``tower``; the step generator runs
+the delta kernel on the x, y, z pieces; the step convention and the output
+layout stay the same.
 """
 from __future__ import annotations
 
@@ -26,6 +29,8 @@ from ..errors import ConfigError
 KINEMATICS_MODULES = {
     "cartesian": "cartesian",
     "corexy": "corexy",
+    "corexz": "corexz",
+    "delta": "delta",
 }
 
 AXIS_FIELDS = ("x", "y", "z", "e")
@@ -37,11 +42,14 @@ class Rail:
 
     ``weights``: stepper position (mm of the stepper's own travel) as
     Σ weights[i]·axis[i] over (x, y, z, e); ``None`` for non-linear kinematics.
+    ``tower``: a delta tower's (arm length² mm², tower x mm, tower y mm): the position is the carriage
+    height z + √(arm² − (x − tower x)² − (y − tower y)²) (:mod:`.delta`); None otherwise.
     """
 
     name: str
     steps_per_mm: float
     weights: tuple[float, float, float, float] | None
+    tower: tuple[float, float, float] | None = None
 
     @property
     def step_dist(self) -> float:
@@ -58,9 +66,21 @@ def kinematics_module(name: str):
     return importlib.import_module(f"{__name__}.{mod}")
 
 
-def rails_for(machine, klipper_names: bool = False) -> list[Rail]:
-    """The machine's steppers, in output order. Klipper section names when ``klipper_names``."""
-    rails = kinematics_module(machine.kinematics).rails(machine, klipper_names)
+def rails_for(machine, klipper_names: bool = False, kinematics=None) -> list[Rail]:
+    """The machine's steppers, in output order. Klipper section names when ``klipper_names``.
+
+    ``kinematics``: None (the machine's own), a built-in name, or an object with
+    ``rails(machine, klipper_names)`` (e.g. :class:`~.linear.Linear`).
+    """
+    if kinematics is None:
+        kinematics = machine.kinematics
+    if isinstance(kinematics, str):
+        rails = kinematics_module(kinematics).rails(machine, klipper_names)
+    elif callable(getattr(kinematics, "rails", None)):
+        rails = list(kinematics.rails(machine, klipper_names))
+    else:
+        raise ConfigError(f"kinematics: expected a name or an object with rails(machine, klipper_names), "
+                          f"got {type(kinematics).__name__}")
     for r in rails:
         if not (r.steps_per_mm > 0 and np.isfinite(r.steps_per_mm)):
             raise ConfigError(f"{r.name}: steps_per_mm must be a positive number, got {r.steps_per_mm!r}")
@@ -68,6 +88,7 @@ def rails_for(machine, klipper_names: bool = False) -> list[Rail]:
 
 
 def axis_steps_per_mm(machine, axis: str) -> float:
+    """The machine's steps/mm of axis ``axis`` (x, y, z, e)."""
     return float(machine.axes[axis].steps_per_mm)
 
 
@@ -95,3 +116,8 @@ def stepper_pieces(segments: np.ndarray, rail: Rail) -> tuple[np.ndarray, ...]:
             acc = np.zeros(len(segments), dtype=np.float64)
         out.append(np.ascontiguousarray(acc))
     return (t0, dt, *out)
+
+
+from .linear import Linear  # noqa: E402  (public: gcodeplan.kinematics.Linear; needs Rail above)
+
+__all__ = ["Rail", "Linear", "rails_for", "stepper_pieces", "kinematics_module", "KINEMATICS_MODULES"]

@@ -22,7 +22,7 @@ import numpy as np
 from ..errors import ConfigError
 from ..machine import POLICIES
 from .passes import plan_from_prep
-from .prepare import POLICY_BLEND, PREP_DTYPE, policy_code, prepare
+from .prepare import POLICY_BLEND, POLICY_LINUXCNC, PREP_DTYPE, policy_code, prepare
 from .sampling import sample_segments
 from .segments import to_segments
 from .blend import plan_blend
@@ -73,6 +73,10 @@ def plan_moves(moves: np.ndarray, limits: np.ndarray, machine, policy: str | Non
         return _plan_only(plan_scurve(moves, limits, machine, j, policy=name))
     if pcode == POLICY_BLEND:
         return _plan_only(plan_blend(moves, limits, machine))
+    if pcode == POLICY_LINUXCNC:
+        from .linuxcnc import plan_linuxcnc
+
+        return plan_linuxcnc(moves, limits, machine)[0]
     prep = prepare(moves, limits, machine, name)
     plan, _ = plan_from_prep(moves, prep, pcode)
     return plan
@@ -91,5 +95,9 @@ def plan_with_segments(moves: np.ndarray, limits: np.ndarray, machine, policy: s
         return plan_scurve(moves, limits, machine, j, first_move=first_index, policy=name)
     if policy_code(name) == POLICY_BLEND:
         return plan_blend(moves, limits, machine, first_move=first_index)
+    if policy_code(name) == POLICY_LINUXCNC:
+        from .linuxcnc import plan_linuxcnc
+
+        return plan_linuxcnc(moves, limits, machine, first_move=first_index)
     plan = plan_moves(moves, limits, machine, name)
     return plan, to_segments(moves, plan, first_index)

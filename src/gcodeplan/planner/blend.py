@@ -154,13 +154,16 @@ def corner_loss(corner_v2, c, move_d, max_cruise_v2, path_a, i_in, i_out):
 
 
 @numba.njit(cache=True)
-def blend_passes_kernel(move_d, accel, corner_c, corner_v2):
-    """Lower the corner speeds² (in place) until every straight part can join its two corners.
+def blend_passes_kernel(move_d, accel, corner_c, corner_v2, lo, hi, free_last):
+    """Lower the corner speeds² of moves lo … hi−1 (in place) until every straight part can join its two corners.
 
     Move i joins w_a = corner_v2[i] to w_b = corner_v2[i+1] on S_i = L_i − c_i·w_a − c_{i+1}·w_b, which needs
     |w_b − w_a| ≤ 2·A_i·S_i. With α = 2A_i·c_i, β = 2A_i·c_{i+1}, D = 2A_i·L_i:
       (B) decelerating  w_a ≤ (D + (1 − β)·w_b)/(1 + α)   — the backward pass lowers w_a to this;
       (F) accelerating  w_b ≤ (D + (1 − α)·w_a)/(1 + β)   — the forward pass lowers w_b to this.
+    Corner ``lo`` is fixed (a stop, or a corner already final: see :func:`blend_settled_kernel`); corner ``hi``
+    is lowered by the forward pass only when ``free_last`` (a settled corner that nothing after it can lower),
+    else it is a stop and stays 0.
     Termination: values only decrease and stay ≥ 0. The caps already keep each blend within half of its
     segments (c·w ≤ L/2), so S_i ≥ 0, and at the point where (F) is tight w_b − w_a = 2A_i·S_i ≥ 0, which
     leaves (B) true; lowering w_b never breaks move i+1's (B) (its start gets lower). So after one backward
@@ -168,10 +171,9 @@ def blend_passes_kernel(move_d, accel, corner_c, corner_v2):
     stops at the first round that moves no value by more than SETTLE_RTOL (at most a few rounds; bounded
     by 16 in any case).
     """
-    n = move_d.shape[0]
     for _ in range(16):
         changed = False
-        for i in range(n - 1, -1, -1):
+        for i in range(hi - 1, lo, -1):
             two_a = 2.0 * accel[i]
             bound = (two_a * move_d[i] + (1.0 - two_a * corner_c[i + 1]) * corner_v2[i + 1]) / (
                 1.0 + two_a * corner_c[i])
@@ -179,7 +181,8 @@ def blend_passes_kernel(move_d, accel, corner_c, corner_v2):
                 if corner_v2[i] - max(bound, 0.0) > SETTLE_RTOL * corner_v2[i]:
                     changed = True
                 corner_v2[i] = max(bound, 0.0)
-        for i in range(n):
+        last = hi if free_last else hi - 1
+        for i in range(lo, last):
             two_a = 2.0 * accel[i]
             bound = (two_a * move_d[i] + (1.0 - two_a * corner_c[i]) * corner_v2[i]) / (
                 1.0 + two_a * corner_c[i + 1])
@@ -193,18 +196,19 @@ def blend_passes_kernel(move_d, accel, corner_c, corner_v2):
 
 
 @numba.njit(cache=True)
-def blend_speeds_kernel(move_d, path_a, max_cruise_v2, corner_c, corner_v2):
-    """Passes, then stop at corners the passes pushed into a losing blend (corner_loss); repeat.
+def blend_speeds_kernel(move_d, path_a, max_cruise_v2, corner_c, corner_v2, lo, hi, free_last):
+    """Passes over moves lo … hi−1, then stop at corners the passes pushed into a losing blend (corner_loss);
+    repeat. Corner ``hi`` is checked too when ``free_last`` (move hi must exist then).
 
     The passes can leave a corner below its cap, where a slow blend may lose more than a stop. Such
     corners are set to 0 and the passes rerun. Speeds only decrease and each corner flips to 0 at most
-    once, so this ends after at most n + 1 rounds (in practice one or two).
+    once, so this ends after at most hi − lo + 1 rounds (in practice one or two).
     """
-    n = move_d.shape[0]
-    for _ in range(n + 1):
-        blend_passes_kernel(move_d, path_a, corner_c, corner_v2)
+    for _ in range(hi - lo + 1):
+        blend_passes_kernel(move_d, path_a, corner_c, corner_v2, lo, hi, free_last)
         flipped = False
-        for j in range(1, n):
+        end = hi + 1 if free_last else hi
+        for j in range(lo + 1, end):
             if corner_v2[j] > 0.0 and corner_c[j] > 0.0 and \
                     corner_loss(corner_v2[j], corner_c[j], move_d, max_cruise_v2, path_a, j - 1, j) > \
                     corner_loss(0.0, corner_c[j], move_d, max_cruise_v2, path_a, j - 1, j):
@@ -215,21 +219,88 @@ def blend_speeds_kernel(move_d, path_a, max_cruise_v2, corner_c, corner_v2):
     return corner_v2
 
 
-@numba.njit(cache=True)
-def blend_runs_kernel(move_d, path_a, max_cruise_v2, corner_c, corner_v2):
-    """:func:`blend_speeds_kernel` on each run of moves between two corners capped at 0 (full stops: the ends,
-    reversals, dwell/wait rows, extrude-only neighbours, exact stops, losing corners), one run at a time.
+# A settled corner's cap must stay below the least bound the moves after it can impose by this margin, so
+# that no rounding of the passes could still lower it.
+SETTLED_MARGIN = 1e-9
 
-    Speeds only decrease, so a corner capped at 0 stays 0 and the runs on either side never interact: planning
-    them apart is the same plan, and it is what lets the streaming planner emit a run as soon as the stop
-    after it is known, with the same rounding as the whole program.
+
+@numba.njit(cache=True)
+def blend_settled_kernel(move_d, path_a, corner_c, corner_v2, end_open):
+    """Corners whose speed nothing after them can lower: the blend planner's look-ahead horizon.
+
+    ``corner_v2`` holds the caps of corners 0 … m (before the passes). Corner m ends the program (speed 0)
+    unless ``end_open``: then the window is part of a longer program and neither corner m's speed w nor its
+    constant c is known; only c·w ≤ L/2 (the blend fits in half of the last move), so the last move's (B)
+    bound is at least (2A·L − A·L)/(1 + α) whatever follows. Going backwards, [lo_j, hi_j] bounds what the passes
+    from the right can leave at corner j: hi_j = cap_j and lo_j = min(cap_j, least (B) bound of move j over
+    corner j+1's interval) — (B) is linear in w_{j+1}, so its least value is at an end of the interval.
+    A corner whose cap stays below that least bound (SETTLED_MARGIN) is *settled*: the passes coming from
+    the right never lower it, only the moves before it (forward pass) and its own loss test can, so the run
+    can be split there and the part before it planned for good. A stop (cap 0) is settled too. A corner
+    where the loss test may fire (a side with α = 2A·c > 2, :func:`corner_loss`) can become 0 whatever its
+    bounds, so the corner before it sees [0, hi].
+
+    The bounds only widen when less is known after the window (a wider interval at corner m), so a corner
+    settled in a window is settled in the whole program, and every corner before a settled one gets the
+    same bounds in both: the streaming planner and whole-program planning split runs at the same corners.
+    Returns a bool array over the corners (0 and m False).
     """
-    n = move_d.shape[0]
+    m = move_d.shape[0]
+    settled = np.zeros(m + 1, np.bool_)
+    lo = 0.0
+    hi = 0.0
+    for j in range(m - 1, 0, -1):
+        cap = corner_v2[j]
+        if not (cap > 0.0):
+            settled[j] = True
+            lo = 0.0
+            hi = 0.0
+            continue
+        lo_next = lo
+        c_next = corner_c[j + 1]
+        if j + 1 < m and c_next > 0.0 and corner_v2[j + 1] > 0.0:
+            for side in range(2):
+                a_side = path_a[j + side]
+                if a_side > 0.0 and a_side < np.inf and 2.0 * a_side * c_next > 2.0 - 1e-9:
+                    lo_next = 0.0
+        two_a = 2.0 * path_a[j]
+        b_lo = (two_a * move_d[j] + (1.0 - two_a * c_next) * lo_next) / (1.0 + two_a * corner_c[j])
+        b_hi = (two_a * move_d[j] + (1.0 - two_a * c_next) * hi) / (1.0 + two_a * corner_c[j])
+        b_min = min(b_lo, b_hi)
+        if end_open and j == m - 1:
+            # D + (1 − β)·w ≥ D − A·L for any w ≥ 0 with c·w ≤ L/2; shaded by 1e-12 so that the bound the
+            # whole program computes from the actual corner (another rounding of a larger number) is never below
+            b_min = (0.5 * two_a * move_d[j]) / (1.0 + two_a * corner_c[j]) * (1.0 - 1e-12)
+        if b_min >= cap * (1.0 + SETTLED_MARGIN):     # False for nan (an infinite acceleration)
+            settled[j] = True
+            lo = cap
+        elif b_min > 0.0:
+            lo = min(cap, b_min)
+        else:
+            lo = 0.0
+        hi = cap
+    return settled
+
+
+@numba.njit(cache=True)
+def blend_runs_kernel(move_d, path_a, max_cruise_v2, corner_c, corner_v2, settled, j_end):
+    """:func:`blend_speeds_kernel` on each run of moves between two settled corners before corner ``j_end``
+    (stops — the ends, reversals, dwell/wait rows, extrude-only neighbours, exact stops, losing corners — and
+    corners nothing after them can lower: :func:`blend_settled_kernel`), one run at a time, left to right.
+
+    Corner 0 is fixed (0 at the start of the program, or the final speed of a settled corner before the
+    window). Each run starts from the final speed of the corner that closed the run before it and ends at a
+    stop or at a settled corner, which its own passes and loss test may still lower. Speeds only decrease
+    and a settled corner is never lowered from the right, so the runs never reach back: planning them in
+    turn is the same plan as planning the whole, and it is what lets the streaming planner emit a run as
+    soon as the corner after it is settled, with the same rounding as the whole program.
+    """
+    m = move_d.shape[0]
     a = 0
-    for j in range(1, n + 1):
-        if j == n or corner_v2[j] <= 0.0:
-            blend_speeds_kernel(move_d[a:j], path_a[a:j], max_cruise_v2[a:j], corner_c[a:j + 1],
-                                corner_v2[a:j + 1])
+    for j in range(1, j_end + 1):
+        if j == j_end or settled[j]:
+            free_last = j < m and corner_v2[j] > 0.0
+            blend_speeds_kernel(move_d, path_a, max_cruise_v2, corner_c, corner_v2, a, j, free_last)
             a = j
     return corner_v2
 
@@ -290,10 +361,13 @@ def _put(rows, k, t0, dt, p, v, a, move, phase, moves_out, phases_out):
 
 
 @numba.njit(cache=True)
-def blend_segments_kernel(p0, p1, move_d, axes_r, accel, corner_c, timing, t_start, row_index, first_move):
+def blend_segments_kernel(p0, p1, move_d, axes_r, axes_before, accel, corner_c, timing, t_start, row_index,
+                          first_move):
     """SEGMENT pieces (as a float table + move and phase columns) for the planned moves.
 
-    p0, p1: (n, 4) start/end points (x, y, z, e). Per move: second half of its first blend, accel,
+    p0, p1: (n, 4) start/end points (x, y, z, e); axes_r: (n + 1, 4) unit directions, the last one that of the
+    move after the last (for its blend; any row when that corner is a stop); axes_before: (4,) the direction
+    of the move before the first (a window that starts inside a run). Per move: second half of its first blend, accel,
     cruise, decel, first half of its last blend; pieces of zero duration are left out. A dwell/wait row
     (move_d = 0) gives one PHASE_DWELL piece at rest. Columns of the table: t0, dt, p(4), v(4), a(4).
     """
@@ -334,11 +408,12 @@ def blend_segments_kernel(p0, p1, move_d, axes_r, accel, corner_c, timing, t_sta
         if tau_in > 0.0:
             # second half of the blend around p0[i]: from its middle to the line of move i
             for ax in range(4):
-                v_in = v_a * axes_r[i - 1, ax]
+                u_before = axes_before[ax] if i == 0 else axes_r[i - 1, ax]
+                v_in = v_a * u_before
                 v_out = v_a * axes_r[i, ax]
                 # v·Δu, not v_out − v_in: on nearly collinear moves Δu is rounding noise and the difference
                 # of the two products would carry v·u·ε into a τ of ~1e-19 s (accelerations above the limits)
-                acc[ax] = v_a * (axes_r[i, ax] - axes_r[i - 1, ax]) / (2.0 * tau_in)
+                acc[ax] = v_a * (axes_r[i, ax] - u_before) / (2.0 * tau_in)
                 p[ax] = p0[i, ax] + 0.5 * acc[ax] * tau_in * tau_in
                 v[ax] = 0.5 * (v_in + v_out)
             _put(rows, k, t, tau_in, p, v, acc, move, PHASE_BLEND, moves_out, phases_out)
@@ -418,52 +493,79 @@ def blend_row_limits(moves: np.ndarray, limits: np.ndarray, machine):
     return prep, aux
 
 
-def blend_window_corners(moves: np.ndarray, prep: np.ndarray, aux: np.ndarray, lazy: bool):
-    """The rows that take part, their per-move arrays, the corner constants and corner speeds² of a window.
-
-    Zero-length rows take no part (prepare drops them, so the corner is taken between their neighbours);
-    dwell and wait rows stay, as full stops. Returns (ml, corner_c, corner_v2, j_end): corners [0, j_end] are
-    settled (the passes ran over the runs they close) and the rows before taking-part row j_end are final;
-    ``lazy`` = False: the window ends the program, j_end = len(rows). Lazy: j_end is the last corner in the
-    window capped at 0 (its two moves are known), 0 when there is none.
-    """
+def _window_rows(moves, prep, aux):
+    """The rows that take part and their per-row arrays (zero-length rows do not take part: prepare drops
+    them, so the corner is taken between their neighbours; dwell and wait rows stay, as full stops)."""
     kind = moves["kind"]
     rows = np.flatnonzero(prep["is_move"] | (kind == KIND_DWELL) | (kind == KIND_WAIT))
     every = len(rows) == len(moves)
     sub = moves if every else moves[rows]
     prep = prep if every else prep[rows]
     aux = aux if every else aux[rows]
-    m = len(rows)
-    axes_r = np.zeros((m, 4))
+    axes_r = np.zeros((len(rows), 4))
     for col, ax in enumerate("xyze"):
         axes_r[:, col] = prep["axes_r_" + ax]
-    ml = {
+    return {
         "rows": rows,
         "move_d": np.ascontiguousarray(prep["move_d"], dtype=np.float64),
         "axes_r": axes_r,
         "max_cruise_v2": np.ascontiguousarray(prep["max_cruise_v2"], dtype=np.float64),
         "accel": np.ascontiguousarray(prep["accel"], dtype=np.float64),
         "cruise_limit": np.ascontiguousarray(prep["limit"]),
+        "xyz": np.ascontiguousarray(prep["kinematic"] & prep["is_move"]),
+        "exact_stop": np.ascontiguousarray(sub["exact_stop"].astype(np.bool_)),
+        "toolhead_a": np.ascontiguousarray(sub["accel"], dtype=np.float64),
+        "axis_a": np.ascontiguousarray(aux[:, 1:5]),
+        "tolerance": np.ascontiguousarray(aux[:, 0]),
     }
-    xyz = np.ascontiguousarray(prep["kinematic"] & prep["is_move"])
-    corner_c, corner_v2 = blend_corners_kernel(
-        ml["move_d"], axes_r, xyz, np.ascontiguousarray(sub["exact_stop"].astype(np.bool_)),
-        ml["max_cruise_v2"], ml["accel"], np.ascontiguousarray(sub["accel"], dtype=np.float64),
-        np.ascontiguousarray(aux[:, 1:5]), np.ascontiguousarray(aux[:, 0]))
+
+
+_CORNER_INPUTS = ("move_d", "axes_r", "xyz", "exact_stop", "max_cruise_v2", "accel", "toolhead_a", "axis_a",
+                  "tolerance")
+
+
+def blend_window_corners(moves: np.ndarray, prep: np.ndarray, aux: np.ndarray, lazy: bool, head=None):
+    """The rows that take part, their per-move arrays, the corner constants and corner speeds² of a window.
+
+    ``head``: None when the window starts the program (or follows a stop); else what the previous window left
+    (``ctx["head"]`` of :func:`blend_plan_window`): the taking-part row before this window's first one and
+    the final speed² of the corner between them, which this window starts from. Returns
+    (ml, corner_c, corner_v2, j_end, head): corners [0, j_end] are final and the rows before taking-part row
+    j_end are final; ``lazy`` = False: the window ends the program, j_end = len(rows). Lazy: j_end is the
+    last corner of the window that nothing after the window can lower (:func:`blend_settled_kernel`), 0 when
+    there is none; ``head`` is what the next window needs (None when the program ends).
+    """
+    ml = _window_rows(moves, prep, aux)
+    m = len(ml["rows"])
+    if head is not None:
+        # the corner between the previous window and this one: the same two rows, so the same constants
+        ext = [np.concatenate([head[k], ml[k]]) for k in _CORNER_INPUTS]
+        corner_c, corner_v2 = blend_corners_kernel(*ext)
+        corner_c, corner_v2 = corner_c[1:], corner_v2[1:]
+        corner_v2[0] = head["w"]
+    else:
+        corner_c, corner_v2 = blend_corners_kernel(*(ml[k] for k in _CORNER_INPUTS))
+    settled = blend_settled_kernel(ml["move_d"], ml["accel"], corner_c, corner_v2, bool(lazy))
     if lazy:
-        stops = np.flatnonzero(corner_v2[1:m] <= 0.0)
-        j_end = int(stops[-1]) + 1 if stops.size else 0
+        ends = np.flatnonzero(settled[1:m])
+        j_end = int(ends[-1]) + 1 if ends.size else 0
     else:
         j_end = m
-    blend_runs_kernel(ml["move_d"][:j_end], ml["accel"][:j_end], ml["max_cruise_v2"][:j_end],
-                      corner_c[:j_end + 1], corner_v2[:j_end + 1])
-    return ml, corner_c, corner_v2, j_end
+    blend_runs_kernel(ml["move_d"], ml["accel"], ml["max_cruise_v2"], corner_c, corner_v2, settled, j_end)
+    new_head = head
+    if lazy and j_end > 0:
+        k = j_end - 1
+        new_head = {key: ml[key][k:k + 1].copy() for key in _CORNER_INPUTS}
+        new_head["w"] = float(corner_v2[j_end])
+    elif not lazy:
+        new_head = None
+    return ml, corner_c, corner_v2, j_end, new_head
 
 
 def _corners(moves: np.ndarray, limits: np.ndarray, machine):
     """Whole program: (ml, corner_c, corner_v2) with every corner settled."""
     prep, aux = blend_row_limits(moves, limits, machine)
-    ml, corner_c, corner_v2, _ = blend_window_corners(np.asarray(moves), prep, aux, lazy=False)
+    ml, corner_c, corner_v2, _, _ = blend_window_corners(np.asarray(moves), prep, aux, lazy=False)
     return ml, corner_c, corner_v2
 
 
@@ -478,15 +580,18 @@ def corner_geometry(moves: np.ndarray, limits: np.ndarray, machine):
     return ml["rows"], corner_c, corner_v2
 
 
-def blend_plan_window(moves: np.ndarray, prep: np.ndarray, aux: np.ndarray, t_clock: float, lazy: bool):
+def blend_plan_window(moves: np.ndarray, prep: np.ndarray, aux: np.ndarray, t_clock: float, lazy: bool,
+                      head=None):
     """Plan the final part of a window of rows (MOVE rows, their PREP and aux rows from
-    :func:`blend_row_limits`) that starts at rest at time ``t_clock``.
+    :func:`blend_row_limits`) that starts at time ``t_clock``: at rest (``head`` None) or at the corner the
+    previous window ended at (``head``: that window's ``ctx["head"]``).
 
     Returns (n_rows, plan, t_end, ctx): the first n_rows rows are final (all of them when ``lazy`` is False),
-    their PLAN rows, the clock after them, and what :func:`blend_segments` needs to make their pieces.
+    their PLAN rows, the clock after them, and what :func:`blend_segments` needs to make their pieces;
+    ``ctx["head"]`` is what the next window starts from (None after the end of the program).
     """
     n = len(moves)
-    ml, corner_c, corner_v2, j_end = blend_window_corners(moves, prep, aux, lazy)
+    ml, corner_c, corner_v2, j_end, new_head = blend_window_corners(moves, prep, aux, lazy, head)
     rows = ml["rows"]
     m = len(rows)
     n_rows = n if j_end == m else int(rows[j_end])
@@ -523,8 +628,9 @@ def blend_plan_window(moves: np.ndarray, prep: np.ndarray, aux: np.ndarray, t_cl
                                     np.where(pinned, LIMIT_JUNCTION, LIMIT_ACCEL)))
     plan["limit"] = limit
     plan["jerk"] = 0.0
-    ctx = {"rows": rows, "move_d": move_d, "axes_r": ml["axes_r"][:j_end], "accel": accel_m,
-           "corner_c": corner_c, "timing": timing}
+    axes_before = head["axes_r"][0] if head is not None else np.zeros(4)
+    ctx = {"rows": rows, "move_d": move_d, "axes_r": ml["axes_r"][:j_end + 1], "axes_before": axes_before,
+           "accel": accel_m, "corner_c": corner_c, "timing": timing, "head": new_head}
     return n_rows, plan, float(clock[-1]), ctx
 
 
@@ -538,8 +644,12 @@ def blend_segments(moves: np.ndarray, plan: np.ndarray, ctx: dict, first_move: i
     for col, ax in enumerate("xyze"):
         p0[:, col] = sub[ax + "0"]
         p1[:, col] = sub[ax + "1"]
+    axes_r = ctx["axes_r"]
+    if len(axes_r) == len(rows):      # the window ends the program: the corner after the last move is a stop
+        axes_r = np.concatenate([axes_r, np.zeros((1, 4))])
     seg_rows, seg_move, seg_phase = blend_segments_kernel(
-        p0, p1, ctx["move_d"], ctx["axes_r"], ctx["accel"], ctx["corner_c"], ctx["timing"],
+        p0, p1, ctx["move_d"], np.ascontiguousarray(axes_r), np.ascontiguousarray(ctx["axes_before"], np.float64),
+        ctx["accel"], ctx["corner_c"], ctx["timing"],
         np.ascontiguousarray(plan["t_start"][rows]), np.ascontiguousarray(rows.astype(np.int64)),
         int(first_move))
     return segments_from_table(seg_rows, seg_move, seg_phase)

@@ -32,10 +32,11 @@ def set_junction(start_v2: float, cruise_v2: float, end_v2: float, accel: float,
     cruise_d = d − accel_d − decel_d; each time = distance / mean speed of the phase.
     """
     half_inv_accel = 0.5 / accel
-    accel_d = (cruise_v2 - start_v2) * half_inv_accel
-    decel_d = (cruise_v2 - end_v2) * half_inv_accel
-    # Klipper's formula; with no cruise the difference is rounding noise that can fall below 0 (−1e-18 s cruise
-    # times seen by tools/fuzz.py): clamped, which moves a time by less than one ulp of any clock value
+    # Klipper's formulas. Where a phase is absent its distance is rounding noise that can fall below 0 (a cruise
+    # or decel time of −5e-19 s, found by tools/fuzz.py; a peak speed equal to the end speed computed as a
+    # hair below it): clamped at 0, which moves a time by less than one ulp of any clock value
+    accel_d = max((cruise_v2 - start_v2) * half_inv_accel, 0.0)
+    decel_d = max((cruise_v2 - end_v2) * half_inv_accel, 0.0)
     cruise_d = max(move_d - accel_d - decel_d, 0.0)
     start_v = math.sqrt(start_v2)
     cruise_v = math.sqrt(cruise_v2)

@@ -122,13 +122,15 @@ _REGISTRY: dict[str, Policy] = {}
 
 
 def _register_builtins() -> None:
-    from .prepare import POLICY_BLEND, POLICY_CLASSIC_JERK, POLICY_EXACT_STOP, POLICY_JD, POLICY_KLIPPER
+    from .prepare import POLICY_BLEND, POLICY_CLASSIC_JERK, POLICY_EXACT_STOP, POLICY_JD, POLICY_KLIPPER, POLICY_LINUXCNC
 
     for name, fn, code in (("klipper", klipper_cap_v2, POLICY_KLIPPER),
                            ("junction-deviation", junction_deviation_cap_v2, POLICY_JD),
                            ("classic-jerk", classic_jerk_cap_v2, POLICY_CLASSIC_JERK),
                            ("blend", junction_deviation_cap_v2, POLICY_BLEND),
-                           ("exact-stop", exact_stop_cap_v2, POLICY_EXACT_STOP)):
+                           ("exact-stop", exact_stop_cap_v2, POLICY_EXACT_STOP),
+                           # LinuxCNC's planner (planner/linuxcnc.py) does its own corners; the cap is unused
+                           ("linuxcnc", junction_deviation_cap_v2, POLICY_LINUXCNC)):
         _REGISTRY[name] = Policy(name, fn, name, code, stop_every_junction=(code == POLICY_EXACT_STOP))
 
 

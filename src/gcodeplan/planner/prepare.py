@@ -40,8 +40,8 @@ _ERR_TEXT = {ERR_LIMITS_ROW: "move refers to a LIMITS row that does not exist",
              ERR_NO_SPEED: "no speed limit applies to this rapid move: set toolhead max_velocity, "
                            "rapid_velocity or the max_velocity of every axis it moves (machine file)"}
 
-POLICY_KLIPPER, POLICY_JD, POLICY_CLASSIC_JERK, POLICY_BLEND, POLICY_EXACT_STOP = range(5)
-assert POLICIES == ("klipper", "junction-deviation", "classic-jerk", "blend", "exact-stop")
+POLICY_KLIPPER, POLICY_JD, POLICY_CLASSIC_JERK, POLICY_BLEND, POLICY_EXACT_STOP, POLICY_LINUXCNC = range(6)
+assert POLICIES == ("klipper", "junction-deviation", "classic-jerk", "blend", "exact-stop", "linuxcnc")
 
 # Klipper: an extrude-only move starts with this acceleration before the extruder limits apply.
 KLIPPER_EXTRUDE_ONLY_ACCEL = 99999999.9
@@ -75,6 +75,8 @@ L_MAX_V, L_SCV, L_MCR, L_JD = _L["max_v"], _L["scv"], _L["mcr"], _L["junction_de
 L_JERK0, L_AXV0, L_AXA0 = _L["jerk_x"], _L["axis_v_x"], _L["axis_a_x"]
 L_EO_V, L_EO_A, L_ICV = _L["extrude_only_v"], _L["extrude_only_a"], _L["icv"]
 L_MIN_FEED, L_MIN_TRAVEL = _L["min_feed_v"], _L["min_travel_v"]
+L_DELTA_SLOW_XY2, L_DELTA_VSLOW_XY2 = _L["delta_slow_xy2"], _L["delta_very_slow_xy2"]
+L_DELTA_V, L_DELTA_A = _L["delta_slow_v"], _L["delta_slow_a"]
 
 
 def policy_code(policy: str) -> int:
@@ -202,6 +204,16 @@ def _move_limits_kernel(moves, lim, policy, prep):
                     code = LIMIT_AXIS if a < 3 else LIMIT_EXTRUDER
                     max_cruise_v2, accel, delta_v2, mcr_delta_v2, limit = _limit_speed(
                         av * ratio, aa * ratio, code, move_d, max_cruise_v2, accel, mcr_delta_v2, limit)
+        # Klipper's delta.py check_move: towers run fast far from the centre, so a move reaching past
+        # ratio_to_xy(3) gets half the config's max velocity / accel, past ratio_to_xy(6) a quarter
+        # (docs/design.md, "Delta"). Z is limited by the per-axis rule above, as in Klipper.
+        if kinematic and L[L_DELTA_V] > 0.0:
+            extreme_xy2 = max(mv.x1 * mv.x1 + mv.y1 * mv.y1, mv.x0 * mv.x0 + mv.y0 * mv.y0)
+            if extreme_xy2 > L[L_DELTA_SLOW_XY2]:
+                r = 0.25 if extreme_xy2 > L[L_DELTA_VSLOW_XY2] else 0.5
+                max_cruise_v2, accel, delta_v2, mcr_delta_v2, limit = _limit_speed(
+                    L[L_DELTA_V] * r, L[L_DELTA_A] * r, LIMIT_MAX_V, move_d, max_cruise_v2, accel, mcr_delta_v2,
+                    limit)
         axes_r_e = d[3] * inv_move_d
         # Klipper extruder.check_move: extrude-only (no X/Y motion) or retraction → extrude-only limits.
         if d[3] != 0.0 and ((d[0] == 0.0 and d[1] == 0.0) or axes_r_e < 0.0):
@@ -327,12 +339,18 @@ def validate(moves: np.ndarray, limits: np.ndarray, policy: int) -> None:
         raise ConfigError("square_corner_velocity must be >= 0")
     if policy in (POLICY_JD, POLICY_BLEND) and np.any(~(limits["junction_dev"] >= 0.0)):
         raise ConfigError("junction_deviation must be >= 0")
-    if np.any(~(limits["max_v"] > 0.0)):
-        raise ConfigError("max_velocity must be > 0")
+    # "> 0" for the planner means that v² and 1/a are still numbers: a positive speed below ~1e-154 mm/s squares
+    # to 0 and divides by zero later (SET_VELOCITY_LIMIT VELOCITY=1e-320, found by tools/fuzz.py)
+    def positive(v):
+        with np.errstate(over="ignore", under="ignore", divide="ignore"):
+            return (v > 0.0) & (v * v > 0.0) & np.isfinite(1.0 / v)     # inf (no limit) passes
+
+    if np.any(~positive(limits["max_v"])):
+        raise ConfigError(f"max_velocity must be > 0, got {float(limits['max_v'][~positive(limits['max_v'])][0])!r}")
     for a in "xyze":
-        if np.any(~(limits["axis_v_" + a] > 0.0)) or np.any(~(limits["axis_a_" + a] > 0.0)):
+        if np.any(~positive(limits["axis_v_" + a])) or np.any(~positive(limits["axis_a_" + a])):
             raise ConfigError(f"max velocity / accel of axis {a} must be > 0")
-    if np.any(~(limits["extrude_only_v"] > 0.0)) or np.any(~(limits["extrude_only_a"] > 0.0)):
+    if np.any(~positive(limits["extrude_only_v"])) or np.any(~positive(limits["extrude_only_a"])):
         raise ConfigError("max_extrude_only_velocity / max_extrude_only_accel must be > 0")
     if policy == POLICY_CLASSIC_JERK:
         jerks = np.stack([limits["jerk_" + a] for a in "xyze"], axis=1)

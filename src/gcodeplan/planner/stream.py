@@ -28,7 +28,7 @@ import numpy as np
 from ..errors import ConfigError
 from ..schema import MOVE_DTYPE, PLAN_DTYPE, concat_rows
 from .passes import klipper_flush, layout_rows, plan_runs, speed_buffers, standard_flush
-from .prepare import (POLICY_BLEND, POLICY_JD, POLICY_KLIPPER, PREP_DTYPE, custom_cap, policy_code,
+from .prepare import (POLICY_BLEND, POLICY_JD, POLICY_KLIPPER, POLICY_LINUXCNC, PREP_DTYPE, custom_cap, policy_code,
                       prepare_with_context, validate)
 from .segments import to_segments
 
@@ -258,6 +258,10 @@ class StreamPlanner:
         if self._jerk is not None:
             no_blend_with_jerk(self._pcode)
             return _SCurveMode(self)
+        if self._pcode == POLICY_LINUXCNC:
+            from .linuxcnc import make_stream_mode
+
+            return make_stream_mode(_Mode)(self)
         return _BlendMode(self) if self._pcode == POLICY_BLEND else _TrapezoidMode(self)
 
     def _check_same_jerk(self, moves: np.ndarray, limits: np.ndarray) -> None:
@@ -308,3 +312,5 @@ def no_blend_with_jerk(pcode: int) -> None:
     if pcode == POLICY_BLEND:
         raise ConfigError("the blend policy and S-curves (--jerk / max_jerk) cannot be combined: blends are "
                           "constant-acceleration parabolas; choose one")
+    if pcode == POLICY_LINUXCNC:
+        raise ConfigError("the linuxcnc policy plans trapezoids as LinuxCNC 2.9 does: --jerk / max_jerk do not apply")

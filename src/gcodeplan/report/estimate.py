@@ -29,6 +29,9 @@ class Estimate:
     policy: str
     machine_name: str
     line_ends: tuple = field(default=(None, None), repr=False)   # (line, end_time_s) arrays
+    objects: list = field(default_factory=list)          # object names (MOVE.object indexes them)
+    wait_time_s: dict = field(default_factory=dict)      # s of modelled waits by name ([time] of the machine)
+    filament_diameter_mm: float = 1.75                   # for the volumetric flow
 
     @property
     def total_time_s(self) -> float:
@@ -39,6 +42,10 @@ class Estimate:
         """(line int64, end_time_s float64): when the last move or dwell each source line made ends
         (s from the first move's start), one row per such line, lines increasing. The format of
         Klipper's per-line reference CSVs (``source_line,end_time_s``)."""
+        if self.line_ends[0] is None:
+            from ..errors import GcodeplanError
+
+            raise GcodeplanError("per-line times were not kept (estimate(..., line_times=False))", self.path)
         return self.line_ends
 
     def to_text(self) -> str:
@@ -77,6 +84,9 @@ class Estimate:
             layers=t.layers(self.layer_z),
             features=t.features(self.features),
         )
+        objects, outside = t.objects(self.objects)
+        d.update(objects=objects, outside_objects_s=outside, waits_by_name_s=dict(self.wait_time_s),
+                 flow=t.flows(self.features, self.layer_z, self.filament_diameter_mm))
         return d
 
 
@@ -109,6 +119,13 @@ def print_text(est: Estimate, out=None) -> None:
     w(f"  accelerating {100 * t.accel_t / motion:.1f} %, cruising {100 * t.cruise_t / motion:.1f} %, "
       f"decelerating {100 * t.decel_t / motion:.1f} %{blending}\n")
     w(f"  moves {s.moves}, full stops {t.stops}, peak speed {t.peak_v:.1f} mm/s (line {t.peak_v_line})\n")
+    from ..gcode.summary import box_text, capped_text
+
+    for what, b in (("print", getattr(s, "print_bounds_mm", None)), ("travel", getattr(s, "travel_bounds_mm", None))):
+        if b:
+            w(f"  {what + ' box':<16}{box_text(b)}\n")
+    if getattr(s, "speed_capped_moves", 0):
+        w(f"  {capped_text(s.speed_capped_moves, s.speed_capped_first_line)}\n")
     lim = t.limits()
     if lim:
         tot = sum(lim.values())
@@ -120,6 +137,27 @@ def print_text(est: Estimate, out=None) -> None:
         w("  time per feature:\n")
         for name, sec in sorted(feats.items(), key=lambda kv: -kv[1]):
             w(f"    {name:<28} {hms(sec):>10}  {100 * sec / max(t.total_time_s, 1e-300):5.1f} %\n")
+    objects, outside = t.objects(getattr(est, "objects", []))
+    if objects:
+        w("  time per object:\n")
+        total = max(t.total_time_s, 1e-300)
+        for name, sec in list(objects.items()) + [("(outside any object)", outside)]:
+            w(f"    {name[:40]:<40} {hms(sec):>10}  {100 * sec / total:5.1f} %\n")
+    named = getattr(est, "wait_time_s", {}) or {}
+    if named:
+        w("  waits by name: " + ", ".join(f"{k} {hms(v)}" for k, v in sorted(named.items())) + "\n")
+    flow = t.flows(est.features, est.layer_z, getattr(est, "filament_diameter_mm", 1.75))
+    if flow["features"]:
+        w(f"  volumetric flow of printing moves (mm³/s; filament {flow['filament_diameter_mm']:g} mm; "
+          f"peak = at cruise speed):\n")
+        for name, f in sorted(flow["features"].items(), key=lambda kv: -kv[1]["print_time_s"]):
+            w(f"    {name:<28} average {f['average_mm3_s']:7.2f}   peak {f['peak_mm3_s']:7.2f}\n")
+        in_layers = [L for L in flow["layers"] if L["index"] >= 0]     # not the start G-code's purge line
+        if in_layers:
+            top = max(in_layers, key=lambda L: L["peak_mm3_s"])
+            busy = max(in_layers, key=lambda L: L["average_mm3_s"])
+            w(f"    layers: highest peak {top['peak_mm3_s']:.2f} (layer {top['index']}), highest average "
+              f"{busy['average_mm3_s']:.2f} (layer {busy['index']})\n")
     layers = t.layers(est.layer_z)
     if layers:
         w(f"  layers: {len(layers)}")

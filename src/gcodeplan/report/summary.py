@@ -10,6 +10,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..errors import GcodeError
 from ..schema import (
     FLAG_RAPID,
     KIND_DWELL,
@@ -22,6 +23,17 @@ from ..schema import (
 )
 
 
+def _grow_max(acc: np.ndarray, idx: np.ndarray, values: np.ndarray) -> np.ndarray:
+    """acc[idx] = max(acc[idx], values), growing acc as needed (idx ≥ 0)."""
+    if idx.size == 0:
+        return acc
+    top = int(idx.max()) + 1
+    if top > acc.size:
+        acc = np.concatenate([acc, np.zeros(top - acc.size)])
+    np.maximum.at(acc, idx, values)
+    return acc
+
+
 def _grow_add(acc: np.ndarray, idx: np.ndarray, weights: np.ndarray) -> np.ndarray:
     """acc[idx] += weights, growing acc as needed (idx ≥ 0)."""
     if idx.size == 0:
@@ -31,6 +43,11 @@ def _grow_add(acc: np.ndarray, idx: np.ndarray, weights: np.ndarray) -> np.ndarr
         acc = np.concatenate([acc, np.zeros(add.size - acc.size)])
     acc[: add.size] += add
     return acc
+
+
+# s: a planned total above 1e5 h (over eleven years; no print or cut runs a year) is an error naming the
+# line where it is crossed, never printed as an estimate (a mistyped F0.00001, a huge move at 1 mm/min)
+MAX_TOTAL_S = 1e5 * 3600.0
 
 
 @dataclass
@@ -50,6 +67,16 @@ class TimeSummary:
     by_layer: np.ndarray = field(default_factory=lambda: np.zeros(1))
     # index = feature + 1 (slot 0 holds moves with no feature tag)
     by_feature: np.ndarray = field(default_factory=lambda: np.zeros(1))
+    # index = object + 1 (slot 0 holds time outside any object)
+    by_object: np.ndarray = field(default_factory=lambda: np.zeros(1))
+    # flow (docs in flows()): filament mm pushed by printing moves, their time (s), and the highest
+    # filament speed at cruise (mm/s), per feature slot and per layer slot (same slots as above)
+    fil_feature: np.ndarray = field(default_factory=lambda: np.zeros(1))
+    ptime_feature: np.ndarray = field(default_factory=lambda: np.zeros(1))
+    peak_feature: np.ndarray = field(default_factory=lambda: np.zeros(1))
+    fil_layer: np.ndarray = field(default_factory=lambda: np.zeros(1))
+    ptime_layer: np.ndarray = field(default_factory=lambda: np.zeros(1))
+    peak_layer: np.ndarray = field(default_factory=lambda: np.zeros(1))
     rapid_t: float = 0.0               # G0 moves (CNC: rapids; printers: Cura's G0 travels)
     peak_v: float = 0.0                # mm/s highest planned cruise speed
     peak_v_line: int = 0
@@ -63,6 +90,11 @@ class TimeSummary:
         self.moves_planned += moves.size
         end = plan["t_start"] + dur
         self.end_t = max(self.end_t, float(end.max()))
+        if not self.end_t <= MAX_TOTAL_S:
+            i = int(np.argmax(~(end <= MAX_TOTAL_S)))
+            raise GcodeError(f"the program would run {self.end_t / 3600:.3g} h by here (over {MAX_TOTAL_S / 3600:g} h,"
+                             f" more than eleven years): an absurd feed rate or distance?", None,
+                             int(moves["line"][i]))
         kind = moves["kind"].astype(np.intp)
         self.by_kind += np.bincount(kind, weights=dur, minlength=len(KIND_NAMES))[: len(KIND_NAMES)]
         self.by_limit += np.bincount(plan["limit"].astype(np.intp), weights=dur,
@@ -80,13 +112,71 @@ class TimeSummary:
         self.blend_t += float(blend[blend > 1e-9 * dur].sum())
         self.by_layer = _grow_add(self.by_layer, np.maximum(moves["layer"], -1).astype(np.intp) + 1, dur)
         self.by_feature = _grow_add(self.by_feature, np.maximum(moves["feature"], -1).astype(np.intp) + 1, dur)
+        self._add_objects_and_flow(moves, plan, dur)
         i = int(np.argmax(plan["cruise_v"]))
         if plan["cruise_v"][i] > self.peak_v:
             self.peak_v = float(plan["cruise_v"][i])
             self.peak_v_line = int(moves["line"][i])
         self.stops += int(np.count_nonzero(motion & (plan["end_v"] == 0.0)))
 
+    def _add_objects_and_flow(self, moves: np.ndarray, plan: np.ndarray, dur: np.ndarray) -> None:
+        if "object" in moves.dtype.names:
+            self.by_object = _grow_add(self.by_object, np.maximum(moves["object"], -1).astype(np.intp) + 1, dur)
+        else:
+            self.by_object[0] += float(dur.sum())
+        pr = moves["kind"] == KIND_PRINT
+        if not np.any(pr):
+            return
+        m, p = moves[pr], plan[pr]
+        fil = m["e1"] - m["e0"]
+        # filament speed at the move's cruise speed: E moves in proportion to the path (mm/s of filament)
+        peak = p["cruise_v"] * fil / m["move_d"]
+        for slot, fil_acc, t_acc, pk_acc in (
+                (np.maximum(m["feature"], -1).astype(np.intp) + 1, "fil_feature", "ptime_feature", "peak_feature"),
+                (np.maximum(m["layer"], -1).astype(np.intp) + 1, "fil_layer", "ptime_layer", "peak_layer")):
+            setattr(self, fil_acc, _grow_add(getattr(self, fil_acc), slot, fil))
+            setattr(self, t_acc, _grow_add(getattr(self, t_acc), slot, p["duration"]))
+            setattr(self, pk_acc, _grow_max(getattr(self, pk_acc), slot, peak))
+
     # ------------------------------------------------------------------ views
+    def objects(self, names: list[str]) -> tuple[dict[str, float], float]:
+        """({object name: s}, s outside any object): every row's time goes to its object; the two
+        parts sum to the total. Objects labelled but never reached show 0."""
+        out = {n: 0.0 for n in names}
+        outside = float(self.by_object[0])
+        for slot in range(1, self.by_object.size):
+            if slot - 1 < len(names):
+                out[names[slot - 1]] += float(self.by_object[slot])
+            else:                       # rows built without an object table (np.zeros): none
+                outside += float(self.by_object[slot])
+        return out, outside
+
+    def flows(self, feature_names: list[str], layer_z: list[float], filament_diameter_mm: float) -> dict:
+        """Volumetric flow (mm³/s) of the printing moves (XYZ motion with E increasing), per feature and
+        per layer: ``average`` = filament volume pushed ÷ the planned time of those moves (acceleration and
+        deceleration included); ``peak`` = the highest filament speed at a move's cruise speed
+        (cruise_v · ΔE / path length) times the filament's cross-section π·d²/4."""
+        area = np.pi * filament_diameter_mm ** 2 / 4.0
+
+        def rows(fil, t, peak):
+            for slot in range(fil.size):
+                if t[slot] > 0 or fil[slot] > 0:
+                    avg = float(fil[slot] * area / t[slot]) if t[slot] > 0 else 0.0
+                    yield slot, {"average_mm3_s": avg, "peak_mm3_s": float(peak[slot] * area),
+                                 "filament_mm": float(fil[slot]), "print_time_s": float(t[slot])}
+
+        feats = {}
+        for slot, d in rows(self.fil_feature, self.ptime_feature, self.peak_feature):
+            name = "(untagged)" if slot == 0 else (feature_names[slot - 1] if slot - 1 < len(feature_names)
+                                                   else f"feature {slot - 1}")
+            feats[name] = d
+        layers = []
+        for slot, d in rows(self.fil_layer, self.ptime_layer, self.peak_layer):
+            idx = slot - 1
+            z = float(layer_z[idx]) if 0 <= idx < len(layer_z) else None
+            layers.append({"index": idx, "z": z, **d})
+        return {"filament_diameter_mm": filament_diameter_mm, "features": feats, "layers": layers}
+
     @property
     def total_time_s(self) -> float:
         return self.end_t

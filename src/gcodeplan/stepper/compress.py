@@ -1,21 +1,32 @@
-"""Step compression into Klipper-style ``queue_step`` runs of (interval, count, add).
+"""Step compression into ``queue_step`` runs (interval, count, add), run for run as Klipper's stepcompress.c.
 
 A run starting after the clock ``last`` (ticks) puts its k-th step (k = 1..count)
-at ``last + k·interval + add·k(k−1)/2`` (klipper-planner.md §8); ``last`` then
-becomes the run's final step. Each exact time t has Klipper's step clock
-c = floor(t·f + ½); its decompressed step lies in ``[c − min(max_error·f, Δc/2), c]``
-with Δc the gap to the previous step's clock: never after c, at most
-``max_error`` early (Klipper's rule, ``max_stepcompress_error`` = 25 µs by
-default), and never before the previous step. Against the exact float time the
-error is therefore within [−max_error − ½ tick, +½ tick]; ``max_error = 0``
-reproduces Klipper's exact-mode clocks.
+at ``last + k·interval + add·k(k−1)/2``: the MCU adds ``interval`` to its clock,
+then ``add`` to ``interval``, before each further step (Klipper's src/stepper.c).
+``last`` then becomes the run's final step. Clocks count from the first move's
+start unless the compressor is given another ``start_clock``.
 
-The search is greedy: for a few candidate ``add`` values (0, then second
-differences of the step clocks at scales 1, 4, 16, 64, 256 steps and their
-neighbours) the run is extended while an
-integer interval fits every window, and the longest run wins. Each run is checked
-against its windows as it is built, so the bound holds whatever the candidates.
-A run never spans a direction change.
+Each exact time t has the step clock c = floor(t·f + ½) (Klipper's
+``stepcompress_append``). A step may be sent early but never late: the step at
+the head of the queue may land in [c − e, c] with e = min(max_error, (c − last)/2),
+every later step of the same run in [c − e, c] with e = min(max_error,
+(c − c_prev)/2), c_prev being the previous exact clock (Klipper's
+``minmax_point``; max_error = ⌊max_stepcompress_error·f⌋, 1250 ticks by default).
+
+The search (Klipper's ``compress_bisect_add``, in our own words in
+docs/design.md "Step compression"): for add = 0, then for adds bisected towards
+the one that would reach further, the longest run whose integer interval fits
+every window; the run that reaches furthest in time wins, add = 0 is preferred
+when it covers nearly as many steps (zc + zc/16 ≥ best). Runs never span a
+direction change; a step 3·2^28 ticks or more after the last sent one is sent
+alone at its exact clock after the queue before it is flushed (Klipper's
+``queue_append_far``).
+
+What each run can see: Klipper compresses whatever is queued when it flushes.
+:class:`Compressor` with ``hold_back=True`` keeps back the steps whose run could
+still grow, so every run sees the whole rest of its direction run (at most 65535
+steps) whatever the chunking; ``hold_back=False`` flushes at the end of every
+chunk, as Klipper does at each of its step generation calls.
 """
 from __future__ import annotations
 
@@ -26,164 +37,361 @@ import numpy as np
 
 from . import DEFAULT_CLOCK_HZ, DEFAULT_MAX_ERROR_S  # noqa: F401  (re-exported)
 
-MAX_COUNT = 65535                    # queue_step count is 16 bits in Klipper
-MAX_ADD = 32767                      # queue_step add is a signed 16-bit value
+MAX_COUNT = 65535                    # queue_step count is 16 bits (Klipper's compress_bisect_add look-ahead)
+MIN_ADD = -32768                     # queue_step add is a signed 16-bit value
+MAX_ADD = 32767
+QUADRATIC_DEV = 11                   # Klipper stepcompress.c: two valid quadratics differ in add by < 11.66·err/n²
+CLOCK_DIFF_MAX = 3 << 28             # ticks; a step this far after the last sent one is sent alone (stepcompress.c)
+NO_IMPROVE_COUNT = 0x200             # Klipper stops bisecting once a best run covers more steps than this
+_NO_LIMIT = np.int64(1) << np.int64(62)
 
 RUN_DTYPE = np.dtype([("interval", "i8"), ("count", "i4"), ("add", "i8"), ("dir", "i1")])
 
 
-@numba.njit(cache=True, inline="always")
+BLOCK = 8                            # steps whose interval bounds are computed together (vectorised)
+
+
+@numba.njit(cache=True, inline="always", error_model="numpy")
 def _ceil_div(x, k):
     return -((-x) // k)
 
 
-@numba.njit(cache=True)
-def _extend(lo, hi, pos, n, last, add, max_count):
-    """Longest run from index ``pos`` with this ``add``: (count, interval)."""
-    i_min = -(1 << 62)
-    i_max = 1 << 62
-    best_count = 0
-    best_i = 0
-    k = 1
-    while pos + k - 1 < n and k <= max_count:
-        idx = pos + k - 1
-        c = add * (k * (k - 1) // 2)
-        a = _ceil_div(lo[idx] - last - c, k)
-        b = (hi[idx] - last - c) // k
-        if a > i_min:
-            i_min = a
-        if b < i_max:
-            i_max = b
-        if i_min > i_max:
+@numba.njit(cache=True, error_model="numpy")
+def window_lows(clocks, max_err, prev_clock):
+    """Earliest allowed clock of each step but a run's first: c − min(max_err, (c − c_prev)/2) (ticks).
+
+    Klipper's ``minmax_point`` for a step that follows another of the same
+    queue; ``prev_clock`` is the step before ``clocks[0]``.
+    """
+    lows = np.empty_like(clocks)
+    prev = prev_clock
+    for j in range(clocks.shape[0]):
+        c = clocks[j]
+        lows[j] = c - min((c - prev) >> 1, max_err)
+        prev = c
+    return lows
+
+
+@numba.njit(cache=True, inline="always", error_model="numpy")
+def _longest_run(clocks, lows, pos, qlast, last, add, lo_i, hi_i, qlo, qhi):
+    """Longest run with this ``add`` whose integer interval stays in [lo_i, hi_i] and fits every window.
+
+    Returns (count, interval, failed, n, lo_i, hi_i, f, minp, maxp): when
+    ``failed``, step n (1-based in the run) is the first that does not fit,
+    [lo_i, hi_i] the (empty) range with it, f = n(n−1)/2 and [minp, maxp] its
+    window relative to ``last``. Otherwise the queue ended after ``count`` steps.
+    The bounds of BLOCK steps are computed at once (float division is exact
+    here: |x| < 2^53 and a non-integer quotient is ≥ 1/n from any integer).
+    """
+    interval = hi_i
+    n = 1
+    while True:
+        first = n + 1                                 # run length with the next step
+        m = qlast - (pos + first - 1)
+        if m > BLOCK:
+            m = BLOCK
+        if m <= 0:
+            return n, interval, False, 0, lo_i, hi_i, 0, 0, 0
+        for k in range(m):
+            nn = first + k
+            j = pos + nn - 1
+            shift = add * ((nn * (nn - 1)) >> 1)
+            nf = np.float64(nn)
+            qlo[k] = np.int64(math.ceil(np.float64(lows[j] - last - shift) / nf))
+            qhi[k] = np.int64(math.floor(np.float64(clocks[j] - last - shift) / nf))
+        for k in range(m):
+            lo2 = max(lo_i, qlo[k])
+            hi2 = min(hi_i, qhi[k])
+            if lo2 > hi2:
+                nn = first + k
+                j = pos + nn - 1
+                return (nn - 1, interval, True, nn, lo2, hi2, (nn * (nn - 1)) >> 1,
+                        lows[j] - last, clocks[j] - last)
+            lo_i = lo2
+            hi_i = hi2
+            interval = hi_i
+        n = first + m - 1
+
+
+@numba.njit(cache=True, error_model="numpy")
+def bisect_add(clocks, lows, pos, qend, last, max_err, max_count, qlo, qhi):
+    """One run for the queued step clocks ``clocks[pos:qend]`` (ticks, one direction, non-decreasing) after ``last``.
+
+    Klipper's ``compress_bisect_add``: ``lows`` from :func:`window_lows`,
+    ``qlo``/``qhi`` scratch arrays of BLOCK int64. Returns (interval, count,
+    add, at_end) with ``at_end`` true when the search stopped at the end of the
+    queue (or its ``max_count`` look-ahead), where more queued steps could have
+    made the run longer. ``max_err`` is in ticks.
+    """
+    qlast = qend
+    if qlast > pos + max_count:
+        qlast = pos + max_count
+    # window of the head step: its half-gap is measured from the last sent step
+    c0 = clocks[pos] - last
+    outer_min = c0 - min(c0 >> 1, max_err)
+    outer_max = c0
+    add = 0
+    min_add = MIN_ADD
+    max_add = MAX_ADD
+    best_interval = 0
+    best_count = 1
+    best_add = 1
+    best_reach = -_NO_LIMIT
+    zero_interval = 0
+    zero_count = 0
+    while True:
+        count, interval, failed, n, lo_i, hi_i, f, next_minp, next_maxp = _longest_run(
+            clocks, lows, pos, qlast, last, add, outer_min, outer_max, qlo, qhi)
+        if not failed:
+            return interval, count, add, True
+        reach = add * ((count * (count - 1)) >> 1) + interval * count
+        if reach > best_reach or (reach == best_reach and interval > best_interval):
+            best_interval = interval
+            best_count = count
+            best_add = add
+            best_reach = reach
+            if add == 0:
+                zero_interval = interval
+                zero_count = count
+            if count > NO_IMPROVE_COUNT:
+                break
+        # the failing step n tells whether a larger or a smaller add could reach it
+        next_reach = add * f + interval * n
+        if next_reach < next_minp:
+            min_add = add + 1
+            outer_max = hi_i
+        else:
+            max_add = add - 1
+            outer_min = lo_i
+        if count > 1:
+            # two quadratics both valid over `count` steps differ in add by at most QUADRATIC_DEV·err/count²
+            dev = (max_err * QUADRATIC_DEV) // (count * count)
+            if min_add < add - dev:
+                min_add = add - dev
+            if max_add > add + dev:
+                max_add = add + dev
+        # the failing step must stay reachable with an interval of the outer range
+        if min_add * f < next_minp - outer_max * n:
+            min_add = _ceil_div(next_minp - outer_max * n, f)
+        if max_add * f > next_maxp - outer_min * n:
+            max_add = (next_maxp - outer_min * n) // f
+        if min_add > max_add:
             break
-        best_count = k
-        best_i = i_max        # the latest steps that fit: closest to the exact (never late) times
-        k += 1
-    return best_count, best_i
+        add = max_add - (max_add - min_add) // 4
+    if zero_count + zero_count // 16 >= best_count:
+        return zero_interval, zero_count, 0, False
+    return best_interval, best_count, best_add, False
 
 
-@numba.njit(cache=True)
-def compress_block(lo, hi, last, max_count, out_interval, out_count, out_add):
-    """Runs covering the windows [lo[k], hi[k]] (ticks, one direction) starting after clock ``last``.
+@numba.njit(cache=True, error_model="numpy")
+def _flush_queue(clocks, lows, pos, qend, last, max_err, max_count, move_clock, only_final, direction,
+                 o_interval, o_count, o_add, o_dir, nout, qlo, qhi):
+    """Runs for ``clocks[pos:qend]`` while ``last < move_clock`` (Klipper's ``queue_flush``).
 
-    Returns (number of runs written, clock of the last step).
+    With ``only_final`` a run whose search reached the end of the queue is not
+    sent: more steps could still change it. Returns (pos, last, nout).
     """
-    n = lo.shape[0]
-    nrun = 0
+    while pos < qend and last < move_clock:
+        interval, count, add, at_end = bisect_add(clocks, lows, pos, qend, last, max_err, max_count, qlo, qhi)
+        if only_final and at_end and qend - pos < max_count:
+            break
+        o_interval[nout] = interval
+        o_count[nout] = count
+        o_add[nout] = add
+        o_dir[nout] = direction
+        nout += 1
+        last += interval * count + add * ((count * (count - 1)) >> 1)
+        pos += count
+    return pos, last, nout
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _first_bad_step(times, dirs, clock_hz, prev_clock):
+    """Index of the first step time that is not finite, goes backwards, or has a direction other than ±1; −1."""
+    prev = prev_clock
+    for k in range(times.shape[0]):
+        t = times[k]
+        d = dirs[k]
+        if not (abs(t) < 1e12) or (d != 1 and d != -1):
+            return k
+        c = np.int64(math.floor(t * clock_hz + 0.5))
+        if c < prev:
+            return k
+        prev = c
+    return -1
+
+
+@numba.njit(cache=True, error_model="numpy")
+def queue_clocks(times, dirs, clock_hz, max_err, prev_clock, clocks, lows):
+    """Step clocks floor(t·f + ½) and window lows (:func:`window_lows`) of ``times`` (s) into ``clocks``/``lows``.
+
+    ``prev_clock`` is the clock of the step before ``times[0]``. Returns the
+    index of the first bad step (:func:`_first_bad_step`) or −1.
+    """
+    m = times.shape[0]
+    if m == 0:
+        return -1
+    bad = 0
+    for k in range(m):                       # separate simple loops: they vectorise
+        t = times[k]
+        d = dirs[k]
+        bad += (not (abs(t) < 1e12)) | (d * d != 1)
+    if bad:
+        return _first_bad_step(times, dirs, clock_hz, prev_clock)
+    for k in range(m):
+        clocks[k] = np.int64(math.floor(times[k] * clock_hz + 0.5))
+    gap = clocks[0] - prev_clock
+    bad += gap < 0
+    lows[0] = clocks[0] - min(gap >> 1, max_err)
+    for k in range(1, m):
+        gap = clocks[k] - clocks[k - 1]
+        bad += gap < 0
+        lows[k] = clocks[k] - min(gap >> 1, max_err)
+    if bad:
+        return _first_bad_step(times, dirs, clock_hz, prev_clock)
+    return -1
+
+
+@numba.njit(cache=True, error_model="numpy")
+def compress_queue(clocks, lows, dirs, new_from, last, direction, max_err, max_count, final,
+                   o_interval, o_count, o_add, o_dir):
+    """Compress the queue ``clocks[:new_from]`` (pending, one direction) with the steps ``clocks[new_from:]`` appended.
+
+    ``lows`` from :func:`queue_clocks`, ``dirs`` the new steps' directions.
+    Klipper's ``queue_append`` step by step: a direction change flushes the
+    whole queue (``set_next_step_dir``), a far step flushes up to its clock −
+    CLOCK_DIFF_MAX + 1 and, if still far, goes alone at its exact clock
+    (``queue_append_far``). At the end, the runs that more steps could not
+    change are sent; with ``final`` all of them. Returns (number of runs, queue
+    head index, last, direction).
+    """
+    n = clocks.shape[0]
+    qlo = np.empty(BLOCK, np.int64)
+    qhi = np.empty(BLOCK, np.int64)
     pos = 0
-    cand = np.empty(32, dtype=np.int64)
-    while pos < n:
-        # candidate adds: 0, then the second difference of the window tops at scales m = 1, 4, 16, 64, 256
-        # steps and its neighbours
-        nc = 0
-        cand[nc] = 0
-        nc += 1
-        m = 1
-        while m <= 256 and pos + 2 * m - 1 < n:
-            first = hi[pos + m - 1] - last
-            second = hi[pos + 2 * m - 1] - hi[pos + m - 1]
-            base = int(np.floor((second - first) / (m * m)))
-            for d in range(-1, 3):
-                cand[nc] = base + d
-                nc += 1
-            m *= 4
-        best_count = 1
-        best_i = hi[pos] - last
-        best_add = 0
-        for ci in range(nc):
-            add = cand[ci]
-            if add > MAX_ADD or add < -MAX_ADD:
-                continue
-            dup = False
-            for cj in range(ci):
-                if cand[cj] == add:
-                    dup = True
-                    break
-            if dup:
-                continue
-            cnt, itv = _extend(lo, hi, pos, n, last, add, max_count)
-            if cnt > best_count:
-                best_count = cnt
-                best_i = itv
-                best_add = add
-                if cnt == n - pos or cnt == max_count:
-                    break
-        out_interval[nrun] = best_i
-        out_count[nrun] = best_count
-        out_add[nrun] = best_add
-        nrun += 1
-        last = last + best_count * best_i + best_add * (best_count * (best_count - 1) // 2)
-        pos += best_count
-    return nrun, last
-
-
-@numba.njit(cache=True)
-def compress_chunk(lo, hi, dirs, last, max_count, out_interval, out_count, out_add, out_dir):
-    """:func:`compress_block` over each stretch of one direction; runs never span a reversal.
-
-    Returns (number of runs written, clock of the last step).
-    """
-    n = lo.shape[0]
-    nrun = 0
-    s = 0
-    while s < n:
-        e = s + 1
-        while e < n and dirs[e] == dirs[s]:
-            e += 1
-        k, last = compress_block(lo[s:e], hi[s:e], last, max_count,
-                                 out_interval[nrun:], out_count[nrun:], out_add[nrun:])
-        for r in range(nrun, nrun + k):
-            out_dir[r] = dirs[s]
-        nrun += k
-        s = e
-    return nrun, last
+    nout = 0
+    i = new_from
+    while i < n:
+        # skip to the next direction change or far step
+        limit = last + CLOCK_DIFF_MAX
+        while i < n and dirs[i - new_from] == direction and clocks[i] < limit:
+            i += 1
+        if i == n:
+            break
+        d = dirs[i - new_from]
+        if d != direction:
+            pos, last, nout = _flush_queue(clocks, lows, pos, i, last, max_err, max_count, _NO_LIMIT, False,
+                                           direction, o_interval, o_count, o_add, o_dir, nout, qlo, qhi)
+            pos = i
+            direction = d
+        c = clocks[i]
+        if c - last >= CLOCK_DIFF_MAX:
+            # runs that do not depend on the queue's end are Klipper's whenever they are sent
+            pos, last, nout = _flush_queue(clocks, lows, pos, i, last, max_err, max_count, _NO_LIMIT, True,
+                                           direction, o_interval, o_count, o_add, o_dir, nout, qlo, qhi)
+            if c - last >= CLOCK_DIFF_MAX:
+                pos, last, nout = _flush_queue(clocks, lows, pos, i, last, max_err, max_count,
+                                               c - CLOCK_DIFF_MAX + 1, False, direction,
+                                               o_interval, o_count, o_add, o_dir, nout, qlo, qhi)
+                if c - last >= CLOCK_DIFF_MAX:
+                    o_interval[nout] = c - last
+                    o_count[nout] = 1
+                    o_add[nout] = 0
+                    o_dir[nout] = direction
+                    nout += 1
+                    last = c
+                    pos = i + 1
+        i += 1
+    pos, last, nout = _flush_queue(clocks, lows, pos, n, last, max_err, max_count, _NO_LIMIT, not final,
+                                   direction, o_interval, o_count, o_add, o_dir, nout, qlo, qhi)
+    return nout, pos, last, direction
 
 
 def step_clocks(times: np.ndarray, clock_hz: float) -> np.ndarray:
-    """Klipper's step clock of each exact time: floor(t·f + ½) (klipper-planner.md §8)."""
+    """Klipper's step clock of each exact time (s): floor(t·f + ½) ticks."""
     return np.floor(np.asarray(times, np.float64) * clock_hz + 0.5).astype(np.int64)
 
 
-def step_windows(times: np.ndarray, prev_clock: int, clock_hz: float,
-                 max_error_s: float) -> tuple[np.ndarray, np.ndarray]:
-    """Tick windows [lo, hi] of each step: hi = its clock c, lo = c − min(err·f, (c − c_prev)/2)."""
-    hi = step_clocks(times, clock_hz)
-    gaps = np.diff(hi, prepend=np.int64(prev_clock))
-    early = np.minimum(np.int64(math.floor(max_error_s * clock_hz)), gaps // 2)
-    lo = hi - np.maximum(early, 0)
-    return lo, hi
+def max_error_ticks(max_error_s: float, clock_hz: float) -> int:
+    """The error bound in ticks, truncated as Klipper's ``seconds_to_clock`` does (25 µs at 50 MHz = 1250)."""
+    return int(max_error_s * clock_hz)
 
 
 class Compressor:
-    """Streaming compressor for one stepper: feed (times, dirs) chunks, collect runs.
+    """Streaming compressor for one stepper: feed (times s, dirs ±1) chunks, collect RUN_DTYPE runs.
 
-    ``last_clock`` is the clock the next run starts from (0 = the plan's start).
+    ``start_clock`` is the clock (ticks) the first run counts from; Klipper's
+    ``last_step_clock`` starts at 0. ``hold_back=True`` keeps back the runs that
+    more steps could still lengthen, so that the result does not depend on the
+    chunking (call :meth:`finish` at the end); ``hold_back=False`` sends every
+    queued step at the end of each :meth:`feed`, like Klipper's flush at each
+    step generation call.
     """
 
     def __init__(self, clock_hz: float = DEFAULT_CLOCK_HZ, max_error_s: float = DEFAULT_MAX_ERROR_S,
-                 max_count: int = MAX_COUNT):
-        if not (clock_hz > 0 and max_error_s >= 0):
+                 max_count: int = MAX_COUNT, *, start_clock: int = 0, hold_back: bool = False):
+        if not (math.isfinite(clock_hz) and clock_hz > 0 and math.isfinite(max_error_s) and max_error_s >= 0):
             raise ValueError("clock_hz must be > 0 and max_error_s ≥ 0")
+        if not 1 <= max_count <= MAX_COUNT:
+            raise ValueError(f"max_count must be in 1..{MAX_COUNT}")
         self.clock_hz = float(clock_hz)
         self.max_error_s = float(max_error_s)
+        self.max_err = max_error_ticks(max_error_s, clock_hz)
+        if self.max_err * 2 >= CLOCK_DIFF_MAX:
+            raise ValueError("max_error_s is absurdly large for this clock")
         self.max_count = int(max_count)
-        self.last_clock = 0
-        self.prev_clock = 0
+        self.hold_back = bool(hold_back)
+        self.last_clock = int(start_clock)     # clock of the last step sent (Klipper's last_step_clock)
+        self.direction = 0                     # direction of the queued steps (0 = none yet)
+        # step clocks and window lows: the queue held back (one direction) is [_head, _head + _pending)
+        self._clocks = np.zeros(0, np.int64)
+        self._lows = np.zeros(0, np.int64)
+        self._head = 0
+        self._pending = 0
+        self._prev_clock = int(start_clock)    # clock of the last step fed
 
-    def feed(self, times: np.ndarray, dirs: np.ndarray) -> np.ndarray:
-        """Runs (RUN_DTYPE) for this chunk, continuing from the previous one."""
-        n = len(times)
-        if n == 0:
-            return np.zeros(0, RUN_DTYPE)
-        lo, hi = step_windows(times, self.prev_clock, self.clock_hz, self.max_error_s)
-        self.prev_clock = int(hi[-1])
-        dirs = np.ascontiguousarray(dirs, np.int8)
+    def _workspace(self, m: int) -> tuple[np.ndarray, np.ndarray]:
+        """Buffers holding the pending queue at their start and room for m more steps (reused: no page faults)."""
+        p, h = self._pending, self._head
+        need = p + m
+        if len(self._clocks) < need:
+            size = max(need, 2 * len(self._clocks), 1024)
+            clocks = np.empty(size, np.int64)
+            lows = np.empty(size, np.int64)
+            clocks[:p] = self._clocks[h:h + p]
+            lows[:p] = self._lows[h:h + p]
+            self._clocks, self._lows = clocks, lows
+        elif h:
+            self._clocks[:p] = self._clocks[h:h + p].copy()
+            self._lows[:p] = self._lows[h:h + p].copy()
+        self._head = 0
+        return self._clocks[:need], self._lows[:need]
+
+    def _compress(self, times: np.ndarray, dirs: np.ndarray, final: bool) -> np.ndarray:
+        pending = self._pending
+        m = len(times)
+        clocks, lows = self._workspace(m)
+        bad = queue_clocks(times, dirs, self.clock_hz, np.int64(self.max_err), np.int64(self._prev_clock),
+                           clocks[pending:], lows[pending:])
+        if bad < 0 and m and clocks[pending] < self.last_clock:
+            bad = 0
+        if bad >= 0:
+            raise ValueError(f"step {bad} of this chunk (t = {times[bad]!r} s, dir {dirs[bad]}): step times must be "
+                             "finite and never decrease, directions ±1")
+        n = pending + m
         itv = np.empty(n, np.int64)
         cnt = np.empty(n, np.int32)
         add = np.empty(n, np.int64)
         rdir = np.empty(n, np.int8)
-        nrun, last = compress_chunk(lo, hi, dirs, self.last_clock, self.max_count, itv, cnt, add, rdir)
+        nrun, pos, last, direction = compress_queue(
+            clocks, lows, dirs, pending, np.int64(self.last_clock), np.int8(self.direction),
+            np.int64(self.max_err), np.int64(self.max_count), final, itv, cnt, add, rdir)
         self.last_clock = int(last)
+        self.direction = int(direction)
+        if m:
+            self._prev_clock = int(clocks[-1])
+        self._head = int(pos)
+        self._pending = int(n - pos)
         runs = np.empty(nrun, RUN_DTYPE)
         runs["interval"] = itv[:nrun]
         runs["count"] = cnt[:nrun]
@@ -191,14 +399,30 @@ class Compressor:
         runs["dir"] = rdir[:nrun]
         return runs
 
+    def feed(self, times: np.ndarray, dirs: np.ndarray) -> np.ndarray:
+        """Runs (RUN_DTYPE) ready after this chunk of step times (s) and directions (±1)."""
+        times = np.ascontiguousarray(times, np.float64)
+        dirs = np.ascontiguousarray(dirs, np.int8)
+        if times.shape != dirs.shape or times.ndim != 1:
+            raise ValueError("times and dirs must be 1-D arrays of the same length")
+        if len(times) == 0 and not (self._pending and not self.hold_back):
+            return np.zeros(0, RUN_DTYPE)
+        return self._compress(times, dirs, final=not self.hold_back)
+
+    def finish(self) -> np.ndarray:
+        """The runs still held back (``hold_back=True``); empty otherwise."""
+        if self._pending == 0:
+            return np.zeros(0, RUN_DTYPE)
+        return self._compress(np.zeros(0, np.float64), np.zeros(0, np.int8), final=True)
+
 
 def compress_steps(times: np.ndarray, dirs: np.ndarray, clock_hz: float = DEFAULT_CLOCK_HZ,
-                   max_error_s: float = DEFAULT_MAX_ERROR_S) -> np.ndarray:
-    """All runs of one stepper's steps, starting from clock 0."""
-    return Compressor(clock_hz, max_error_s).feed(times, dirs)
+                   max_error_s: float = DEFAULT_MAX_ERROR_S, start_clock: int = 0) -> np.ndarray:
+    """All runs of one stepper's steps (times s, dirs ±1), each seeing its whole direction run, from ``start_clock``."""
+    return Compressor(clock_hz, max_error_s, start_clock=start_clock).feed(times, dirs)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def _expand(interval, count, add, start_clock, out):
     last = start_clock
     m = 0
@@ -213,7 +437,7 @@ def _expand(interval, count, add, start_clock, out):
 
 
 def decompress_runs(runs: np.ndarray, start_clock: int = 0) -> tuple[np.ndarray, np.ndarray]:
-    """(step clocks int64, dirs int8) of a run list, the inverse of :func:`compress_steps`."""
+    """(step clocks int64 ticks, dirs int8) of a run list, the inverse of :func:`compress_steps`."""
     total = int(runs["count"].sum())
     clocks = np.empty(total, np.int64)
     _expand(np.ascontiguousarray(runs["interval"]), np.ascontiguousarray(runs["count"]).astype(np.int64),

@@ -1,6 +1,6 @@
 """Exact step times of one stepper from its polynomial pieces (numba kernels).
 
-Step convention (Klipper's itersolve, stated in ../shared/reference/klipper-planner.md §8):
+Step convention (Klipper's itersolve, docs/design.md §9):
 
 * The stepper's grid is anchored at the position last *set* (the first piece of
   the plan, a G28/SET_KINEMATIC_POSITION, or a jump between pieces). ``n`` counts
@@ -38,9 +38,17 @@ import math
 import numba
 import numpy as np
 
+from ..profiles.core import piece_position, piece_velocity
+
 # A piece whose start differs from the previous piece's end by more than this
 # (mm) means the position was set (G28 / SET_KINEMATIC_POSITION): re-anchor the grid.
 JUMP_TOL_MM = 1e-6
+
+# reset flags per piece: 0 = re-anchor only on a jump, RESET_ANCHOR = re-anchor at the piece's start
+# (G28 / SET_KINEMATIC_POSITION), RESET_CONTINUE = never re-anchor here: a jump (a shaper or smoothing
+# change switching streams) is stepped through at the piece's start, as Klipper's itersolve does
+RESET_ANCHOR = 1
+RESET_CONTINUE = 2
 
 # state vector layout for gen_steps (float64[STATE_LEN])
 S_ANCHOR = 0      # mm, position the grid is anchored at
@@ -55,16 +63,9 @@ def new_state() -> np.ndarray:
     return np.zeros(STATE_LEN, dtype=np.float64)
 
 
-@numba.njit(cache=True, inline="always")
-def _pos(p, v, a, j, tau):
-    """s(τ) = p + v·τ + a·τ²/2 + j·τ³/6 (Horner form)."""
-    return p + tau * (v + tau * (0.5 * a + tau * (j * (1.0 / 6.0))))
-
-
-@numba.njit(cache=True, inline="always")
-def _vel(v, a, j, tau):
-    """ds/dτ = v + a·τ + j·τ²/2."""
-    return v + tau * (a + 0.5 * j * tau)
+# the package's one piece evaluator (docs/design.md §9)
+_pos = piece_position
+_vel = piece_velocity
 
 
 @numba.njit(cache=True)
@@ -180,8 +181,9 @@ def gen_steps(t0, dt, pc, vc, ac, jc, reset, step_dist, state, start, out_t, out
     """Append the step times of pieces ``start..`` to ``out_t``/``out_dir`` from index ``out_n``.
 
     Pieces: s(τ) = pc + vc·τ + ac·τ²/2 + jc·τ³/6 for τ in [0, dt], absolute time
-    t0 + τ. ``reset[i]`` ≠ 0 re-anchors the grid at piece i's start; so does a
-    jump of more than JUMP_TOL_MM from the previous piece's end. ``state`` (see
+    t0 + τ. ``reset[i]`` = RESET_ANCHOR re-anchors the grid at piece i's start; so
+    does a jump of more than JUMP_TOL_MM from the previous piece's end, unless
+    ``reset[i]`` = RESET_CONTINUE. ``state`` (see
     S_*) carries the grid between calls. A piece is emitted whole or not at all:
     when the output is full the call returns early.
 
@@ -208,7 +210,8 @@ def gen_steps(t0, dt, pc, vc, ac, jc, reset, step_dist, state, start, out_t, out
         a = ac[i]
         j = jc[i]
         span = dt[i]
-        if (not anchored) or reset[i] != 0 or abs(p - last_pos) > JUMP_TOL_MM:
+        if (not anchored) or reset[i] == RESET_ANCHOR or (reset[i] != RESET_CONTINUE
+                                                          and abs(p - last_pos) > JUMP_TOL_MM):
             anchor = p
             n = 0.0
             anchored = True
@@ -390,3 +393,583 @@ def step_stats(times, dirs, st):
     st[5] = min_same
     st[6] = min_same_t
     st[7] = net
+
+
+# ------------------------------------------------------------------ degree-5 pieces (pressure advance)
+
+POLY_NCOEF = 6
+
+
+@numba.njit(cache=True, inline="always")
+def _horner(c, k, deg, s):
+    """Σ c[k, i]·s^i for i ≤ deg."""
+    out = c[k, deg]
+    for i in range(deg - 1, -1, -1):
+        out = out * s + c[k, i]
+    return out
+
+
+@numba.njit(cache=True)
+def _poly_root(c, k, deg, lo, hi, f_lo, f_hi):
+    """The root of the monotone polynomial Σ c[k,i]·s^i (i ≤ deg) in [lo, hi], f changing sign: bracketed
+    secant/bisection (Illinois-free: a bisection every other step keeps it linear-time safe)."""
+    for it in range(200):
+        if f_lo == f_hi:
+            mid = 0.5 * (lo + hi)
+        else:
+            mid = lo + (hi - lo) * (-f_lo) / (f_hi - f_lo)
+        if it % 2 == 1 or not (lo < mid < hi):
+            mid = 0.5 * (lo + hi)
+        f = _horner(c, k, deg, mid)
+        if f == 0.0:
+            return mid
+        if (f > 0.0) == (f_hi > 0.0):
+            hi = mid
+            f_hi = f
+        else:
+            lo = mid
+            f_lo = f
+        if hi - lo <= 4e-16 * (1.0 + abs(hi)):
+            break
+    return lo if abs(f_lo) < abs(f_hi) else hi
+
+
+@numba.njit(cache=True)
+def critical_points(c, k, span, deriv, out):
+    """Roots in (0, span) of the derivative of piece k (degree ≤ 5), sorted, into ``out``; returns the count.
+
+    Root isolation by the derivative chain: the roots of the (m+1)-th derivative split [0, span] into
+    stretches where the m-th is monotone, so each stretch holds at most one root of it, found by
+    bracketing. ``deriv`` (POLY_NCOEF × POLY_NCOEF scratch) gets the derivative coefficients.
+    """
+    # deriv[m, i]: coefficient i of the m-th derivative
+    for i in range(POLY_NCOEF):
+        deriv[0, i] = c[k, i]
+    for m in range(1, POLY_NCOEF):
+        for i in range(POLY_NCOEF - m):
+            deriv[m, i] = deriv[m - 1, i + 1] * (i + 1)
+        for i in range(POLY_NCOEF - m, POLY_NCOEF):
+            deriv[m, i] = 0.0
+    pts = np.empty(POLY_NCOEF + 1)
+    nxt = np.empty(POLY_NCOEF + 1)
+    n_pts = 0       # roots of the current derivative found so far (none for the constant 5th)
+    for m in range(POLY_NCOEF - 2, 0, -1):
+        deg = POLY_NCOEF - 1 - m
+        # stretches: 0, pts..., span
+        cnt = 0
+        lo = 0.0
+        f_lo = _horner(deriv, m, deg, lo)
+        for q in range(n_pts + 1):
+            hi = pts[q] if q < n_pts else span
+            f_hi = _horner(deriv, m, deg, hi)
+            if f_lo != 0.0 and f_hi != 0.0 and (f_lo > 0.0) != (f_hi > 0.0):
+                nxt[cnt] = _poly_root(deriv, m, deg, lo, hi, f_lo, f_hi)
+                cnt += 1
+            elif f_hi == 0.0 and 0.0 < hi < span:
+                nxt[cnt] = hi
+                cnt += 1
+            lo = hi
+            f_lo = f_hi
+        for q in range(cnt):
+            pts[q] = nxt[q]
+        n_pts = cnt
+    for q in range(n_pts):
+        out[q] = pts[q]
+    return n_pts
+
+
+@numba.njit(cache=True)
+def gen_steps_poly(t0, dt, coef, reset, step_dist, state, start, out_t, out_dir, out_n):
+    """:func:`gen_steps` for pieces of degree ≤ 5: s(τ) = Σ coef[i, d]·τ^d, τ in [0, dt[i]].
+
+    Same grid, hysteresis, reset flags, state and buffer contract as :func:`gen_steps`. Each piece is
+    split at the roots of its derivative (:func:`critical_points`) into monotone stretches; every
+    half-step crossing in a stretch is bracketed and solved to full precision.
+    """
+    n_pieces = t0.shape[0]
+    cap = out_t.shape[0]
+    anchor = state[S_ANCHOR]
+    n = state[S_N]
+    last_pos = state[S_LAST_POS]
+    anchored = state[S_ANCHORED] != 0.0
+    inv_d = 1.0 / step_dist
+    roots = np.empty(POLY_NCOEF)
+    deriv = np.empty((POLY_NCOEF, POLY_NCOEF))
+    bnd = np.empty(POLY_NCOEF + 2)
+    cnt = np.empty(POLY_NCOEF + 1, np.int64)
+    sgn = np.empty(POLY_NCOEF + 1)
+    deg = POLY_NCOEF - 1
+    i = start
+    need = 0
+    while i < n_pieces:
+        p = coef[i, 0]
+        span = dt[i]
+        if (not anchored) or reset[i] == RESET_ANCHOR or (reset[i] != RESET_CONTINUE
+                                                          and abs(p - last_pos) > JUMP_TOL_MM):
+            anchor = p
+            n = 0.0
+            anchored = True
+        finite = math.isfinite(span)
+        for d in range(POLY_NCOEF):
+            finite = finite and math.isfinite(coef[i, d])
+        if not finite:
+            need = -1
+            break
+        moving = False
+        for d in range(1, POLY_NCOEF):
+            if coef[i, d] != 0.0:
+                moving = True
+        if not moving or not (span > 0.0):
+            last_pos = _horner(coef, i, deg, span) if span > 0.0 else p
+            i += 1
+            continue
+        nr = critical_points(coef, i, span, deriv, roots)
+        bnd[0] = 0.0
+        for k in range(nr):
+            bnd[k + 1] = roots[k]
+        bnd[nr + 1] = span
+        n_str = nr + 1
+        nn = n
+        total = 0
+        u_prev = (p - anchor) * inv_d
+        for k in range(n_str):
+            u_end = (_horner(coef, i, deg, bnd[k + 1]) - anchor) * inv_d
+            c = 0
+            if u_end > u_prev:
+                c = _forward_count(nn, u_end)
+                nn += c
+                sgn[k] = 1.0
+            elif u_end < u_prev:
+                c = _backward_count(nn, u_end)
+                nn -= c
+                sgn[k] = -1.0
+            else:
+                sgn[k] = 0.0
+            cnt[k] = c
+            total += c
+            u_prev = u_end
+        if out_n + total > cap:
+            need = total
+            break
+        base_t = t0[i]
+        for k in range(n_str):
+            c = cnt[k]
+            if c == 0:
+                continue
+            sigma = sgn[k]
+            left = bnd[k]
+            hi = bnd[k + 1]
+            dirv = np.int8(1) if sigma > 0.0 else np.int8(-1)
+            for m in range(c):
+                target = anchor + (n + 0.5 * sigma) * step_dist
+                f_lo = _horner(coef, i, deg, left) - target
+                f_hi = _horner(coef, i, deg, hi) - target
+                if f_lo == 0.0:
+                    tau = left
+                elif f_hi == 0.0 or (f_lo > 0.0) == (f_hi > 0.0):
+                    # rounding at the stretch's end: the crossing is at the nearer end
+                    tau = hi if abs(f_hi) <= abs(f_lo) else left
+                else:
+                    tau = _poly_newton(coef, i, deg, target, left, hi, f_lo, f_hi)
+                out_t[out_n] = base_t + tau
+                out_dir[out_n] = dirv
+                out_n += 1
+                n += sigma
+                left = tau
+        last_pos = _horner(coef, i, deg, span)
+        i += 1
+    state[S_ANCHOR] = anchor
+    state[S_N] = n
+    state[S_LAST_POS] = last_pos
+    state[S_ANCHORED] = 1.0 if anchored else 0.0
+    return i, out_n, need
+
+
+@numba.njit(cache=True)
+def _poly_newton(c, k, deg, target, lo, hi, f_lo, f_hi):
+    """τ in [lo, hi] where piece k equals ``target`` (monotone there, sign change given): bracketed Newton."""
+    rising = f_hi > 0.0
+    tau = lo + (hi - lo) * (-f_lo) / (f_hi - f_lo)
+    for _ in range(100):
+        f = _horner(c, k, deg, tau) - target
+        if f == 0.0:
+            return tau
+        if (f > 0.0) == rising:
+            hi = tau
+        else:
+            lo = tau
+        d = c[k, deg] * deg
+        for q in range(deg - 1, 0, -1):
+            d = d * tau + c[k, q] * q
+        nxt = tau - f / d if d != 0.0 else 0.5 * (lo + hi)
+        if not (lo < nxt < hi):
+            nxt = 0.5 * (lo + hi)
+        if abs(nxt - tau) <= 1e-15 * (1.0 + abs(tau)) or hi - lo <= 1e-15 * (1.0 + abs(tau)):
+            return nxt
+        tau = nxt
+    return tau
+
+
+# ------------------------------------------------------------------ delta towers (non-linear)
+
+# coefficients of the polynomials the delta kernel builds: R(τ) = arm² − dx² − dy² has degree ≤ 6 for
+# cubic pieces; h = 4·z'²·R − R'² degree ≤ 10
+DELTA_NCOEF = 11
+
+
+@numba.njit(cache=True, inline="always")
+def _carriage(arm2, tx, ty, px, py, pz, vx, vy, vz, ax, ay, az, jx, jy, jz, s):
+    """Carriage height (mm) at τ = s: z + √(arm² − (t_x − x)² − (t_y − y)²), Klipper's kin_delta.c."""
+    x = px + s * (vx + s * (0.5 * ax + s * jx / 6.0))
+    y = py + s * (vy + s * (0.5 * ay + s * jy / 6.0))
+    z = pz + s * (vz + s * (0.5 * az + s * jz / 6.0))
+    dx = tx - x
+    dy = ty - y
+    return math.sqrt(arm2 - dx * dx - dy * dy) + z
+
+
+@numba.njit(cache=True, inline="always")
+def _carriage_and_velocity(arm2, tx, ty, px, py, pz, vx, vy, vz, ax, ay, az, jx, jy, jz, s):
+    """(carriage height mm, its velocity mm/s) at τ = s, sharing the work of :func:`_carriage` and
+    :func:`_carriage_velocity`."""
+    x = px + s * (vx + s * (0.5 * ax + s * jx / 6.0))
+    y = py + s * (vy + s * (0.5 * ay + s * jy / 6.0))
+    z = pz + s * (vz + s * (0.5 * az + s * jz / 6.0))
+    dx = tx - x
+    dy = ty - y
+    root = math.sqrt(arm2 - dx * dx - dy * dy)
+    xd = vx + s * (ax + 0.5 * jx * s)
+    yd = vy + s * (ay + 0.5 * jy * s)
+    zd = vz + s * (az + 0.5 * jz * s)
+    return root + z, zd + (dx * xd + dy * yd) / root
+
+
+@numba.njit(cache=True, inline="always")
+def _carriage_velocity(arm2, tx, ty, px, py, vx, vy, vz, ax, ay, az, jx, jy, jz, s):
+    """d(carriage height)/dτ (mm/s) at τ = s: z' + ((t_x − x)·x' + (t_y − y)·y') / √R."""
+    x = px + s * (vx + s * (0.5 * ax + s * jx / 6.0))
+    y = py + s * (vy + s * (0.5 * ay + s * jy / 6.0))
+    dx = tx - x
+    dy = ty - y
+    xd = vx + s * (ax + 0.5 * jx * s)
+    yd = vy + s * (ay + 0.5 * jy * s)
+    zd = vz + s * (az + 0.5 * jz * s)
+    return zd + (dx * xd + dy * yd) / math.sqrt(arm2 - dx * dx - dy * dy)
+
+
+@numba.njit(cache=True)
+def _poly_mul(a, na, b, nb, out):
+    """out = a·b (coefficients by power, degrees na and nb); returns the product's degree."""
+    for k in range(na + nb + 1):
+        out[k] = 0.0
+    for i in range(na + 1):
+        if a[i] == 0.0:
+            continue
+        for j in range(nb + 1):
+            out[i + j] += a[i] * b[j]
+    return na + nb
+
+
+@numba.njit(cache=True)
+def _trim(c, deg):
+    """The degree of c once its exactly-zero leading coefficients are dropped (0 for the zero polynomial)."""
+    while deg > 0 and c[deg] == 0.0:
+        deg -= 1
+    return deg
+
+
+@numba.njit(cache=True)
+def poly_roots_and_extrema(c, deg, span, table, roots, crit):
+    """Roots in (0, span) of the polynomial Σ c[i]·τ^i (degree ``deg``) and of its derivative, sorted.
+
+    Root isolation by the derivative chain (as :func:`critical_points`): the roots of the (m+1)-th
+    derivative cut [0, span] into stretches on which the m-th derivative is monotone, so each holds at
+    most one of its roots, found by bracketing. ``table`` is (DELTA_NCOEF, DELTA_NCOEF) scratch.
+    Returns (number of roots, number of derivative roots), written to ``roots`` and ``crit``.
+    """
+    for i in range(deg + 1):
+        table[0, i] = c[i]
+    for m in range(1, deg + 1):
+        for i in range(deg + 1 - m):
+            table[m, i] = table[m - 1, i + 1] * (i + 1)
+    pts = np.empty(DELTA_NCOEF)
+    nxt = np.empty(DELTA_NCOEF)
+    n_pts = 0            # roots of derivative m + 1 (none for the constant deg-th derivative)
+    n_crit = 0
+    for m in range(deg - 1, -1, -1):
+        d = deg - m
+        cnt = 0
+        lo = 0.0
+        f_lo = _horner(table, m, d, lo)
+        for q in range(n_pts + 1):
+            hi = pts[q] if q < n_pts else span
+            f_hi = _horner(table, m, d, hi)
+            if f_lo != 0.0 and f_hi != 0.0 and (f_lo > 0.0) != (f_hi > 0.0):
+                nxt[cnt] = _poly_root(table, m, d, lo, hi, f_lo, f_hi)
+                cnt += 1
+            elif f_hi == 0.0 and 0.0 < hi < span:
+                nxt[cnt] = hi
+                cnt += 1
+            lo = hi
+            f_lo = f_hi
+        if m == 1:
+            for q in range(cnt):
+                crit[q] = nxt[q]
+            n_crit = cnt
+        for q in range(cnt):
+            pts[q] = nxt[q]
+        n_pts = cnt
+    if deg < 1:
+        n_pts = 0
+    for q in range(n_pts):
+        roots[q] = pts[q]
+    return n_pts, n_crit
+
+
+@numba.njit(cache=True)
+def delta_turning_points(arm2, tx, ty, px, py, vx, vy, vz, ax, ay, az, jx, jy, jz, span, out):
+    """Times τ in (0, span) that cut a piece into stretches on which the carriage height is monotone,
+    sorted, into ``out`` (room for 2·DELTA_NCOEF); returns their count.
+
+    With R(τ) = arm² − (x − t_x)² − (y − t_y)² (a polynomial, degree ≤ 6) the carriage velocity is
+    z' + R'/(2√R), of the sign of g = z'·√R + R'/2. Without Z motion its sign changes are the roots of R'.
+    With Z motion every root of g is a root of h = 4·z'²·R − R'² = 4·g·(z'·√R − R'/2), a polynomial of
+    degree ≤ 10: the roots of h and of h' (where h may touch zero) are the cuts. Extra cuts (roots of the
+    other factor) only split a monotone stretch in two.
+    """
+    dx = np.empty(4)
+    dy = np.empty(4)
+    dx[0] = px - tx
+    dx[1] = vx
+    dx[2] = 0.5 * ax
+    dx[3] = jx / 6.0
+    dy[0] = py - ty
+    dy[1] = vy
+    dy[2] = 0.5 * ay
+    dy[3] = jy / 6.0
+    ndx = _trim(dx, 3)
+    ndy = _trim(dy, 3)
+    sq = np.empty(DELTA_NCOEF)
+    rr = np.zeros(DELTA_NCOEF)
+    n1 = _poly_mul(dx, ndx, dx, ndx, sq)
+    for i in range(n1 + 1):
+        rr[i] -= sq[i]
+    n2 = _poly_mul(dy, ndy, dy, ndy, sq)
+    for i in range(n2 + 1):
+        rr[i] -= sq[i]
+    rr[0] += arm2
+    nr = _trim(rr, max(n1, n2))
+    table = np.empty((DELTA_NCOEF, DELTA_NCOEF))
+    roots = np.empty(DELTA_NCOEF)
+    crit = np.empty(DELTA_NCOEF)
+    if vz == 0.0 and az == 0.0 and jz == 0.0:
+        if nr < 2:
+            return 0
+        _, nc = poly_roots_and_extrema(rr, nr, span, table, roots, crit)
+        for q in range(nc):
+            out[q] = crit[q]
+        return nc
+    # h = 4·z'²·R − R'²
+    zd = np.empty(3)
+    zd[0] = vz
+    zd[1] = az
+    zd[2] = 0.5 * jz
+    nzd = _trim(zd, 2)
+    zd2 = np.empty(5)
+    nzd2 = _poly_mul(zd, nzd, zd, nzd, zd2)
+    rd = np.zeros(DELTA_NCOEF)
+    nrd = max(nr - 1, 0)
+    for i in range(nrd + 1):
+        rd[i] = rr[i + 1] * (i + 1) if i + 1 <= nr else 0.0
+    h = np.zeros(DELTA_NCOEF)
+    tmp = np.empty(DELTA_NCOEF)
+    na = _poly_mul(zd2, nzd2, rr, nr, tmp)
+    for i in range(na + 1):
+        h[i] += 4.0 * tmp[i]
+    nb = _poly_mul(rd, nrd, rd, nrd, tmp)
+    for i in range(nb + 1):
+        h[i] -= tmp[i]
+    nh = _trim(h, max(na, nb))
+    if nh < 1:
+        return 0
+    n0, nc = poly_roots_and_extrema(h, nh, span, table, roots, crit)
+    # merge the two sorted lists
+    i = 0
+    j = 0
+    m = 0
+    while i < n0 or j < nc:
+        if j >= nc or (i < n0 and roots[i] <= crit[j]):
+            out[m] = roots[i]
+            i += 1
+        else:
+            out[m] = crit[j]
+            j += 1
+        m += 1
+    return m
+
+
+@numba.njit(cache=True)
+def _delta_crossing(arm2, tx, ty, px, py, pz, vx, vy, vz, ax, ay, az, jx, jy, jz, target, lo, hi, f_lo, f_hi,
+                    guess):
+    """(τ, carriage velocity there) with τ in [lo, hi] where the carriage height equals ``target``: bracketed
+    Newton from ``guess`` (inside the bracket, else the secant of the bracket). The height is monotone on
+    the bracket; ``f_lo``/``f_hi`` are height − target at its ends, of opposite signs."""
+    rising = f_hi > 0.0
+    tau = guess
+    if not (lo < tau < hi):
+        tau = lo + (hi - lo) * (-f_lo) / (f_hi - f_lo)
+    d = 0.0
+    for _ in range(100):
+        c, d = _carriage_and_velocity(arm2, tx, ty, px, py, pz, vx, vy, vz, ax, ay, az, jx, jy, jz, tau)
+        f = c - target
+        if f == 0.0:
+            return tau, d
+        if (f > 0.0) == rising:
+            hi = tau
+        else:
+            lo = tau
+        nxt = tau - f / d if d != 0.0 else 0.5 * (lo + hi)
+        if not (lo < nxt < hi):
+            nxt = 0.5 * (lo + hi)
+        if abs(nxt - tau) <= 1e-15 * (1.0 + abs(tau)) or hi - lo <= 1e-15 * (1.0 + abs(tau)):
+            return nxt, d
+        tau = nxt
+    return tau, d
+
+
+@numba.njit(cache=True)
+def gen_steps_delta(t0, dt, pc, vc, ac, jc, reset, arm2, tx, ty, step_dist, state, start, out_t, out_dir, out_n):
+    """:func:`gen_steps` for a delta tower: the stepper position is the carriage height
+    z + √(arm2 − (tx − x)² − (ty − y)²) of the pieces' x, y, z (columns 0, 1, 2 of the (n, ≥3) arrays
+    ``pc vc ac jc``, the SEGMENT convention: q(τ) = p + v·τ + a·τ²/2 + j·τ³/6).
+
+    Same grid, hysteresis, reset flags, state and buffer contract as :func:`gen_steps`. Each piece is cut
+    where the carriage turns (:func:`delta_turning_points`: a carriage can reverse while the head moves
+    straight), and every half-step crossing of each monotone stretch is solved by bracketed Newton.
+    Returns (next piece index, new out_n, need); need = −1 for a non-finite coefficient, −2 for a
+    piece whose start the arm cannot reach.
+    """
+    n_pieces = t0.shape[0]
+    cap = out_t.shape[0]
+    inv_d = 1.0 / step_dist
+    anchor = state[S_ANCHOR]
+    n = state[S_N]
+    last_pos = state[S_LAST_POS]
+    anchored = state[S_ANCHORED] != 0.0
+    cuts = np.empty(2 * DELTA_NCOEF)
+    bnd = np.empty(2 * DELTA_NCOEF + 2)
+    cnt = np.empty(2 * DELTA_NCOEF + 1, np.int64)
+    sgn = np.empty(2 * DELTA_NCOEF + 1)
+    i = start
+    need = 0
+    while i < n_pieces:
+        px = pc[i, 0]
+        py = pc[i, 1]
+        pz = pc[i, 2]
+        vx = vc[i, 0]
+        vy = vc[i, 1]
+        vz = vc[i, 2]
+        ax = ac[i, 0]
+        ay = ac[i, 1]
+        az = ac[i, 2]
+        jx = jc[i, 0]
+        jy = jc[i, 1]
+        jz = jc[i, 2]
+        span = dt[i]
+        if not (math.isfinite(px) and math.isfinite(py) and math.isfinite(pz) and math.isfinite(vx)
+                and math.isfinite(vy) and math.isfinite(vz) and math.isfinite(ax) and math.isfinite(ay)
+                and math.isfinite(az) and math.isfinite(jx) and math.isfinite(jy) and math.isfinite(jz)
+                and math.isfinite(span)):
+            need = -1
+            break
+        p = _carriage(arm2, tx, ty, px, py, pz, vx, vy, vz, ax, ay, az, jx, jy, jz, 0.0)
+        if not math.isfinite(p):
+            need = -2
+            break
+        if (not anchored) or reset[i] == RESET_ANCHOR or (reset[i] != RESET_CONTINUE
+                                                          and abs(p - last_pos) > JUMP_TOL_MM):
+            anchor = p
+            n = 0.0
+            anchored = True
+        if (vx == 0.0 and vy == 0.0 and vz == 0.0 and ax == 0.0 and ay == 0.0 and az == 0.0 and jx == 0.0
+                and jy == 0.0 and jz == 0.0) or not (span > 0.0):
+            last_pos = p
+            i += 1
+            continue
+        nc = delta_turning_points(arm2, tx, ty, px, py, vx, vy, vz, ax, ay, az, jx, jy, jz, span, cuts)
+        bnd[0] = 0.0
+        for k in range(nc):
+            bnd[k + 1] = cuts[k]
+        bnd[nc + 1] = span
+        n_str = nc + 1
+        # pass 1: how many steps, per stretch
+        nn = n
+        total = 0
+        u_prev = (p - anchor) * inv_d
+        for k in range(n_str):
+            c_end = _carriage(arm2, tx, ty, px, py, pz, vx, vy, vz, ax, ay, az, jx, jy, jz, bnd[k + 1])
+            if not math.isfinite(c_end):
+                need = -2
+                break
+            u_end = (c_end - anchor) * inv_d
+            c = 0
+            if u_end > u_prev:
+                c = _forward_count(nn, u_end)
+                nn += c
+                sgn[k] = 1.0
+            elif u_end < u_prev:
+                c = _backward_count(nn, u_end)
+                nn -= c
+                sgn[k] = -1.0
+            else:
+                sgn[k] = 0.0
+            cnt[k] = c
+            total += c
+            u_prev = u_end
+        if need == -2:
+            break
+        if out_n + total > cap:
+            need = total
+            break
+        # pass 2: solve each crossing
+        base_t = t0[i]
+        for k in range(n_str):
+            c = cnt[k]
+            if c == 0:
+                continue
+            sigma = sgn[k]
+            left = bnd[k]
+            hi = bnd[k + 1]
+            c_left = _carriage(arm2, tx, ty, px, py, pz, vx, vy, vz, ax, ay, az, jx, jy, jz, left)
+            c_hi = _carriage(arm2, tx, ty, px, py, pz, vx, vy, vz, ax, ay, az, jx, jy, jz, hi)
+            dirv = np.int8(1) if sigma > 0.0 else np.int8(-1)
+            guess = -1.0
+            for m in range(c):
+                target = anchor + (n + 0.5 * sigma) * step_dist
+                f_lo = c_left - target
+                f_hi = c_hi - target
+                if f_lo == 0.0:
+                    tau = left
+                    guess = -1.0
+                elif f_hi == 0.0 or (f_lo > 0.0) == (f_hi > 0.0):
+                    # rounding at the stretch's end: the crossing is at the nearer end
+                    tau = hi if abs(f_hi) <= abs(f_lo) else left
+                    guess = -1.0
+                else:
+                    tau, vel = _delta_crossing(arm2, tx, ty, px, py, pz, vx, vy, vz, ax, ay, az, jx, jy, jz,
+                                               target, left, hi, f_lo, f_hi, guess)
+                    # the next crossing is one step further: extrapolate with the velocity found here
+                    guess = tau + sigma * step_dist / vel if vel != 0.0 else -1.0
+                out_t[out_n] = base_t + tau
+                out_dir[out_n] = dirv
+                out_n += 1
+                n += sigma
+                left = tau
+                c_left = target
+        last_pos = _carriage(arm2, tx, ty, px, py, pz, vx, vy, vz, ax, ay, az, jx, jy, jz, span)
+        i += 1
+    state[S_ANCHOR] = anchor
+    state[S_N] = n
+    state[S_LAST_POS] = last_pos
+    state[S_ANCHORED] = 1.0 if anchored else 0.0
+    return i, out_n, need

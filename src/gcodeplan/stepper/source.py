@@ -72,16 +72,20 @@ class StepSink(Sink):
     steps in order, per stepper, in bounded buffers (see :class:`gcodeplan.stepper.generate.StepGenerator`).
     The grid re-anchors after G28 / SET_KINEMATIC_POSITION (:func:`homing_resets`)."""
 
-    def __init__(self, rails, sink_fn, *, sds_filter_t: float | None = None):
+    def __init__(self, rails, sink_fn, *, sds_filter_t: float | None = None, machine=None):
+        """``machine``: its input shaper / pressure advance apply (``machine.limits_row()``); mid-file
+        SET_INPUT_SHAPER / SET_PRESSURE_ADVANCE / M900 / M572 come with each piece's LIMITS table."""
         from .generate import StepGenerator
 
         self.rails = list(rails)
-        self.generator = StepGenerator(self.rails, sink_fn, sds_filter_t=sds_filter_t)
+        settings = machine.limits_row() if machine is not None else None
+        self.generator = StepGenerator(self.rails, sink_fn, sds_filter_t=sds_filter_t, settings=settings)
         self._pending = False
 
     def add(self, piece: Piece) -> None:
         reset, self._pending = homing_resets(piece.moves, piece.segments, piece.first_move, self._pending)
-        self.generator.feed(piece.segments, reset)
+        self.generator.feed(piece.segments, reset, moves=piece.moves, limits=piece.limits,
+                            first_move=piece.first_move)
 
     def close(self, result) -> None:
         self.generator.finish()

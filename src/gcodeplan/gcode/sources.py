@@ -1,0 +1,362 @@
+"""Where G-code comes from: any *source* turned into one binary stream for the reader.
+
+A source is
+
+- a path (``str`` or :class:`os.PathLike`); ``"-"`` is standard input, read as bytes;
+- a file object, binary or text (read from where it stands; it is not closed);
+- an iterable of lines, ``str`` or ``bytes``: each item is one line, with or without its newline.
+
+Files and binary streams are recognised by their first bytes, not their names: gzip (``1f 8b``, e.g.
+``.gcode.gz``) is decompressed as it is read (never whole, never to disk), PrusaSlicer's binary G-code
+(``GCDE``, ``.bgcode``) is decoded block by block (:mod:`.bgcode`), anything else is G-code text.
+
+:func:`open_source` returns a :class:`Source`: a display name for messages (the path, ``<stdin>``,
+``<lines>``, a file object's name or ``<stream>``), a stream with ``readinto``, the input size in bytes
+when known (``bytes_total``, for progress bars) and how many input bytes have been consumed so far
+(``bytes_in``: compressed bytes for gzip and binary G-code, so a bar over ``bytes_total`` still ends at
+100 %).
+"""
+from __future__ import annotations
+
+import gzip
+import io
+import os
+import stat
+import sys
+import zlib
+from collections.abc import Iterable
+
+from ..errors import GcodeError
+
+GZIP_MAGIC = b"\x1f\x8b"
+_SNIFF_BYTES = 4
+STDIN_NAME = "<stdin>"
+LINES_NAME = "<lines>"
+STREAM_NAME = "<stream>"
+
+
+class _Input(io.RawIOBase):
+    """A binary input that counts the bytes taken from it and can give back the few it sniffed."""
+
+    def __init__(self, fh, name: str):
+        super().__init__()
+        self._fh = fh
+        self._name = name
+        self._head = b""
+        self.count = 0                # bytes taken from the underlying object
+        self._readinto = getattr(fh, "readinto", None)
+
+    def readable(self) -> bool:
+        return True
+
+    def _pull(self, b) -> int:
+        try:
+            if self._readinto is not None:
+                got = self._readinto(b)
+            else:
+                data = self._fh.read(len(b))
+                if not isinstance(data, (bytes, bytearray, memoryview)):
+                    raise GcodeError(f"read() returned {type(data).__name__}, not bytes", self._name)
+                got = len(data)
+                b[:got] = data
+        except OSError as err:
+            raise GcodeError(f"cannot read: {err.strerror or err}", self._name) from None
+        got = got or 0                # a non-blocking stream may answer None: treat as nothing yet
+        self.count += got
+        return got
+
+    def readinto(self, b) -> int:
+        if self._head:
+            n = min(len(b), len(self._head))
+            b[:n] = self._head[:n]
+            self._head = self._head[n:]
+            return n
+        return self._pull(b)
+
+    def sniff(self, n: int) -> bytes:
+        """The first ``n`` bytes (fewer at the end of the input), left to be read again."""
+        buf = bytearray(n)
+        have = len(self._head)
+        buf[:have] = self._head
+        while have < n:
+            with memoryview(buf) as mv:
+                got = self._pull(mv[have:])
+            if not got:
+                break
+            have += got
+        self._head = bytes(buf[:have])
+        return self._head
+
+
+class _GzipInput(io.RawIOBase):
+    """gzip decompressed as it is read; corrupt data is a :class:`GcodeError` naming the file."""
+
+    def __init__(self, raw: _Input, name: str):
+        super().__init__()
+        self._gz = gzip.GzipFile(fileobj=raw, mode="rb")
+        self._name = name
+
+    def readable(self) -> bool:
+        return True
+
+    def readinto(self, b) -> int:
+        try:
+            return self._gz.readinto(b)
+        except GcodeError:
+            raise
+        except (OSError, EOFError, zlib.error) as err:
+            raise GcodeError(f"corrupt gzip data: {err}", self._name) from None
+
+    def read(self, n: int = -1) -> bytes:
+        try:
+            return self._gz.read(n)
+        except GcodeError:
+            raise
+        except (OSError, EOFError, zlib.error) as err:
+            raise GcodeError(f"corrupt gzip data: {err}", self._name) from None
+
+
+class _TextInput(io.RawIOBase):
+    """A text file object read as UTF-8 bytes."""
+
+    def __init__(self, fh, name: str):
+        super().__init__()
+        self._fh = fh
+        self._name = name
+        self._rest = b""
+        self.count = 0
+
+    def readable(self) -> bool:
+        return True
+
+    def readinto(self, b) -> int:
+        while not self._rest:
+            try:
+                text = self._fh.read(max(1, len(b) // 4))
+            except OSError as err:
+                raise GcodeError(f"cannot read: {err.strerror or err}", self._name) from None
+            except UnicodeDecodeError as err:
+                raise GcodeError(f"cannot decode the text: {err}", self._name) from None
+            if not text:
+                return 0
+            self._rest = text.encode("utf-8", "surrogateescape")
+        n = min(len(b), len(self._rest))
+        b[:n] = self._rest[:n]
+        self._rest = self._rest[n:]
+        self.count += n
+        return n
+
+
+class _LinesInput(io.RawIOBase):
+    """An iterable of lines (str or bytes, newline optional) as one byte stream."""
+
+    def __init__(self, lines: Iterable, name: str):
+        super().__init__()
+        self._it = iter(lines)
+        self._name = name
+        self._rest = b""
+        self._item = 0
+        self.count = 0
+
+    def readable(self) -> bool:
+        return True
+
+    def _next_piece(self) -> bytes | None:
+        parts = []
+        size = 0
+        for item in self._it:
+            self._item += 1
+            if isinstance(item, str):
+                item = item.encode("utf-8", "surrogateescape")
+            elif isinstance(item, (bytearray, memoryview)):
+                item = bytes(item)
+            elif not isinstance(item, bytes):
+                raise GcodeError(f"line {self._item} of the iterable is {type(item).__name__}, not str or bytes",
+                                 self._name)
+            parts.append(item if item.endswith(b"\n") else item + b"\n")
+            size += len(parts[-1])
+            if size >= 1 << 16:
+                break
+        return b"".join(parts) if parts else None
+
+    def readinto(self, b) -> int:
+        if not self._rest:
+            piece = self._next_piece()
+            if piece is None:
+                return 0
+            self._rest = piece
+        n = min(len(b), len(self._rest))
+        b[:n] = self._rest[:n]
+        self._rest = self._rest[n:]
+        self.count += n
+        return n
+
+
+class Source:
+    """An opened source (see the module docstring). Use as a context manager or call :meth:`close`.
+
+    ``name``: display name for messages; ``stream``: binary, ``readinto`` gives G-code text bytes;
+    ``bytes_total``: input size in bytes, None when unknown (pipes, file objects that cannot tell,
+    iterables); ``bytes_in``: input bytes consumed so far; ``kind``: ``"text"``, ``"gzip"``,
+    ``"bgcode"`` or ``"lines"``; ``bgcode``: the :class:`~.bgcode.BgcodeStream` (its ``metadata``)
+    for binary G-code, else None; ``first_line`` / ``trailing_lines``: lines of the file's text
+    before / after what the stream gives (the metadata libbgcode's converter writes as comments);
+    ``slicer_estimate_s``: the slicer's own total time (s) when the container states it (binary G-code).
+    """
+
+    def __init__(self, name: str, stream, counter, bytes_total: int | None, kind: str, closers=()):
+        self.name = name
+        self.stream = stream
+        self._counter = counter
+        self.bytes_total = bytes_total
+        self.kind = kind
+        self.bgcode = None
+        self.first_line = 0
+        self.trailing_lines = 0
+        self.slicer_estimate_s: float | None = None
+        self._closers = list(closers)
+
+    @property
+    def bytes_in(self) -> int:
+        """Input bytes consumed so far (compressed bytes for gzip / binary G-code)."""
+        return self._counter.count
+
+    def close(self) -> None:
+        """Close what this source opened (never a file object or stdin it was given)."""
+        closers, self._closers = self._closers, []
+        for fh in closers:
+            try:
+                fh.close()
+            except OSError:
+                pass
+
+    def __enter__(self) -> "Source":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+def _open_path(path: str):
+    try:
+        fh = open(path, "rb")
+    except IsADirectoryError:
+        raise GcodeError("is a directory, not a G-code file", path) from None
+    except FileNotFoundError:
+        raise GcodeError("no such file", path) from None
+    except OSError as err:
+        raise GcodeError(f"cannot read: {err.strerror or err}", path) from None
+    return fh
+
+
+def _size_of(fh) -> int | None:
+    """Bytes from the current position to the end, when the object is a regular file."""
+    try:
+        st = os.fstat(fh.fileno())
+        if not stat.S_ISREG(st.st_mode):
+            return None
+        return max(0, st.st_size - fh.tell())
+    except (AttributeError, OSError, ValueError, io.UnsupportedOperation):
+        return None
+
+
+def _is_text(fh) -> bool:
+    if isinstance(fh, io.TextIOBase):
+        return True
+    if isinstance(fh, (io.RawIOBase, io.BufferedIOBase)):
+        return False
+    try:
+        return isinstance(fh.read(0), str)
+    except Exception:  # noqa: BLE001 - an odd object: let reading it tell
+        return False
+
+
+def _binary(raw: _Input, name: str, size: int | None, closers: list) -> Source:
+    """Recognise gzip / binary G-code / text by the first bytes of ``raw``."""
+    head = raw.sniff(_SNIFF_BYTES)
+    if name.lower().endswith(".bgcode") and head[:4] != b"GCDE" and head[:2] != GZIP_MAGIC:
+        # named as binary G-code but not one: say so rather than "not a text file"
+        raise GcodeError(f"not a binary G-code file: it starts with {head!r}, not the GCDE magic", name)
+    stream = raw
+    kind = "text"
+    if head[:2] == GZIP_MAGIC:
+        stream = _GzipInput(raw, name)
+        kind = "gzip"
+        inner = _Input(stream, name)          # a gzip holding a .bgcode is a .bgcode
+        if inner.sniff(_SNIFF_BYTES)[:4] == b"GCDE":
+            from .bgcode import BgcodeStream
+
+            bg = BgcodeStream(inner, name)
+            src = Source(name, bg, raw, size, "bgcode", closers)
+            return _with_bgcode(src, bg)
+        stream = inner
+    elif head[:4] == b"GCDE":
+        from .bgcode import BgcodeStream
+
+        bg = BgcodeStream(raw, name)
+        return _with_bgcode(Source(name, bg, raw, size, "bgcode", closers), bg)
+    return Source(name, stream, raw, size, kind, closers)
+
+
+def _with_bgcode(src: Source, bg) -> Source:
+    src.bgcode = bg
+    src.first_line = bg.first_line
+    src.trailing_lines = bg.trailing_lines
+    src.slicer_estimate_s = bg.metadata.slicer_estimate_s
+    return src
+
+
+def open_source(source) -> Source:
+    """Open ``source`` (path, ``"-"``, file object or iterable of lines) for reading G-code.
+
+    Raises :class:`GcodeError` naming the source when it cannot be read or its container is corrupt
+    (a missing file, a bad binary G-code header or metadata block); :class:`TypeError` for an object
+    that is none of these (a ``bytes`` object is not a source: wrap it in :class:`io.BytesIO`).
+    """
+    if isinstance(source, (str, os.PathLike)):
+        path = os.fsdecode(source)
+        if path == "-":
+            if sys.stdin is None:
+                raise GcodeError("no standard input to read", STDIN_NAME)
+            fh = sys.stdin.buffer if hasattr(sys.stdin, "buffer") else sys.stdin
+            if _is_text(fh):
+                counter = _TextInput(fh, STDIN_NAME)
+                return Source(STDIN_NAME, counter, counter, None, "text")
+            return _binary(_Input(fh, STDIN_NAME), STDIN_NAME, None, [])
+        fh = _open_path(path)
+        try:
+            size = _size_of(fh)
+            raw = _Input(fh, path)
+            return _binary(raw, path, size, [fh])
+        except BaseException:
+            fh.close()
+            raise
+    if isinstance(source, (bytes, bytearray, memoryview)):
+        raise TypeError("a bytes object is not a G-code source: pass a path, '-', a file object "
+                        "(io.BytesIO(data)) or an iterable of lines")
+    if hasattr(source, "read"):
+        name = getattr(source, "name", None)
+        name = name if isinstance(name, str) and name else STREAM_NAME
+        if _is_text(source):
+            counter = _TextInput(source, name)
+            return Source(name, counter, counter, None, "text")
+        return _binary(_Input(source, name), name, _size_of(source), [])
+    if isinstance(source, Iterable):
+        counter = _LinesInput(source, LINES_NAME)
+        return Source(LINES_NAME, counter, counter, None, "lines")
+    raise TypeError(f"{type(source).__name__} is not a G-code source: pass a path, '-', a file object or an "
+                    "iterable of lines")
+
+
+def source_name(source) -> str:
+    """The display name :func:`open_source` would give ``source``, without opening it."""
+    if isinstance(source, (str, os.PathLike)):
+        path = os.fsdecode(source)
+        return STDIN_NAME if path == "-" else path
+    if hasattr(source, "read"):
+        name = getattr(source, "name", None)
+        return name if isinstance(name, str) and name else STREAM_NAME
+    return LINES_NAME
+
+
+__all__ = ["Source", "open_source", "source_name", "GZIP_MAGIC", "STDIN_NAME", "LINES_NAME", "STREAM_NAME"]

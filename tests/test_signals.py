@@ -1,0 +1,170 @@
+"""SIGTERM, SIGHUP and SIGINT end gcodeplan cleanly: exit status 128 + signal, no temporary file left,
+the previous output untouched; stale temporary files of a kill -9 are never output and are swept.
+
+The real CLI runs in a subprocess on a generated big file (and on the 50 MB corpus file, slow); the
+signal is sent once the command has made its temporary spool, i.e. mid-run.
+"""
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import pytest
+
+from conftest import shared_path
+from gcodeplan import signals
+from gcodeplan.report import output
+
+SIGNALS = [signal.SIGTERM, signal.SIGHUP, signal.SIGINT]
+
+
+@pytest.fixture(scope="module")
+def big_file(tmp_path_factory):
+    """~300 000 long zig-zag moves: planning and stepping take seconds, enough to be interrupted."""
+    p = tmp_path_factory.mktemp("big") / "big.gcode"
+    with open(p, "w") as fh:
+        fh.write("G90\nM83\nG1 Z0.2 F600\n")
+        for i in range(300_000):
+            fh.write(f"G1 X{(i % 2) * 180 + 10:.0f} Y{10 + (i % 1800) * 0.1:.1f} E0.5 F12000\n")
+    return str(p)
+
+
+def _leftovers(directory):
+    return sorted(n for n in os.listdir(directory) if n.startswith("."))
+
+
+def _handles_sigterm(pid: int) -> bool:
+    """True once the process catches SIGTERM (Linux /proc: gcodeplan's handlers are installed)."""
+    try:
+        with open(f"/proc/{pid}/status") as fh:
+            caught = next(int(line.split()[1], 16) for line in fh if line.startswith("SigCgt:"))
+    except (OSError, StopIteration):
+        return False
+    return bool(caught >> (signal.SIGTERM - 1) & 1)
+
+
+def _run_and_signal(argv, directory, sig, wait_for_temp=True, timeout=120.0):
+    """Start the CLI, wait until it has a temporary file or spool in ``directory`` (or, without one, its
+    handlers are in place), send ``sig``."""
+    proc = subprocess.Popen([sys.executable, "-m", "gcodeplan.cli", *argv], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    t0 = time.monotonic()
+    try:
+        while not (_leftovers(directory) if wait_for_temp else _handles_sigterm(proc.pid)):
+            if proc.poll() is not None:
+                pytest.fail(f"finished before it could be interrupted: {proc.returncode} {proc.stderr.read()}")
+            if time.monotonic() - t0 > timeout:
+                pytest.fail("no temporary file appeared")
+            time.sleep(0.02)
+        time.sleep(0.3)
+        assert proc.poll() is None, "finished before the signal"
+        proc.send_signal(sig)
+        out, err = proc.communicate(timeout=timeout)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    return proc.returncode, err
+
+
+@pytest.mark.parametrize("sig", SIGNALS, ids=lambda s: signal.Signals(s).name)
+def test_steps_interrupted_leaves_nothing_and_keeps_the_old_output(tmp_path, big_file, sig):
+    out = tmp_path / "s.npz"
+    out.write_bytes(b"previous run")
+    rc, err = _run_and_signal(["steps", big_file, "-o", str(out), "-q"], tmp_path, sig)
+    assert rc == 128 + sig, err
+    name = signal.Signals(sig).name
+    # (a signal during numba's first compilation may add llvmlite's "Exception ignored" note before it)
+    assert err.splitlines()[-1] == ("gcodeplan: interrupted" if sig == signal.SIGINT
+                                    else f"gcodeplan: terminated by {name}"), err
+    assert _leftovers(tmp_path) == [] and out.read_bytes() == b"previous run"
+
+
+def test_steps_compact_and_csv_interrupted_leave_nothing(tmp_path, big_file):
+    rc, err = _run_and_signal(["steps", big_file, "-o", str(tmp_path / "s.npz"), "--format", "compact",
+                               "--csv", str(tmp_path / "csv"), "-q"], tmp_path, signal.SIGTERM)
+    assert rc == 143, err
+    assert _leftovers(tmp_path) == [] and _leftovers(tmp_path / "csv") == []
+    assert sorted(os.listdir(tmp_path)) == ["csv"] and os.listdir(tmp_path / "csv") == []
+
+
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGHUP])
+def test_estimate_interrupted_exits_128_plus_signal(tmp_path, big_file, sig):
+    rc, err = _run_and_signal(["estimate", big_file, "--per-line", str(tmp_path / "l.csv")], tmp_path, sig,
+                              wait_for_temp=False)
+    assert rc == 128 + sig, err
+    assert os.listdir(tmp_path) == []
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("sig", SIGNALS, ids=lambda s: signal.Signals(s).name)
+def test_steps_on_the_50mb_file(tmp_path, sig):
+    src = shared_path("gcode", "prusaslicer25_plate150_gyroid_big.gcode")
+    rc, err = _run_and_signal(["steps", str(src), "-o", str(tmp_path / "s.npz"), "-q"], tmp_path, sig)
+    assert rc == 128 + sig, err
+    assert os.listdir(tmp_path) == []
+
+
+# ----------------------------------------------------------------------------- in-process pieces
+def test_atomic_output_interrupted_by_sigterm_in_process(tmp_path):
+    target = tmp_path / "out.txt"
+    restore = signals.install()
+    try:
+        with pytest.raises(signals.Terminated) as err:
+            with output.atomic_output(str(target)) as fh:
+                fh.write("half")
+                os.kill(os.getpid(), signal.SIGTERM)
+                for _ in range(1000):        # the handler runs at the next bytecode boundary
+                    time.sleep(0.001)
+        assert signals.exit_status(err.value) == 143 and err.value.reason == "terminated by SIGTERM"
+    finally:
+        restore()
+    assert os.listdir(tmp_path) == []
+    assert signal.getsignal(signal.SIGTERM) is signal.SIG_DFL      # handlers restored after the command
+
+
+def test_a_swallowed_termination_is_raised_again():
+    """Python code called back from C (llvmlite's ctypes callbacks during numba compilation) prints and
+    drops the exception a handler raises: the command must not run on."""
+    restore = signals.install()
+    try:
+        try:
+            os.kill(os.getpid(), signal.SIGTERM)
+            time.sleep(0.5)
+        except signals.Terminated:
+            pass                                  # lost, as in a ctypes callback
+        with pytest.raises(signals.Terminated) as err:
+            time.sleep(10 * signals.RERAISE_S)
+        assert err.value.signum == signal.SIGTERM
+        signals.caught()
+        os.kill(os.getpid(), signal.SIGHUP)       # once caught, later signals are ignored
+        time.sleep(0.05)
+    finally:
+        restore()
+
+
+def test_registered_temporaries_are_swept_on_the_way_out(tmp_path):
+    restore = signals.install()
+    fd, name = output.make_temp_file(tmp_path / "x.bin")
+    os.close(fd)
+    assert os.path.exists(name) and os.path.basename(name).startswith(".x.bin.gcodeplan-")
+    restore()
+    assert os.listdir(tmp_path) == []
+
+
+def test_stale_temporaries_of_a_dead_process_are_removed_live_ones_kept(tmp_path):
+    dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True,
+                          text=True).stdout.strip()
+    stale = tmp_path / f".r.html.gcodeplan-{dead}-abc.tmp"
+    stale_dir = tmp_path / f".r.html.gcodeplan-{dead}-def.spool"
+    live = tmp_path / f".r.html.gcodeplan-{os.getpid()}-ghi.tmp"
+    other = tmp_path / ".other.gcodeplan-1-x.tmp"
+    for p in (stale, live, other):
+        p.write_text("x")
+    stale_dir.mkdir()
+    (stale_dir / "0000.raw").write_bytes(b"\0" * 10)
+    output.atomic_write_text(str(tmp_path / "r.html"), "<html></html>")
+    assert sorted(os.listdir(tmp_path)) == sorted([live.name, other.name, "r.html"])

@@ -1,0 +1,118 @@
+"""``python tools/bench.py startup [--runs N] [--big FILE] [--imports]``: start-up cost of ``gcodeplan estimate``.
+
+Measured in one run, best of N fresh processes each (wall time; the machine is shared, so the best run is the
+one least disturbed):
+
+* a one-line G-code file: ``gcodeplan estimate -q`` against ``python -c pass`` and
+  ``python -c "import numpy, numba"`` (target: ≤ 0.30 s);
+* the 50 MB corpus file (``../shared/gcode/prusaslicer25_plate150_gyroid_big.gcode``, or ``--big``):
+  ``gcodeplan estimate -q --json`` against a bare Python loop over its lines, ``for line in open(f, 'rb')``
+  (target: ≤ 5×).
+
+``--imports`` also prints the modules the tiny estimate imports, heaviest first (``python -X importtime``).
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import resource
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+SHARED = Path(os.environ.get("GCODEPLAN_SHARED", REPO.parent / "shared"))
+BIG = SHARED / "gcode" / "prusaslicer25_plate150_gyroid_big.gcode"
+
+
+CPU: dict[str, float] = {}     # command -> least CPU time (user + sys, s) of its runs
+
+
+def best_of(cmd: list[str], runs: int) -> float:
+    """Least wall time (s) of ``runs`` runs of ``cmd`` (output discarded; a failure stops the benchmark). The
+    least CPU time (user + sys) goes to ``CPU[" ".join(cmd)]``: on a loaded machine it moves less than wall time."""
+    best = float("inf")
+    key = " ".join(cmd)
+    for _ in range(runs):
+        r0 = resource.getrusage(resource.RUSAGE_CHILDREN)
+        t0 = time.perf_counter()
+        subprocess.run(cmd, check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        best = min(best, time.perf_counter() - t0)
+        r1 = resource.getrusage(resource.RUSAGE_CHILDREN)
+        cpu = (r1.ru_utime - r0.ru_utime) + (r1.ru_stime - r0.ru_stime)
+        CPU[key] = min(CPU.get(key, float("inf")), cpu)
+    return best
+
+
+def cpu_of(cmd: list[str]) -> float:
+    return CPU[" ".join(cmd)]
+
+
+def gcodeplan_cmd() -> list[str]:
+    exe = shutil.which("gcodeplan")
+    return [exe] if exe else [sys.executable, "-m", "gcodeplan.cli"]
+
+
+def imports(tiny: Path) -> list[tuple[float, str]]:
+    """(cumulative ms, module) of the top-level imports of ``gcodeplan estimate`` on ``tiny``."""
+    out = subprocess.run([sys.executable, "-X", "importtime", "-c",
+                          "import sys; from gcodeplan.cli import main; sys.exit(main(sys.argv[1:]))",
+                          "estimate", "-q", str(tiny)], capture_output=True, text=True)
+    rows = []
+    for line in out.stderr.splitlines():
+        parts = line.split("|")
+        if len(parts) != 3 or "cumulative" in line:
+            continue
+        name = parts[2]
+        if len(name) - len(name.lstrip()) <= 1:
+            rows.append((int(parts[1]) / 1000.0, name.strip()))
+    return sorted(rows, reverse=True)
+
+
+def main(argv: list[str]) -> int:
+    ap = argparse.ArgumentParser(prog="bench.py startup", description=__doc__.split("\n")[0])
+    ap.add_argument("--runs", type=int, default=7, help="fresh processes per figure (best is kept)")
+    ap.add_argument("--big-runs", type=int, default=3)
+    ap.add_argument("--big", type=Path, default=BIG, help="the big file (default: the 50 MB corpus file)")
+    ap.add_argument("--imports", action="store_true", help="list the heaviest imports of the tiny estimate")
+    args = ap.parse_args(argv)
+    gp = gcodeplan_cmd()
+    with tempfile.TemporaryDirectory() as tmp:
+        tiny = Path(tmp) / "one_line.gcode"
+        tiny.write_text("G1 X10 F600\n")
+        subprocess.run(gp + ["estimate", "-q", str(tiny)], check=True, stdout=subprocess.DEVNULL)  # warm caches
+        c_py = [sys.executable, "-c", "pass"]
+        c_libs = [sys.executable, "-c", "import numpy, numba"]
+        c_est = gp + ["estimate", "-q", str(tiny)]
+        py, libs, est = (best_of(c, args.runs) for c in (c_py, c_libs, c_est))
+        print(f"| what (best of {args.runs}) | wall s | CPU s |")
+        print("|---|---:|---:|")
+        print(f"| `python -c pass` | {py:.3f} | {cpu_of(c_py):.3f} |")
+        print(f"| `python -c \"import numpy, numba\"` | {libs:.3f} | {cpu_of(c_libs):.3f} |")
+        print(f"| `gcodeplan estimate` on a one-line file | {est:.3f} | {cpu_of(c_est):.3f} |")
+        print(f"one-line estimate {est:.3f} s: target 0.30 s {'met' if est <= 0.30 else 'MISSED'}")
+        if args.imports:
+            print("\nheaviest top-level imports of the one-line estimate (cumulative ms):")
+            for ms, name in imports(tiny)[:25]:
+                print(f"  {ms:8.1f}  {name}")
+    if args.big.is_file():
+        c_loop = [sys.executable, "-c", "import sys\nfor line in open(sys.argv[1], 'rb'): pass", str(args.big)]
+        c_big = gp + ["estimate", "-q", "--json", str(args.big)]
+        loop, big = best_of(c_loop, args.big_runs), best_of(c_big, args.big_runs)
+        mb = args.big.stat().st_size / 1e6
+        print(f"\n| {args.big.name} ({mb:.0f} MB), best of {args.big_runs} | wall s | CPU s |")
+        print("|---|---:|---:|")
+        print(f"| bare Python line loop | {loop:.3f} | {cpu_of(c_loop):.3f} |")
+        print(f"| `gcodeplan estimate --json` | {big:.3f} | {cpu_of(c_big):.3f} |")
+        print(f"ratio {big / loop:.2f}× wall, {cpu_of(c_big) / cpu_of(c_loop):.2f}× CPU: target 5× "
+              f"{'met' if big <= 5 * loop else 'MISSED'}")
+    else:
+        print(f"\n{args.big} not found: big-file figure skipped")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))

@@ -1,0 +1,623 @@
+#!/usr/bin/env python3
+"""Fuzz parse → plan → steps in-process with mutated real G-code.
+
+    python tools/fuzz.py --seed 1 --cases 100000            # a fixed number of cases
+    python tools/fuzz.py --seed 7 --seconds 60              # as many as fit in a minute
+    python tools/fuzz.py --seed 7 --replay 1234             # run case 1234 of seed 7 again, verbosely
+
+Each case takes a window of consecutive lines from a real G-code file (``gcode_samples/`` and, when it is
+there, ``../shared/gcode/``), mutates some of them (digits, signs, exponents, absurd numbers, comments,
+line numbers and checksums, letters, truncation, odd bytes) and splices in generated lines (arcs in the
+three planes, canned cycles, work offsets, G92/G10, unit and distance modes, dwells, M204/M201/M203/M205,
+Klipper's SET_VELOCITY_LIMIT, G61/G64). The program then runs through :func:`gcodeplan.pipeline.run` for a
+random machine (the presets, and Klipper's reference configs when ``../shared`` is there), flavor,
+junction policy and, sometimes, an S-curve jerk, with three sinks: time accounting, per-line end times
+and step generation (:class:`gcodeplan.stepper.source.StepSink`; skipped once a case would make more than
+``--max-steps`` steps, so an absurd 1e9 mm move does not fill memory).
+
+A case *fails* when it raises anything but :class:`gcodeplan.errors.GcodeplanError` (a clear, located
+error is the right answer to bad input), or when a planned time (PLAN t_start, phase times, duration,
+the total) or a step time is non-finite or negative, or step times of a stepper go backwards. A failing
+case is minimised (delta debugging over its lines, keeping the same failure) and written to ``--out``
+(``<seed>-<case>.gcode`` with the configuration in its first comment lines, plus a ``.txt`` traceback).
+
+Every case has its own random stream derived from (seed, case number), so ``--replay N`` reproduces
+case N alone, whatever ran before it.
+"""
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import random
+import re
+import sys
+import time
+import traceback
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[1]
+SHARED = Path(os.environ.get("GCODEPLAN_SHARED", REPO.parent / "shared"))
+
+FLAVORS = ("marlin", "klipper", "reprap", "grbl", "linuxcnc")
+POLICIES = ("klipper", "junction-deviation", "classic-jerk", "blend", "exact-stop")
+PRESETS = ("klipper", "marlin", "grbl")
+
+# bytes read from each big corpus file (a few windows at seeded offsets): enough variety, quick start
+POOL_BYTES_PER_FILE = 1 << 20
+POOL_WINDOWS_PER_FILE = 4
+
+_NUM = re.compile(rb"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?")
+
+ABSURD = (b"0", b"-0", b"0.0", b"1e9", b"-1e9", b"1e-9", b"1e20", b"-1e20", b"1e308", b"1e-320", b"nan", b"inf",
+          b"-inf", b"99999999999999999999", b".", b"-", b"+", b"1.2.3", b"0x10", b"1e", b"--1", b"+-2", b"1_000",
+          b"2147483648", b"-2147483649", b"1e400", b"3.4e38", b"0.000001", b"12345.6789")
+ODD_BYTES = (b"\t", b"\r", b" ", b"\xc3\xa9", b"\xff", b"\x0b", b"\x0c", b"*", b";", b"(", b")", b"%", b"\\",
+             b"=", b"[", b"]", b"{", b"}", b"\"", b"#", b"\x7f")
+LETTERS = b"GMXYZEFIJKRPQSTNLDHABCUVW"
+
+
+# --------------------------------------------------------------------------- corpus
+def corpus_files() -> list[Path]:
+    """The G-code files the fuzzer draws lines from (text only: binary G-code is left to the reader's tests)."""
+    files = []
+    for folder in (REPO / "gcode_samples", SHARED / "gcode"):
+        if folder.is_dir():
+            for p in sorted(folder.iterdir()):
+                if p.suffix.lower() in (".gcode", ".ngc", ".nc", ".g") and p.is_file():
+                    files.append(p)
+    return files
+
+
+def load_pool(seed: int) -> list[tuple[str, list[bytes]]]:
+    """(file name, lines) per corpus file; big files contribute a few windows read at seeded offsets."""
+    rng = random.Random(f"pool:{seed}")
+    pool = []
+    for p in corpus_files():
+        size = p.stat().st_size
+        with open(p, "rb") as fh:
+            if size <= POOL_BYTES_PER_FILE:
+                lines = fh.read().splitlines()
+            else:
+                lines = []
+                span = POOL_BYTES_PER_FILE // POOL_WINDOWS_PER_FILE
+                for k in range(POOL_WINDOWS_PER_FILE):
+                    off = 0 if k == 0 else rng.randrange(0, size - span)
+                    fh.seek(off)
+                    chunk = fh.read(span).splitlines()
+                    lines.extend(chunk[1:-1] if off else chunk[:-1])
+        if lines:
+            pool.append((p.name, lines))
+    if not pool:
+        raise SystemExit("fuzz: no corpus files found (gcode_samples/ is empty?)")
+    return pool
+
+
+# --------------------------------------------------------------------------- generated lines
+def _n(rng: random.Random, small: bool = False) -> str:
+    """A number as G-code writes it: mostly ordinary, sometimes odd."""
+    r = rng.random()
+    if r < 0.7:
+        v = rng.uniform(-5, 5) if small else rng.uniform(-60, 260)
+        return f"{v:.{rng.choice((0, 1, 3, 5))}f}"
+    if r < 0.85:
+        return str(rng.choice((0, 1, -1, 0.5, 10, 100, 0.001)))
+    return rng.choice(ABSURD).decode()
+
+
+def generated_line(rng: random.Random) -> bytes:
+    """One generated line exercising the less common parts of the dialects."""
+    n = lambda small=False: _n(rng, small)  # noqa: E731
+    k = rng.randrange(34)
+    if k < 4:   # arcs, centre or radius form, in the current plane, sometimes with turns
+        g = rng.choice(("G2", "G3"))
+        if rng.random() < 0.6:
+            # a consistent arc in relative coordinates: the end lies on the circle around the start + (I, J)
+            i_, j_ = rng.uniform(-20, 20), rng.uniform(-20, 20)
+            phi = rng.uniform(-6.3, 6.3)
+            ex = i_ - (i_ * math.cos(phi) - j_ * math.sin(phi))
+            ey = j_ - (i_ * math.sin(phi) + j_ * math.cos(phi))
+            f = f" F{rng.choice((60, 600, 1200, 6000))}" if rng.random() < 0.5 else ""
+            return f"G91\n{g} X{ex:.4f} Y{ey:.4f} I{i_:.4f} J{j_:.4f}{f}\nG90".encode()
+        if rng.random() < 0.3:
+            s = f"{g} X{n()} Y{n()} R{n()}"
+        else:
+            s = f"{g} X{n()} Y{n()} I{n(True)} J{n(True)}"
+        if rng.random() < 0.3:
+            s += f" Z{n(True)}"
+        if rng.random() < 0.2:
+            s += f" P{rng.choice((1, 2, 3, 0, -1))}"
+        if rng.random() < 0.4:
+            s += f" E{n(True)}"
+        if rng.random() < 0.5:
+            s += f" F{rng.choice((60, 600, 1200, 6000, 30000))}"
+        return s.encode()
+    if k < 5:
+        return rng.choice((b"G17", b"G18", b"G19"))
+    if k < 8:   # canned cycles (CNC flavors expand them; printers refuse or ignore)
+        g = rng.choice(("G81", "G82", "G83", "G73", "G85", "G89"))
+        s = f"{g} X{n()} Y{n()} Z{n(True)} R{n(True)} F{rng.choice((100, 300, 1000))}"
+        if g in ("G82", "G89") or rng.random() < 0.2:
+            s += f" P{n(True)}"
+        if g in ("G83", "G73") or rng.random() < 0.2:
+            s += f" Q{n(True)}"
+        if rng.random() < 0.2:
+            s += f" L{rng.choice((0, 1, 3, -1))}"
+        return s.encode()
+    if k < 9:
+        return rng.choice((b"G80", b"G98", b"G99"))
+    if k < 12:  # offsets
+        return rng.choice((
+            f"G{rng.choice(('54', '55', '56', '57', '58', '59', '59.1', '59.2', '59.3'))}",
+            f"G10 L2 P{rng.choice((0, 1, 2, 6, 9))} X{n()} Y{n()} Z{n(True)}",
+            f"G10 L20 P1 X{n()} Y{n()}",
+            f"G92 X{n()} Y{n()} Z{n(True)} E{n(True)}",
+            f"G92 E{n(True)}", "G92.1", "G92.2", "G92.3",
+            f"G52 X{n()} Y{n()}",
+            "G53 G0 X0 Y0",
+        )).encode()
+    if k < 14:  # units and modes
+        return rng.choice((b"G20", b"G21", b"G90", b"G91", b"M82", b"M83", b"G90.1", b"G91.1", b"G61", b"G61.1",
+                           b"G64", f"G64 P{n(True)}".encode(), f"G64 P{n(True)} Q{n(True)}".encode()))
+    if k < 16:  # dwells and waits
+        return rng.choice((f"G4 P{n()}", f"G4 S{n(True)}", "M400", "G28", "G28 X Y", "M109 S200", "M190 S60",
+                           "M0", "M1", "M2", "M30", "M84")).encode()
+    if k < 19:  # limits
+        return rng.choice((
+            f"M204 S{n()}", f"M204 P{n()} T{n()}", f"M204 P{n()}", f"M204 R{n()}",
+            f"M201 X{n()} Y{n()} Z{n()} E{n()}", f"M203 X{n()} Y{n()} Z{n(True)} E{n()}",
+            f"M205 X{n(True)} Y{n(True)} Z{n(True)} E{n(True)}", f"M205 J{n(True)}",
+            f"M220 S{n()}", f"M221 S{n()}", f"M566 X{n()} Y{n()}",
+            f"SET_VELOCITY_LIMIT VELOCITY={n()} ACCEL={n()}",
+            f"SET_VELOCITY_LIMIT SQUARE_CORNER_VELOCITY={n(True)} MINIMUM_CRUISE_RATIO={n(True)}",
+            f"SET_VELOCITY_LIMIT ACCEL_TO_DECEL={n()}",
+            "SET_KINEMATIC_POSITION X=0 Y=0 Z=0",
+        )).encode()
+    if k < 21:  # firmware retraction, tools
+        return rng.choice((b"G10", b"G11", b"T0", b"T1", b"M6 T2", f"M207 S{n(True)} F{n()}".encode()))
+    # moves with odd values
+    g = rng.choice(("G0", "G1", "G1", "G1", "G00", "G01", "g1", ""))
+    words = []
+    for letter in rng.sample("XYZEF", rng.randrange(1, 5)):
+        words.append(f"{letter}{n(letter in 'ZE')}")
+    return (g + " " + " ".join(words)).strip().encode()
+
+
+# --------------------------------------------------------------------------- mutations
+def _checksum(body: bytes) -> int:
+    c = 0
+    for b in body:
+        c ^= b
+    return c
+
+
+def mutate_line(line: bytes, rng: random.Random) -> bytes:
+    """One mutation of one line."""
+    k = rng.randrange(16)
+    nums = list(_NUM.finditer(line))
+    if k < 3 and nums:          # a digit changed
+        m = rng.choice(nums)
+        digits = [i for i in range(m.start(), m.end()) if 48 <= line[i] <= 57]
+        if digits:
+            i = rng.choice(digits)
+            return line[:i] + bytes([48 + rng.randrange(10)]) + line[i + 1:]
+    if k < 5 and nums:          # sign
+        m = rng.choice(nums)
+        s = m.group()
+        s = s[1:] if s[:1] in b"+-" else rng.choice((b"-", b"+", b"--", b"-+")) + s
+        return line[:m.start()] + s + line[m.end():]
+    if k < 7 and nums:          # exponent
+        m = rng.choice(nums)
+        e = rng.choice((b"e5", b"e-5", b"E3", b"e+2", b"e308", b"e-308", b"e", b"e-", b"E999"))
+        return line[:m.end()] + e + line[m.end():]
+    if k < 9 and nums:          # absurd value
+        m = rng.choice(nums)
+        return line[:m.start()] + rng.choice(ABSURD) + line[m.end():]
+    if k == 9:                  # comments
+        i = rng.randrange(len(line) + 1)
+        ins = rng.choice((b";", b" ; c", b"(c)", b"(", b")", b"(a(b)c)", b" ;LAYER_CHANGE", b";TYPE:Skirt"))
+        return line[:i] + ins + line[i:]
+    if k == 10:                 # line number and checksum, right or wrong
+        body = b"N%d " % rng.randrange(-2, 100000) + line.split(b";")[0].rstrip()
+        c = _checksum(body)
+        if rng.random() < 0.3:
+            c = (c + rng.randrange(1, 256)) % 256
+        return body + b"*%d" % c if rng.random() < 0.9 else body + b"*"
+    if k == 11 and line:        # truncated
+        return line[:rng.randrange(len(line))]
+    if k == 12:                 # odd byte
+        i = rng.randrange(len(line) + 1)
+        return line[:i] + rng.choice(ODD_BYTES) + line[i:]
+    if k == 13:                 # a letter changed, or a word dropped / doubled
+        words = line.split(b" ")
+        j = rng.randrange(len(words))
+        w = words[j]
+        r = rng.random()
+        if r < 0.4 and w:
+            words[j] = bytes([rng.choice(LETTERS)]) + w[1:]
+        elif r < 0.7:
+            del words[j]
+        else:
+            words.insert(j, w)
+        return b" ".join(words)
+    if k == 14:                 # case and spacing
+        return rng.choice((line.lower(), line.replace(b" ", b""), line.replace(b" ", b"  \t"), b"  " + line))
+    return generated_line(rng)
+
+
+# --------------------------------------------------------------------------- cases
+@dataclass
+class Case:
+    """One fuzz case: the program (lines without newlines) and the configuration it runs with."""
+
+    seed: int
+    index: int
+    lines: list[bytes]
+    machine: str           # preset name or 'klipper-cfg:<name>'
+    flavor: str | None
+    policy: str
+    jerk: float | None
+    origin: str
+
+    def header(self) -> str:
+        return (f"; fuzz seed {self.seed} case {self.index}: machine {self.machine}, flavor {self.flavor}, "
+                f"policy {self.policy}, jerk {self.jerk}\n; from {self.origin}\n")
+
+
+def klipper_configs() -> list[Path]:
+    ref = SHARED / "reference" / "klipper"
+    return [p for p in (ref / "cartesian_corpus.cfg", ref / "corexy_corpus.cfg") if p.exists()]
+
+
+def make_case(seed: int, index: int, pool, cfgs) -> Case:
+    """Case ``index`` of ``seed``: its own random stream, so any case can be replayed alone."""
+    rng = random.Random(f"{seed}:{index}")
+    name, lines = rng.choice(pool)
+    length = rng.choice((1, 2, 3, 5, 8, 13, 21, 34, 60, 120))
+    start = rng.randrange(max(1, len(lines) - length + 1))
+    prog = list(lines[start:start + length])
+    origin = f"{name} lines {start + 1}..{start + len(prog)} of the pool"
+    if rng.random() < 0.2:      # a second window, from any file
+        name2, lines2 = rng.choice(pool)
+        s2 = rng.randrange(max(1, len(lines2) - 10))
+        at = rng.randrange(len(prog) + 1)
+        prog[at:at] = lines2[s2:s2 + rng.randrange(1, 11)]
+        origin += f" + {name2}"
+    n_mut = rng.choice((0, 0, 1, 1, 2, 3, 5))
+    for _ in range(n_mut):
+        if prog and rng.random() < 0.7:
+            i = rng.randrange(len(prog))
+            prog[i] = mutate_line(prog[i], rng)
+        else:
+            prog.insert(rng.randrange(len(prog) + 1), generated_line(rng))
+    if cfgs and rng.random() < 0.15:
+        machine = "klipper-cfg:" + rng.choice(cfgs).name
+    else:
+        machine = rng.choice(PRESETS)
+    flavor = rng.choice((None, None, *FLAVORS))
+    policy = rng.choice(POLICIES)
+    if policy == "classic-jerk" and machine != "marlin" and rng.random() < 0.8:
+        policy = rng.choice(("klipper", "junction-deviation", "blend", "exact-stop"))   # it needs per-axis jerks
+    jerk = None
+    if policy != "blend" and rng.random() < 0.25:
+        jerk = rng.choice((1e3, 1e4, 1e5, 1e6, 3e7))
+    return Case(seed, index, prog, machine, flavor, policy, jerk, origin)
+
+
+# --------------------------------------------------------------------------- running one case
+REJECTED = "rejected"
+
+
+class Bad(Exception):
+    """A broken invariant (non-finite / negative time, steps going back in time); ``kind`` names it without
+    the values, for grouping failures."""
+
+    def __init__(self, kind: str, detail: str = ""):
+        super().__init__(f"{kind} {detail}".strip())
+        self.kind = kind
+
+
+class _Checks:
+    """Sinks of one run: time accounting, per-line times and step generation under a step budget."""
+
+    def __init__(self, machine, rails, max_steps: int):
+        from gcodeplan.pipeline import LineTimes, Sink
+        from gcodeplan.report.summary import TimeSummary
+        from gcodeplan.stepper.generate import StepGenerator
+        from gcodeplan.stepper.source import homing_resets
+
+        checks = self
+        self.time = TimeSummary()
+        self.lines = LineTimes()
+        self.steps = 0
+        self.stepping = True
+        self.last_t = [-math.inf] * len(rails)
+        # steps per mm of the busiest stepper, times the largest weight (corexy: |x| + |y|)
+        self.scale = max((r.steps_per_mm * (sum(abs(w) for w in r.weights) if r.weights else 2.0)
+                          for r in rails), default=0.0)
+        self.max_steps = max_steps
+
+        def on_steps(si, t, d):
+            if t.size:
+                if not np.all(np.isfinite(t)):
+                    raise Bad(f"non-finite step time on stepper {rails[si].name}")
+                if float(t.min()) < 0.0:
+                    raise Bad(f"negative step time on stepper {rails[si].name}", repr(float(t.min())))
+                back = np.flatnonzero(np.diff(np.r_[checks.last_t[si], t]) < 0.0)
+                if back.size:
+                    k = int(back[0])
+                    prev = checks.last_t[si] if k == 0 else float(t[k - 1])
+                    size = "by rounding (< 1e-12 s)" if prev - float(t[k]) < 1e-12 else "by more than 1e-12 s"
+                    raise Bad(f"step times go backwards {size} on stepper {rails[si].name}",
+                              f"({prev!r} then {float(t[k])!r})")
+                checks.last_t[si] = float(t[-1])
+            checks.steps += int(t.size)
+
+        gen = StepGenerator(rails, on_steps, chunk_steps=1 << 14)
+
+        class Steps(Sink):
+            needs_segments = True
+
+            def __init__(self):
+                self.pending = False
+
+            def add(self, piece):
+                checks.check_piece(piece)
+                if not checks.stepping:
+                    return
+                m = piece.moves
+                d = (np.abs(m["x1"] - m["x0"]) + np.abs(m["y1"] - m["y0"]) + np.abs(m["z1"] - m["z0"])
+                     + np.abs(m["e1"] - m["e0"]))
+                budget = float(np.sum(d[np.isfinite(d)])) * checks.scale * 2.0 + 4.0 * len(m)
+                if not np.all(np.isfinite(d)) or checks.steps + budget > checks.max_steps:
+                    checks.stepping = False
+                    return
+                reset, self.pending = homing_resets(m, piece.segments, piece.first_move, self.pending)
+                gen.feed(piece.segments, reset)
+
+            def close(self, result):
+                if checks.stepping:
+                    gen.finish()
+
+        class Times(Sink):
+            def add(self, piece):
+                checks.time.add(piece.moves, piece.plan)
+                checks.lines.add(piece)
+
+        self.sinks = [Times(), Steps()]
+
+    @staticmethod
+    def check_piece(piece) -> None:
+        p = piece.plan
+        for name in ("t_start", "duration", "accel_t", "cruise_t", "decel_t", "start_v", "cruise_v", "end_v"):
+            col = p[name]
+            if not np.all(np.isfinite(col)):
+                i = int(np.flatnonzero(~np.isfinite(col))[0])
+                raise Bad(f"non-finite PLAN.{name}", f"({col[i]!r}) at line {int(piece.moves['line'][i])}")
+            if np.any(col < 0.0):
+                i = int(np.flatnonzero(col < 0.0)[0])
+                raise Bad(f"negative PLAN.{name}", f"({col[i]!r}) at line {int(piece.moves['line'][i])}")
+        s = piece.segments
+        if s is not None and len(s):
+            for name in ("t0", "dt"):
+                col = s[name]
+                if not np.all(np.isfinite(col)) or np.any(col < 0.0):
+                    raise Bad(f"non-finite or negative SEGMENT.{name}")
+
+    def finish(self) -> None:
+        total = self.time.end_t
+        if not (math.isfinite(total) and total >= 0.0):
+            raise Bad("non-finite or negative total time", repr(total))
+        _, ends = self.lines.arrays()
+        if ends.size and (not np.all(np.isfinite(ends)) or np.any(ends < 0.0)):
+            raise Bad("non-finite or negative per-line end time")
+
+
+_MACHINES: dict = {}
+_RAILS: dict = {}
+FUZZ_CHUNK_BYTES = 4096
+
+
+def _small_reads() -> None:
+    """Read sources in small chunks: a fresh 8 MB read buffer per case would cost more than the case, and
+    small chunks also put lines across chunk boundaries (the reader's chunk size is a keyword default)."""
+    from gcodeplan.gcode.reader import GcodeReader
+
+    kw = GcodeReader.__init__.__kwdefaults__
+    if kw is not None and "chunk_bytes" in kw and kw["chunk_bytes"] != FUZZ_CHUNK_BYTES:
+        kw["chunk_bytes"] = FUZZ_CHUNK_BYTES
+
+
+def _machine(case: Case):
+    import gcodeplan as gp
+
+    key = (case.machine, case.flavor)
+    if key not in _MACHINES:
+        if case.machine.startswith("klipper-cfg:"):
+            cfg = SHARED / "reference" / "klipper" / case.machine.split(":", 1)[1]
+            _MACHINES[key] = gp.load_machine(klipper_config=str(cfg), flavor=case.flavor)
+        else:
+            _MACHINES[key] = gp.load_machine(case.machine, flavor=case.flavor)
+    return _MACHINES[key]
+
+
+def run_case(case: Case, lines: list[bytes] | None = None, max_steps: int = 2_000_000):
+    """Run one case: None when it passes, ``REJECTED`` when it raised a GcodeplanError (a clear error is a
+    pass too), else (signature, traceback text)."""
+    from gcodeplan.errors import GcodeplanError
+    from gcodeplan.pipeline import run
+    from gcodeplan.stepper.source import rails_from
+
+    lines = case.lines if lines is None else lines
+    _small_reads()
+    try:
+        machine = _machine(case)
+        key = (case.machine, case.flavor)
+        if key not in _RAILS:
+            _RAILS[key] = rails_from(machine)
+        checks = _Checks(machine, _RAILS[key], max_steps)
+        run([ln + b"\n" for ln in lines], machine, policy=case.policy, jerk=case.jerk, sinks=checks.sinks,
+            batch_moves=64)
+        checks.finish()
+    except GcodeplanError:
+        return REJECTED
+    except Bad as err:
+        return f"Bad: {err.kind}", traceback.format_exc()
+    except Exception as err:  # noqa: BLE001 - every other exception is what we are looking for
+        tb = traceback.extract_tb(err.__traceback__)
+        where = f"{Path(tb[-1].filename).name}:{tb[-1].lineno}" if tb else "?"
+        return f"{type(err).__name__} at {where}", traceback.format_exc()
+    return None
+
+
+# --------------------------------------------------------------------------- minimising
+def minimise(case: Case, signature: str, max_steps: int, budget_s: float = 60.0) -> list[bytes]:
+    """Delta debugging (Zeller's ddmin) over the lines: a smallest-found subset with the same failure."""
+    deadline = time.monotonic() + budget_s
+
+    def fails(lines):
+        res = run_case(case, lines, max_steps)
+        return isinstance(res, tuple) and res[0] == signature
+
+    lines = list(case.lines)
+    n = 2
+    while len(lines) >= 2 and time.monotonic() < deadline:
+        size = math.ceil(len(lines) / n)
+        chunks = [lines[i:i + size] for i in range(0, len(lines), size)]
+        reduced = False
+        for i in range(len(chunks)):
+            complement = [ln for j, c in enumerate(chunks) if j != i for ln in c]
+            if complement and fails(complement):
+                lines = complement
+                n = max(n - 1, 2)
+                reduced = True
+                break
+        if not reduced:
+            if n >= len(lines):
+                break
+            n = min(len(lines), 2 * n)
+    return lines
+
+
+def read_case(path: Path) -> Case:
+    """A case file written by :func:`write_failure`: its configuration from the first comment line."""
+    raw = Path(path).read_bytes().splitlines()
+    m = re.match(rb"; fuzz seed (-?\d+) case (\d+): machine (\S+), flavor (\S+), policy (\S+), jerk (\S+)", raw[0])
+    if not m:
+        raise SystemExit(f"{path}: not a fuzz case (first line)")
+    seed, index, machine, flavor, policy, jerk = (g.decode() for g in m.groups())
+    lines = [ln for ln in raw[1:] if not ln.startswith((b"; from ", b"; failure: "))]
+    return Case(int(seed), int(index), lines, machine.rstrip(","), None if flavor == "None," else flavor.rstrip(","),
+                policy.rstrip(","), None if jerk == "None" else float(jerk), str(path))
+
+
+def write_failure(out: Path, case: Case, signature: str, tb: str, lines: list[bytes]) -> Path:
+    out.mkdir(parents=True, exist_ok=True)
+    base = out / f"{case.seed}-{case.index}"
+    with open(base.with_suffix(".gcode"), "wb") as fh:
+        fh.write(case.header().encode())
+        fh.write(f"; failure: {signature}\n".encode())
+        for ln in lines:
+            fh.write(ln + b"\n")
+    base.with_suffix(".txt").write_text(f"{signature}\n{case.header()}\n{tb}")
+    return base.with_suffix(".gcode")
+
+
+# --------------------------------------------------------------------------- driver
+@dataclass
+class Stats:
+    """Counts of a fuzz round."""
+
+    cases: int = 0
+    rejected: int = 0              # GcodeplanError: a clear error, a pass
+    failures: int = 0
+    signatures: dict = field(default_factory=dict)   # signature -> first (case index, written file)
+    seconds: float = 0.0
+    slowest: tuple = (0.0, -1)
+
+    def line(self) -> str:
+        return (f"{self.cases} cases in {self.seconds:.0f} s ({self.cases / max(self.seconds, 1e-9):.0f}/s): "
+                f"{self.failures} failures ({len(self.signatures)} distinct), slowest case "
+                f"{self.slowest[1]} {self.slowest[0]:.2f} s")
+
+
+def fuzz(seed: int, cases: int | None, seconds: float | None, out: Path, max_steps: int = 2_000_000,
+         start: int = 0, log=print, minimise_s: float = 60.0) -> Stats:
+    """Run cases start, start+1, … until ``cases`` ran or ``seconds`` passed; failures minimised into ``out``."""
+    pool = load_pool(seed)
+    cfgs = klipper_configs()
+    st = Stats()
+    t0 = time.monotonic()
+    last_log = t0
+    i = start
+    while True:
+        now = time.monotonic()
+        if cases is not None and st.cases >= cases:
+            break
+        if seconds is not None and now - t0 >= seconds:
+            break
+        case = make_case(seed, i, pool, cfgs)
+        c0 = time.monotonic()
+        res = run_case(case, max_steps=max_steps)
+        dt = time.monotonic() - c0
+        if dt > st.slowest[0]:
+            st.slowest = (dt, i)
+        st.cases += 1
+        if res == REJECTED:
+            st.rejected += 1
+        elif res is not None:
+            st.failures += 1
+            sig, tb = res
+            if sig not in st.signatures:
+                small = minimise(case, sig, max_steps, minimise_s)
+                path = write_failure(out, case, sig, tb, small)
+                st.signatures[sig] = (i, str(path))
+                log(f"case {i}: {sig} -> {path} ({len(small)} lines)")
+        i += 1
+        if now - last_log > 60:
+            last_log = now
+            st.seconds = now - t0
+            log(f"[{time.strftime('%H:%M:%S')}] up to case {i}: {st.line()}")
+    st.seconds = time.monotonic() - t0
+    return st
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--cases", type=int, default=None, help="number of cases (default: unlimited with --seconds)")
+    ap.add_argument("--seconds", type=float, default=None, help="stop after this many seconds")
+    ap.add_argument("--start", type=int, default=0, help="first case number (to split a round across processes)")
+    ap.add_argument("--out", type=Path, default=Path("fuzz_failures"), help="folder for minimised failing cases")
+    ap.add_argument("--max-steps", type=int, default=2_000_000, help="skip stepping a case beyond this many steps")
+    ap.add_argument("--replay", type=int, default=None, help="run this one case and print it")
+    ap.add_argument("--file", type=Path, default=None, help="run a case written to --out again (minimised or edited)")
+    args = ap.parse_args(argv)
+    if args.file is not None:
+        case = read_case(args.file)
+        res = run_case(case, max_steps=args.max_steps)
+        print(res[1] if isinstance(res, tuple) else ("PASS" if res is None else "PASS (rejected: GcodeplanError)"))
+        return 1 if isinstance(res, tuple) else 0
+    if args.cases is None and args.seconds is None and args.replay is None:
+        args.cases = 1000
+    if args.replay is not None:
+        case = make_case(args.seed, args.replay, load_pool(args.seed), klipper_configs())
+        sys.stdout.write(case.header())
+        for ln in case.lines:
+            sys.stdout.write(ln.decode("utf-8", "replace") + "\n")
+        res = run_case(case, max_steps=args.max_steps)
+        print(res[1] if isinstance(res, tuple) else ("PASS" if res is None else "PASS (rejected: GcodeplanError)"))
+        return 1 if isinstance(res, tuple) else 0
+    st = fuzz(args.seed, args.cases, args.seconds, args.out, args.max_steps, args.start)
+    print(f"seed {args.seed}, cases {args.start}..{args.start + st.cases - 1}: {st.line()}; "
+          f"{st.rejected} rejected")
+    for sig, (i, path) in st.signatures.items():
+        print(f"  {sig}: first case {i}, minimised in {path}")
+    return 1 if st.failures else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
