@@ -4,8 +4,8 @@ and against closed forms.
 Klipper's reference: totals (its planner with DeltaKinematics.check_move's slow zones), the e_spiral20k refusal
 ("Move out of range" at line 5247 on delta.cfg) and exact step times per tower (its 50 MHz clocks after the
 step+dir+step filter). Ours: same totals within 1e-9 relative, same step counts and directions on every
-tower, every step within 100 ns. The closed forms: the carriage height z + √(L² − (x − t_x)² − (y − t_y)²) at
-every step time lands on the step's half-step point, also where a carriage reverses while the head moves
+tower, every step within 100 ns. The closed forms: the carriage height z + √(L² − (x − t_x)² − (y − t_y)²)
+at every step time lands on the step's half-step point, also where a carriage reverses while the head moves
 straight and when X/Y are input-shaped; the slow-zone speed caps give the hand-worked trapezoid times.
 """
 from __future__ import annotations
@@ -134,13 +134,32 @@ def test_cube_matches_klipper():
             truncated_at=info["steps"]["truncated_at_s"])
 
 
+@pytest.mark.parametrize("name, cfg", [("e_spiral20k", "delta_wide"), ("a_long_x", "delta")])
+def test_moves_in_the_slow_zones_are_klippers(name, cfg):
+    """The source lines of the moves that reach each slow zone (extreme of start and end x² + y² beyond
+    slow_xy2 / very_slow_xy2), as Klipper's check_move found them (times.json → delta.moves_in_slow_zone)."""
+    from gcodeplan.gcode import read_moves
+
+    ref = times_json()[f"{name}.gcode"]["configs"][cfg]["delta"]["moves_in_slow_zone"]
+    machine = klipper_machine(cfg)
+    g = DeltaGeometry.from_machine(machine)
+    mv, _ = read_moves(source(name), machine)
+    mv = mv[mv["move_d"] > 0]
+    extreme = np.maximum(mv["x0"] ** 2 + mv["y0"] ** 2, mv["x1"] ** 2 + mv["y1"] ** 2)
+    very = extreme > g.very_slow_xy2
+    slow = (extreme > g.slow_xy2) & ~very
+    for zone, ours in (("slow", slow), ("very_slow", very)):
+        assert mv["line"][ours].tolist() == ref.get(zone, {}).get("source_lines", []), zone
+
+
 def test_spiral_is_refused_where_klipper_refuses_it():
     info = times_json()["e_spiral20k.gcode"]["configs"]["delta"]
     line, text = info["klipper_errors_first"][0]
     with pytest.raises(GcodeError) as err:
         total(source("e_spiral20k"), klipper_machine("delta"))
     assert err.value.line == line == 5247
-    assert err.value.message.startswith(text.removeprefix("!! "))     # "Move out of range: 145.894 139.772 0.200 [87.212]"
+    # "Move out of range: 145.894 139.772 0.200 [87.212]"
+    assert err.value.message.startswith(text.removeprefix("!! "))
     assert str(err.value).startswith(f"{source('e_spiral20k')}:5247: Move out of range")
 
 
@@ -194,7 +213,8 @@ def test_a_carriage_reverses_while_the_head_moves_straight():
     t, d = steps["c"]
     flip = int(np.flatnonzero(d < 0)[0])
     assert np.all(d[:flip] > 0) and np.all(d[flip:] < 0)
-    # the head's x at the turn is 0 within one step's worth of carriage travel: c(x) ≈ c_max − x²/(2·√(L² − 96²))
+    # the head's x at the turn is 0 within one step's worth of carriage travel:
+    # c(x) ≈ c_max − x²/(2·√(L² − 96²))
     x_turn = eval_segments(seg, np.array([t[flip - 1], t[flip]]))[:, 0]
     tol = math.sqrt(2 * 1.25e-2 * math.sqrt(400 ** 2 - 96 ** 2))
     assert np.all(np.abs(x_turn) < tol)
@@ -264,7 +284,8 @@ def test_moves_out_of_reach_are_refused_with_klippers_text():
         total((ok + "G1 Z-0.5\n").splitlines(), m)
     with pytest.raises(GcodeError, match=r"Move out of range: 0\.000 0\.000 300\.100"):
         total((ok + "G1 Z300.1\n").splitlines(), m)
-    # above limit_z (= 648.689 − 400) the reach tapers: at z = 290 it is 196 − √(L² − (L − (290 − limit_z))²)
+    # above limit_z (= 648.689 − 400) the reach tapers:
+    # at z = 290 it is 196 − √(L² − (L − (290 − limit_z))²)
     assert g.limit_z == pytest.approx(300 + math.sqrt(400 ** 2 - 196 ** 2) - 400)
     r290 = 196 - math.sqrt(400 ** 2 - (400 - (290 - g.limit_z)) ** 2)
     total((ok + f"G1 Z290\nG1 X{r290 - 0.01:.3f}\n").splitlines(), m)
@@ -311,3 +332,39 @@ def test_bad_delta_configs_are_errors(tmp_path):
             load_klipper_config(str(p))
     with pytest.raises(ConfigError, match="delta_radius"):
         rails_for(Machine(kinematics="delta"))
+
+
+# ----------------------------------------------------------------- plots: driven motors against commanded
+
+def test_axes_plot_shows_shaped_towers_against_commanded():
+    """``plot --what axes`` on a shaped delta: per tower the commanded carriage height (the planned path) and
+    the driven one (x, y shaped first), each equal to the closed form at the plotted times."""
+    import gcodeplan.api as gp
+    from gcodeplan.report import plots
+
+    m = delta_machine(shaper_freq_x=45.0, shaper_type_y="ei", shaper_freq_y=38.0)
+    prog = "SET_KINEMATIC_POSITION X=0 Y=0 Z=0\nG90\nG1 X120 Y-30 F9000\nG1 X-40 Y150\nG1 X0 Y0 Z2\n"
+    plan = gp.plan(prog.splitlines(), m)
+    win = plots.Window(plan.moves, plan.plan, plan.segments, limits=plan.limits)
+    fig = plots.plot_axes(win, m)
+    px, py = shaper_pulses("mzv", 45.0), shaper_pulses("ei", 38.0)
+    for name, ang in zip("abc", m.delta_angle):
+        t, cmd = (np.asarray(v, float) for v in line_by_gid(fig, f"cmd_{name}").get_data())
+        _, drv = (np.asarray(v, float) for v in line_by_gid(fig, f"motor_{name}").get_data())
+        xyz = eval_segments(plan.segments, t)
+        assert np.allclose(cmd, carriage(xyz, ang), rtol=0, atol=1e-9)
+        # shaped: x_s(t) = Σ a_i·x(t + τ_i), likewise y; z unshaped
+        shaped = xyz.copy()
+        for q, (a, tau) in ((0, px), (1, py)):
+            shaped[:, q] = sum(w * eval_segments(plan.segments, t + s)[:, q] for w, s in zip(a, tau))
+        assert np.allclose(drv, carriage(shaped, ang), rtol=0, atol=1e-9)
+        assert np.max(np.abs(drv - cmd)) > 1e-3          # shaping shows (corners at 150 mm/s)
+    # an unshaped cartesian machine keeps its plot as it was: no motor rows
+    fig = plots.plot_axes(win, Machine())
+    assert not any(str(ln.get_gid()).startswith("motor_") for ax in fig.axes for ln in ax.get_lines())
+
+
+def line_by_gid(fig, gid):
+    found = [ln for ax in fig.axes for ln in ax.get_lines() if ln.get_gid() == gid]
+    assert len(found) == 1, f"{gid}: {len(found)} lines"
+    return found[0]

@@ -350,7 +350,8 @@ class _Checks:
                 if back.size:
                     k = int(back[0])
                     prev = checks.last_t[si] if k == 0 else float(t[k - 1])
-                    size = "by rounding (< 1e-12 s)" if prev - float(t[k]) < 1e-12 else "by more than 1e-12 s"
+                    ulps = (prev - float(t[k])) / np.spacing(prev)
+                    size = "by rounding (≤ 4 ulp)" if ulps <= 4 else "by more than 4 ulp"
                     raise Bad(f"step times go backwards {size} on stepper {rails[si].name}",
                               f"({prev!r} then {float(t[k])!r})")
                 checks.last_t[si] = float(t[-1])
@@ -460,7 +461,7 @@ def run_case(case: Case, lines: list[bytes] | None = None, max_steps: int = 2_00
             _RAILS[key] = rails_from(machine)
         checks = _Checks(machine, _RAILS[key], max_steps)
         run([ln + b"\n" for ln in lines], machine, policy=case.policy, jerk=case.jerk, sinks=checks.sinks,
-            batch_moves=64)
+            batch_moves=512)
         checks.finish()
     except GcodeplanError:
         return REJECTED

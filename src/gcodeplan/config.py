@@ -35,6 +35,7 @@ __all__ = [
     "steps_per_mm_from_rotation",
     "parse_gear_ratio",
     "klipper_extrude_ratio",
+    "without_bounds",
 ]
 
 # Kinematics Klipper and others offer that we know about but cannot plan yet.
@@ -1073,4 +1074,12 @@ def machine_from_args(args: Any) -> Machine:
         if problem is not None:
             raise ConfigError(f"--flavor: {problem}")
         machine = replace(machine, flavor=flavor)
+    if getattr(args, "no_bounds", False):
+        machine = without_bounds(machine)
     return machine
+
+
+def without_bounds(machine: Machine) -> Machine:
+    """A copy of ``machine`` with no travel limits (position_min/max ∓inf) on any axis: ``--no-bounds``."""
+    axes = {a: replace(ax, position_min=-math.inf, position_max=math.inf) for a, ax in machine.axes.items()}
+    return replace(machine, axes=axes)

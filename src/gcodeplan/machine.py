@@ -111,7 +111,8 @@ class Machine:
     minimum_z_position: float = 0.0          # mm, lowest Z a move may end at
     delta_arm_length: tuple[float, float, float] = (0.0, 0.0, 0.0)           # mm per tower; required
     delta_angle: tuple[float, float, float] = (210.0, 330.0, 90.0)           # degrees per tower
-    delta_position_endstop: tuple[float, float, float] = (0.0, 0.0, 0.0)     # mm, nozzle Z at X=Y=0 with a tower at its endstop
+    # mm, nozzle Z at X = Y = 0 with that tower's carriage at its endstop
+    delta_position_endstop: tuple[float, float, float] = (0.0, 0.0, 0.0)
     delta_steps_per_mm: tuple[float, float, float] = (80.0, 80.0, 80.0)      # steps per mm of carriage travel
 
     # ------------------------------------------------------------------ derived

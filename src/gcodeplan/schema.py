@@ -87,7 +87,7 @@ LIMITS_DTYPE = np.dtype(
         # centre gets speed / accel ≤ ½·(delta_slow_v, delta_slow_a), beyond √delta_very_slow_xy2 ≤ ¼ of them;
         # delta_slow_v = 0: not a delta (no rule)
         ("delta_slow_xy2", "f8"), ("delta_very_slow_xy2", "f8"),   # mm²
-        ("delta_slow_v", "f8"), ("delta_slow_a", "f8"),            # mm/s, mm/s²: Klipper's config max_velocity / max_accel
+        ("delta_slow_v", "f8"), ("delta_slow_a", "f8"),   # mm/s, mm/s²: Klipper's config max_velocity / max_accel
     ],
     align=True,
 )

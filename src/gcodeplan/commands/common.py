@@ -83,18 +83,7 @@ def machine_from_args(args):
     """The machine a command runs with (see :func:`gcodeplan.config.machine_from_args`)."""
     from ..config import machine_from_args as build
 
-    machine = build(args)
-    if getattr(args, "no_bounds", False):
-        machine = without_bounds(machine)
-    return machine
-
-
-def without_bounds(machine):
-    """A copy of ``machine`` with no travel limits on any axis (``--no-bounds``)."""
-    from dataclasses import replace
-
-    axes = {a: replace(ax, position_min=-math.inf, position_max=math.inf) for a, ax in machine.axes.items()}
-    return replace(machine, axes=axes)
+    return build(args)     # --no-bounds included
 
 
 def progress_bar(source, quiet: bool):

@@ -314,8 +314,11 @@ def run(args) -> int:
     else:
         win, _ = load_window(args.file, machine, selection_from_args(args), args.policy, args.jerk, args.strict)
         fig = draw(args.what, win, machine, size_in)
+    from ..report.output import atomic_output
+
     try:
-        fig.savefig(out, format=fmt, dpi=fig.dpi)
+        with atomic_output(out, "wb") as fh:      # whole or not at all, even on SIGTERM
+            fig.savefig(fh, format=fmt, dpi=fig.dpi)
     except OSError as err:
         raise GcodeplanError(f"cannot write {out}: {err.strerror or err}") from None
     print(out)

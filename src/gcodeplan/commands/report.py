@@ -223,8 +223,10 @@ def run(args) -> int:
     if not os.path.isdir(parent):
         raise GcodeplanError(f"cannot write {out}: no such directory {parent}")
     page = build_report(args.file, machine, args.policy, args.jerk, args.strict, args.slowest, size_in)
+    from ..report.output import atomic_output
+
     try:
-        with open(out, "w", encoding="utf-8") as fh:
+        with atomic_output(out, "w") as fh:       # whole or not at all, even on SIGTERM
             fh.write(page)
     except OSError as err:
         raise GcodeplanError(f"cannot write {out}: {err.strerror or err}") from None

@@ -321,13 +321,85 @@ def _point_dist_to_seg(px, py, pz, bx, by, bz, ex, ey, ez):
 
 
 @numba.njit(cache=True)
+def _naive_arc_points(moves, r0, r1):
+    """emccanon.cc ARC_FEED/chord_deviation for the chords r0..r1 of one arc: (ok, deviation of the arc
+    from its chord (mm), the arc's middle point). ``ok`` is False unless the arc lies in the XY plane —
+    LinuxCNC's canon only lets XY arcs join a naive-CAM chain."""
+    m = r1 - r0 + 1
+    sx, sy, sz = moves[r0].x0, moves[r0].y0, moves[r0].z0
+    ex, ey, ez = moves[r1].x1, moves[r1].y1, moves[r1].z1
+    if m < 2:
+        return False, 0.0, 0.0, 0.0, 0.0
+    # the plane: the chords turn about Z only when the arc is in XY
+    c1x, c1y, c1z = moves[r0].x1 - sx, moves[r0].y1 - sy, moves[r0].z1 - sz
+    c2x, c2y, c2z = (moves[r0 + 1].x1 - moves[r0 + 1].x0, moves[r0 + 1].y1 - moves[r0 + 1].y0,
+                     moves[r0 + 1].z1 - moves[r0 + 1].z0)
+    crx, cry, crz = c1y * c2z - c1z * c2y, c1z * c2x - c1x * c2z, c1x * c2y - c1y * c2x
+    if not (abs(crz) > abs(crx) and abs(crz) > abs(cry)):
+        return False, 0.0, 0.0, 0.0, 0.0
+    # centre: circumcircle of start, middle chord end and end (XY)
+    k = (m + 1) // 2
+    mxp, myp = moves[r0 + k - 1].x1, moves[r0 + k - 1].y1
+    if abs(sx - ex) + abs(sy - ey) < 1e-12:
+        ex2, ey2 = moves[r1 - 1].x1, moves[r1 - 1].y1
+    else:
+        ex2, ey2 = ex, ey
+    den = 2.0 * (sx * (myp - ey2) + mxp * (ey2 - sy) + ex2 * (sy - myp))
+    if den == 0.0:
+        return False, 0.0, 0.0, 0.0, 0.0
+    a2 = sx * sx + sy * sy
+    b2 = mxp * mxp + myp * myp
+    c2 = ex2 * ex2 + ey2 * ey2
+    ux = (a2 * (myp - ey2) + b2 * (ey2 - sy) + c2 * (sy - myp)) / den
+    uy = (a2 * (ex2 - mxp) + b2 * (sx - ex2) + c2 * (mxp - sx)) / den
+    sweep = 0.0
+    for t in range(m):
+        mv = moves[r0 + t]
+        vx0, vy0 = mv.x0 - ux, mv.y0 - uy
+        vx1, vy1 = mv.x1 - ux, mv.y1 - uy
+        sweep += math.atan2(vx0 * vy1 - vy0 * vx1, vx0 * vx1 + vy0 * vy1)
+    rad = math.hypot(sx - ux, sy - uy)
+    th1 = math.atan2(sy - uy, sx - ux)
+    mid = th1 + sweep / 2.0
+    dev = rad * (1.0 - math.cos(abs(sweep) / 2.0))
+    return True, dev, ux + rad * math.cos(mid), uy + rad * math.sin(mid), (sz + ez) / 2.0
+
+
+@numba.njit(cache=True)
+def _linkable(pts, nc, bx, by, bz, px, py, pz, q_tol):
+    """emccanon.cc linkable: the point P may extend the chain from B when every chained point stays within
+    the naive-CAM tolerance of the segment B→P."""
+    if px == bx and py == by and pz == bz:
+        return False
+    for t in range(nc):
+        if _point_dist_to_seg(pts[t, 0], pts[t, 1], pts[t, 2], bx, by, bz, px, py, pz) > q_tol:
+            return False
+    return True
+
+
+@numba.njit(cache=True)
 def build_kernel(moves, vmax, amax, vlimit_tool, amax_tool, cycle, out):
-    """MOVE rows → input TP segments in ``out``. Returns (n segments, dwell before the first segment)."""
+    """MOVE rows → input TP segments in ``out``. Returns (n segments, dwell before the first segment).
+
+    The naive-CAM chain follows emccanon.cc's see_segment/flush_segments: G1 end points (and the middle
+    and end point of an XY arc that deviates less than Q from its chord) accumulate while every point stays
+    within Q of the line from the chain's start to the newest point; the chain is sent as one line tagged
+    with its last point's line number."""
     n = 0
     lead_dwell = 0.0
     nm = moves.shape[0]
-    chain = np.empty(CHAIN_MAX + 1, dtype=np.int64)
+    pts = np.empty((CHAIN_MAX + 2, 3))
+    pt_line = np.empty(CHAIN_MAX + 2, dtype=np.int64)
     nc = 0
+    bx = 0.0
+    by = 0.0
+    bz = 0.0
+    ch_row0 = 0
+    ch_row1 = -1
+    ch_feed = 0.0
+    ch_p = 0.0
+    ch_q = 0.0
+    last_row = -1                      # last MOVE row given to an emitted chain
     r = 0
     while r < nm:
         mv = moves[r]
@@ -339,25 +411,61 @@ def build_kernel(moves, vmax, amax, vlimit_tool, amax_tool, cycle, out):
         term = _mode(mv)
         tol = mv.blend_p if mv.blend_p == mv.blend_p else 0.0
         q_tol = mv.blend_q if mv.blend_q == mv.blend_q else 0.0
-        # naive CAM: can this G1 join the chain?
-        if nc > 0:
-            c0 = moves[chain[0]]
-            cl = moves[chain[nc - 1]]
-            link = (is_motion and not rapid and not arc and term == TERM_PARABOLIC and _mode(c0) == TERM_PARABOLIC
-                    and q_tol > 0.0 and nc < CHAIN_MAX and mv.feed_v == c0.feed_v
-                    and mv.blend_q == c0.blend_q and mv.blend_p == c0.blend_p
-                    and mv.x0 == cl.x1 and mv.y0 == cl.y1 and mv.z0 == cl.z1)
-            if link:
-                for t in range(nc):
-                    p = moves[chain[t]]
-                    if _point_dist_to_seg(p.x1, p.y1, p.z1, c0.x0, c0.y0, c0.z0, mv.x1, mv.y1, mv.z1) > q_tol:
-                        link = False
-                        break
-            if not link:
-                n = _emit_line(out, n, c0.x0, c0.y0, c0.z0, cl.x1, cl.y1, cl.z1, cl.line, chain[0],
-                               chain[nc - 1], _mode(c0), c0.blend_p if c0.blend_p == c0.blend_p else 0.0,
-                               c0.feed_v, 0, vmax, amax, vlimit_tool, amax_tool, cycle)
-                nc = 0
+        r1 = r
+        if arc:
+            while (r1 + 1 < nm and (moves[r1 + 1].flags & FLAG_ARC) != 0 and moves[r1 + 1].line == mv.line
+                   and moves[r1 + 1].x0 == moves[r1].x1 and moves[r1 + 1].y0 == moves[r1].y1
+                   and moves[r1 + 1].z0 == moves[r1].z1):
+                r1 += 1
+        # the points this row offers to the naive-CAM chain (none: it is not chainable)
+        npt = 0
+        p_mid = np.empty(3)
+        chainable = is_motion and not rapid and term == TERM_PARABOLIC and q_tol > 0.0
+        if chainable and arc:
+            ok, dev, mx, my, mz = _naive_arc_points(moves, r, r1)
+            if ok and dev < q_tol:
+                npt = 2
+                p_mid[0], p_mid[1], p_mid[2] = mx, my, mz
+        elif chainable:
+            npt = 1
+        # a chain cannot absorb a move with other settings, or one that does not start where it ends
+        if nc > 0 and not (npt > 0 and mv.feed_v == ch_feed and tol == ch_p and q_tol == ch_q
+                           and mv.x0 == pts[nc - 1, 0] and mv.y0 == pts[nc - 1, 1] and mv.z0 == pts[nc - 1, 2]):
+            n = _emit_line(out, n, bx, by, bz, pts[nc - 1, 0], pts[nc - 1, 1], pts[nc - 1, 2], pt_line[nc - 1],
+                           ch_row0 if ch_row0 <= ch_row1 else -1, ch_row1, TERM_PARABOLIC, ch_p, ch_feed, 0, vmax,
+                           amax, vlimit_tool, amax_tool, cycle)
+            last_row = max(last_row, ch_row1)
+            bx, by, bz = pts[nc - 1, 0], pts[nc - 1, 1], pts[nc - 1, 2]
+            nc = 0
+        if npt > 0:
+            for t in range(npt):
+                if t == 0 and npt == 2:
+                    px, py, pz = p_mid[0], p_mid[1], p_mid[2]
+                    prow = r - 1 if r1 > r else r       # the middle point ends no whole row of its own
+                else:
+                    px, py, pz = moves[r1].x1, moves[r1].y1, moves[r1].z1
+                    prow = r1
+                if nc > 0 and not (nc <= CHAIN_MAX - 1 and _linkable(pts, nc, bx, by, bz, px, py, pz, q_tol)):
+                    n = _emit_line(out, n, bx, by, bz, pts[nc - 1, 0], pts[nc - 1, 1], pts[nc - 1, 2],
+                                   pt_line[nc - 1], ch_row0 if ch_row0 <= ch_row1 else -1, ch_row1,
+                                   TERM_PARABOLIC, ch_p, ch_feed, 0, vmax, amax, vlimit_tool, amax_tool, cycle)
+                    last_row = max(last_row, ch_row1)
+                    bx, by, bz = pts[nc - 1, 0], pts[nc - 1, 1], pts[nc - 1, 2]
+                    nc = 0
+                if nc == 0:
+                    if t == 0:
+                        bx, by, bz = mv.x0, mv.y0, mv.z0
+                    ch_row0 = max(r, last_row + 1)
+                    ch_row1 = ch_row0 - 1
+                    ch_feed = mv.feed_v
+                    ch_p = tol
+                    ch_q = q_tol
+                pts[nc, 0], pts[nc, 1], pts[nc, 2] = px, py, pz
+                pt_line[nc] = mv.line
+                nc += 1
+                ch_row1 = max(ch_row1, prow)
+            r = r1 + 1
+            continue
         if is_wait:
             if n > 0:
                 out[n - 1].sync_after = 1
@@ -370,11 +478,6 @@ def build_kernel(moves, vmax, amax, vlimit_tool, amax_tool, cycle, out):
             r += 1
             continue
         if arc:
-            r1 = r
-            while (r1 + 1 < nm and (moves[r1 + 1].flags & FLAG_ARC) != 0 and moves[r1 + 1].line == mv.line
-                   and moves[r1 + 1].x0 == moves[r1].x1 and moves[r1 + 1].y0 == moves[r1].y1
-                   and moves[r1 + 1].z0 == moves[r1].z1):
-                r1 += 1
             n2, ok = _emit_arc(out, n, moves, r, r1, term, tol, mv.feed_v, vmax, amax, amax_tool, cycle)
             if ok:
                 n = n2
@@ -390,18 +493,12 @@ def build_kernel(moves, vmax, amax, vlimit_tool, amax_tool, cycle, out):
                            vmax, amax, vlimit_tool, amax_tool, cycle)
             r += 1
             continue
-        if term == TERM_PARABOLIC and q_tol > 0.0:
-            chain[nc] = r
-            nc += 1
-        else:
-            n = _emit_line(out, n, mv.x0, mv.y0, mv.z0, mv.x1, mv.y1, mv.z1, mv.line, r, r, term, tol, mv.feed_v, 0,
-                           vmax, amax, vlimit_tool, amax_tool, cycle)
+        n = _emit_line(out, n, mv.x0, mv.y0, mv.z0, mv.x1, mv.y1, mv.z1, mv.line, r, r, term, tol, mv.feed_v, 0,
+                       vmax, amax, vlimit_tool, amax_tool, cycle)
         r += 1
     if nc > 0:
-        c0 = moves[chain[0]]
-        cl = moves[chain[nc - 1]]
-        n = _emit_line(out, n, c0.x0, c0.y0, c0.z0, cl.x1, cl.y1, cl.z1, cl.line, chain[0], chain[nc - 1],
-                       _mode(c0), c0.blend_p if c0.blend_p == c0.blend_p else 0.0, c0.feed_v, 0, vmax, amax,
+        n = _emit_line(out, n, bx, by, bz, pts[nc - 1, 0], pts[nc - 1, 1], pts[nc - 1, 2], pt_line[nc - 1],
+                       ch_row0 if ch_row0 <= ch_row1 else -1, ch_row1, TERM_PARABOLIC, ch_p, ch_feed, 0, vmax, amax,
                        vlimit_tool, amax_tool, cycle)
     return n, lead_dwell
 

@@ -37,6 +37,10 @@ TP_TIME_EPSILON = 1e-12
 TP_BIG_NUM = 1e10
 TP_MIN_ARC_LENGTH = 1e-6
 TP_MIN_ARC_ANGLE = 1e-3
+TP_ANGLE_EPSILON = 1e-6
+TP_ANGLE_EPSILON_SQ = TP_ANGLE_EPSILON ** 2
+DOUBLE_FUZZ = 2.220446049250313e-16
+BLEND_KINK_FACTOR = 0.25                                # blendmath.h
 TP_OPTIMIZATION_CUTOFF = 4
 BLEND_ACC_RATIO_TANGENTIAL = 0.5
 BLEND_ACC_RATIO_NORMAL = math.sqrt(1.0 - BLEND_ACC_RATIO_TANGENTIAL ** 2)
@@ -373,65 +377,216 @@ def trim_start(sg, d):
 
 
 @numba.njit(cache=True)
-def line_line_blend(q, i_prev, i_cur, i_blend, acc_bound, vel_bound, cycle, gap_cycles, vlimit, tan1, tan2):
-    """blendmath.c / tp.c tpCreateLineLineBlend: a circular arc tangent to both lines within the tolerance,
-    as fast as the normal acceleration allows. Writes the arc into row ``i_blend`` and returns
-    (ok, consume_prev)."""
+def _circle_point_at(sg, phi, out):
+    """posemath pmCirclePoint: the point of circle segment ``sg`` at angle ``phi`` (rad) from its start."""
+    frac = phi / sg.angle if sg.angle > 0.0 else 0.0
+    cp = math.cos(phi)
+    sp = math.sin(phi)
+    rf = 1.0 + sg.spiral * frac / sg.radius if sg.radius > 0.0 else 1.0
+    for a in range(3):
+        out[a] = sg.c[a] + (sg.rt[a] * cp + sg.rp[a] * sp) * rf + sg.h[a] * frac
+
+
+@numba.njit(cache=True)
+def _circle_tangent_at(sg, phi, out):
+    """tc.c pmCircleTangentVector: unit tangent of circle segment ``sg`` at angle ``phi``, with the spiral's
+    radial and the helix' axial components."""
+    cp = math.cos(phi)
+    sp = math.sin(phi)
+    dr = sg.spiral / sg.angle if sg.angle > 0.0 else 0.0
+    r = np.empty(3)
+    for a in range(3):
+        r[a] = sg.rt[a] * cp + sg.rp[a] * sp
+    rn = math.sqrt(_dot(r, r))
+    n = 0.0
+    for a in range(3):
+        # n × r is (−rt sinφ + rp cosφ): rp = n × rt
+        out[a] = -sg.rt[a] * sp + sg.rp[a] * cp + sg.h[a] / max(sg.angle, 1e-300)
+        if rn > 0.0:
+            out[a] += r[a] / rn * dr
+        n += out[a] * out[a]
+    n = math.sqrt(n)
+    if n > 0.0:
+        for a in range(3):
+            out[a] /= n
+
+
+@numba.njit(cache=True)
+def _unit_eq(v):
+    n = math.sqrt(_dot(v, v))
+    if not n > 0.0:
+        return False
+    for a in range(3):
+        v[a] /= n
+    return True
+
+
+@numba.njit(cache=True)
+def _cross(a, b, out):
+    out[0] = a[1] * b[2] - a[2] * b[1]
+    out[1] = a[2] * b[0] - a[0] * b[2]
+    out[2] = a[0] * b[1] - a[1] * b[0]
+
+
+@numba.njit(cache=True)
+def _colinear(u, v):
+    """blendmath.c pmUnitCartsColinear: unit vectors parallel or anti-parallel within TP_ANGLE_EPSILON."""
+    dm = 0.0
+    dp = 0.0
+    for a in range(3):
+        dm += (u[a] - v[a]) ** 2
+        dp += (u[a] + v[a]) ** 2
+    return dm < TP_ANGLE_EPSILON_SQ or dp < TP_ANGLE_EPSILON_SQ
+
+
+@numba.njit(cache=True)
+def _circle_normal(sg, out):
+    _cross(sg.rt, sg.rp, out)
+    return _unit_eq(out)
+
+
+@numba.njit(cache=True)
+def _trim_angle(P, arc_center, center):
+    """blendmath.c findTrimAngle: the angle at ``center`` between the corner ``P`` and the blend's centre."""
+    u = np.empty(3)
+    w = np.empty(3)
+    for a in range(3):
+        u[a] = P[a] - center[a]
+        w[a] = arc_center[a] - center[a]
+    _unit_eq(u)
+    _unit_eq(w)
+    return math.acos(max(-1.0, min(1.0, _dot(u, w))))
+
+
+@numba.njit(cache=True)
+def _line_circle_center(P, c_circ, d_c, R, u, binormal, sgn):
+    """blendmath.c blendLineArcPostProcess / blendArcLinePostProcess: the centre of the blend circle of
+    radius ``R`` tangent to the line through ``P`` along ``u`` (``sgn`` −1: the line before P, +1: after)
+    and at distance ``d_c`` from the circle centre ``c_circ``. Returns (ok, distance along the line)."""
+    nl = np.empty(3)
+    _cross(binormal, u, nl)
+    if not _unit_eq(nl):
+        return False, 0.0, nl
+    cu = 0.0
+    cn = 0.0
+    for a in range(3):
+        cu += (c_circ[a] - P[a]) * u[a]
+        cn += (c_circ[a] - P[a]) * nl[a]
+    B = 2.0 * cu * (-sgn)
+    C = cu * cu - d_c * d_c + (R - cn) ** 2
+    disc = B * B - 4.0 * C
+    if disc < 0.0:
+        return False, 0.0, nl
+    t1 = math.sqrt(disc)
+    d_l = min(abs((-B + t1) / 2.0), abs((-B - t1) / 2.0))
+    out = np.empty(3)
+    for a in range(3):
+        out[a] = P[a] + sgn * u[a] * d_l + nl[a] * R
+    return True, d_l, out
+
+
+@numba.njit(cache=True)
+def blend_arc(q, i_prev, i_cur, i_blend, acc_bound, vel_bound, cycle, gap_cycles, vlimit, tan1, tan2):
+    """tp.c tpCreateLineLineBlend / tpCreateLineArcBlend / tpCreateArcLineBlend / tpCreateArcArcBlend with
+    blendmath.c's geometry: a circular arc tangent to both segments within the tolerance, as fast as the
+    normal acceleration allows. Writes the arc into row ``i_blend``, trims both segments when the arc wins
+    tpChooseBestBlend, and returns (ok, consume_prev)."""
     pv = q[i_prev]
     cu = q[i_cur]
+    line1 = pv.kind == SEG_LINE
+    line2 = cu.kind == SEG_LINE
+    # blendGeom3Init: tangents, corner, intersection angle, plane
     d = max(-1.0, min(1.0, _dot(tan1, tan2)))
-    theta = math.acos(-d) / 2.0
-    phi = math.pi - 2.0 * theta
-    binormal = np.empty(3)
-    binormal[0] = tan1[1] * tan2[2] - tan1[2] * tan2[1]
-    binormal[1] = tan1[2] * tan2[0] - tan1[0] * tan2[2]
-    binormal[2] = tan1[0] * tan2[1] - tan1[1] * tan2[0]
-    nb = math.sqrt(_dot(binormal, binormal))
-    if not nb > 0.0:
+    theta_tan = math.acos(-d) / 2.0
+    if math.pi / 2.0 - theta_tan < TP_ANGLE_EPSILON or theta_tan < TP_ANGLE_EPSILON:
         return False, False
+    binormal = np.empty(3)
+    _cross(tan1, tan2, binormal)
     normal = np.empty(3)
     for a in range(3):
-        binormal[a] /= nb
         normal[a] = tan2[a] - tan1[a]
-    nn = math.sqrt(_dot(normal, normal))
-    if not nn > 0.0:
+    if not (_unit_eq(binormal) and _unit_eq(normal)):
         return False, False
+    P = np.empty(3)
     for a in range(3):
-        normal[a] /= nn
-    # blend lengths (blendInit3From*): half a line; on an arc at most 2/3 (before) or 1/3 (after) of its
-    # angle and a quarter turn. Arcs are blended through their tangent lines at the corner (an
-    # approximation of blendmath.c's exact arc post-processing: the corner speed is the same to first order)
-    if pv.kind == SEG_LINE:
+        P[a] = cu.p0[a]
+    u1 = tan1.copy()
+    u2 = tan2.copy()
+    theta = theta_tan
+    c1 = np.zeros(3)
+    c2 = np.zeros(3)
+    r1 = 0.0
+    r2 = 0.0
+    convex1 = False
+    convex2 = False
+    phi1_max = 0.0
+    phi2_max = 0.0
+    nrm = np.empty(3)
+    bp = np.empty(3)
+    if not line1:
+        # a helix can be neither blended in its plane nor cut (pmCircleStretch)
+        if _dot(pv.h, pv.h) > 1e-6 or not _circle_normal(pv, nrm) or not _colinear(binormal, nrm):
+            return False, False
+        # findSpiralApproximation: the circle through P whose centre is shifted along the tangent
+        for a in range(3):
+            c1[a] = pv.c[a] + tan1[a] * (pv.spiral / pv.angle)
+            bp[a] = P[a] - c1[a]
+        r1 = math.sqrt(_dot(bp, bp))
+        convex1 = _dot(bp, tan2) < 0.0                     # arcConvexTest(center1, P, u_tan2, false)
+        phi1_max = min(pv.angle * 2.0 / 3.0, theta_tan if convex1 else math.pi / 2.0)
+        if convex1:
+            # the secant over the last half of the blendable angle replaces the tangent
+            _circle_point_at(pv, pv.angle - phi1_max / 2.0, bp)
+            for a in range(3):
+                u1[a] = P[a] - bp[a]
+            _unit_eq(u1)
+            theta = min(theta, theta_tan - phi1_max / 4.0)
+    if not line2:
+        if _dot(cu.h, cu.h) > 1e-6 or not _circle_normal(cu, nrm) or not _colinear(binormal, nrm):
+            return False, False
+        for a in range(3):
+            c2[a] = cu.c[a] + tan2[a] * (cu.spiral / cu.angle)
+            bp[a] = P[a] - c2[a]
+        r2 = math.sqrt(_dot(bp, bp))
+        convex2 = not (_dot(bp, tan1) < 0.0)               # arcConvexTest(center2, P, u_tan1, true)
+        phi2_max = min(cu.angle / 3.0, theta_tan if convex2 else math.pi / 2.0)
+        if convex2:
+            _circle_point_at(cu, phi2_max / 2.0, bp)
+            for a in range(3):
+                u2[a] = bp[a] - P[a]
+            _unit_eq(u2)
+            theta = min(theta, theta_tan - phi2_max / 4.0)
+    if not line1 and not line2 and theta < math.pi / 12.0:
+        return False, False
+    phi = math.pi - 2.0 * theta
+    # blend lengths: half a line (the previous one only up to half its programmed length); on an arc the
+    # blendable angle, or half its chord when the arc is convex towards the other segment
+    if line1:
         L1 = min(pv.target, pv.nominal * BLEND_GREEDINESS)
     else:
-        L1 = min(pv.angle * 2.0 / 3.0, math.pi / 2.0) * pv.radius
-        if not _coplanar(pv, binormal):
-            return False, False
-    if cu.kind == SEG_LINE:
+        L1 = math.sin(phi1_max / 4.0) * r1 if convex1 else phi1_max * r1
+    if line2:
         L2 = cu.target * BLEND_GREEDINESS
     else:
-        L2 = min(cu.angle / 3.0, math.pi / 2.0) * cu.radius
-        if not _coplanar(cu, binormal):
-            return False, False
-        if pv.kind != SEG_LINE and theta < math.pi / 12.0:
-            return False, False
+        L2 = math.sin(phi2_max / 4.0) * r2 if convex2 else phi2_max * r2
+    # blendParamKinematics
     tol = blend_tolerance(q, i_prev, i_cur)
     a_max = inscribed_limit(binormal, acc_bound[0], acc_bound[1], acc_bound[2])
     a_n_max = a_max * BLEND_ACC_RATIO_NORMAL
     v_req = max(pv.reqvel, cu.reqvel)
     v_goal = v_req
     v_planar = inscribed_limit(binormal, vel_bound[0], vel_bound[1], vel_bound[2])
-    phi_eff = min(phi, math.pi * 0.49)
-    v1 = min(pv.maxvel, cu.maxvel / math.cos(phi_eff))
-    v2 = min(cu.maxvel, pv.maxvel / math.cos(phi_eff))
-    area = v1 * v2 / 2.0 * math.sin(phi)
-    base2 = 0.0
-    for a in range(3):
-        base2 += (tan2[a] * v2 - tan1[a] * v1) ** 2
-    base = math.sqrt(base2)
-    v_alt = 2.0 * area / base if base > 0.0 else 0.0
-    if pv.kind != SEG_LINE or cu.kind != SEG_LINE:
-        v_alt = 0.0
+    v_alt = 0.0
+    if line1 and line2:
+        phi_eff = min(phi, math.pi * 0.49)
+        v1 = min(pv.maxvel, cu.maxvel / math.cos(phi_eff))
+        v2 = min(cu.maxvel, pv.maxvel / math.cos(phi_eff))
+        area = v1 * v2 / 2.0 * math.sin(phi)
+        base2 = 0.0
+        for a in range(3):
+            base2 += (u2[a] * v2 - u1[a] * v1) ** 2
+        base = math.sqrt(base2)
+        v_alt = 2.0 * area / base if base > 0.0 else 0.0
     v_goal = min(v_goal, max(v_alt, v_planar))
     # blendComputeParameters
     if not (theta > 0.0 and theta < math.pi / 2.0):
@@ -452,37 +607,163 @@ def line_line_blend(q, i_prev, i_cur, i_blend, acc_bound, vel_bound, cycle, gap_
     s_arc = r_plan * phi
     if r_plan < TP_POS_EPSILON or s_arc < TP_MIN_ARC_LENGTH or not v_plan > 0.0:
         return False, False
-    # blendCheckConsume: a remainder shorter than ARC_BLEND_GAP_CYCLES at the blend speed is swallowed
-    # (d_plan ≤ L1 ≤ the previous line's length by construction: a remainder that rounds below zero is
-    # consumed like any short one, as blendCheckConsume does — no separate rejection)
-    l_prev = max(pv.target - d_plan, 0.0)
-    consume = pv.kind == SEG_LINE and (l_prev / v_plan) < gap_cycles * cycle
-    if d_plan > cu.target:
+    # the blend circle's centre and how much of each segment it replaces (blendFindPoints3 for two
+    # lines; the exact post-processing when an arc is involved)
+    center = np.empty(3)
+    if line1 and line2:
+        center_dist = r_plan / math.sin(theta)
+        for a in range(3):
+            center[a] = P[a] + normal[a] * center_dist
+        trim1 = d_plan
+        trim2 = d_plan
+    elif line1:
+        ok, trim1, center = _line_circle_center(P, c2, (r2 - r_plan) if convex2 else (r2 + r_plan), r_plan,
+                                                u1, binormal, -1.0)
+        if not ok:
+            return False, False
+        trim2 = _trim_angle(P, center, c2)
+    elif line2:
+        ok, trim2, center = _line_circle_center(P, c1, (r1 - r_plan) if convex1 else (r1 + r_plan), r_plan,
+                                                u2, binormal, 1.0)
+        if not ok:
+            return False, False
+        trim1 = _trim_angle(P, center, c1)
+    else:
+        # blendArcArcPostProcess: the centre at distance d1 from centre 1 and d2 from centre 2
+        d1 = (r1 - r_plan) if convex1 else (r1 + r_plan)
+        d2 = (r2 - r_plan) if convex2 else (r2 + r_plan)
+        uc = np.empty(3)
+        for a in range(3):
+            uc[a] = c2[a] - c1[a]
+        c2x = math.sqrt(_dot(uc, uc))
+        if not _unit_eq(uc):
+            return False, False
+        cx = (-d1 * d1 + d2 * d2 - c2x * c2x) / (-2.0 * c2x)
+        cy2 = d1 * d1 - cx * cx
+        if not cy2 >= 0.0:
+            return False, False
+        cy = math.sqrt(cy2)
+        nc = np.empty(3)
+        _cross(binormal, uc, nc)
+        if _dot(normal, nc) < 0.0:
+            for a in range(3):
+                nc[a] = -nc[a]
+        if not _unit_eq(nc):
+            return False, False
+        m1 = 0.0
+        m2 = 0.0
+        for a in range(3):
+            base_a = c1[a] - P[a] + uc[a] * cx
+            m1 += (base_a + nc[a] * cy) ** 2
+            m2 += (base_a - nc[a] * cy) ** 2
+        if m2 < m1:
+            cy = -cy
+        for a in range(3):
+            center[a] = c1[a] + uc[a] * cx + nc[a] * cy
+        trim1 = _trim_angle(P, center, c1)
+        trim2 = _trim_angle(P, center, c2)
+    if not line1 or not line2:
+        hv = 0.0
+        for a in range(3):
+            hv += (center[a] - P[a]) ** 2
+        if math.sqrt(hv) - r_plan > tol:            # the projected blend leaves the tolerance
+            return False, False
+        if not line1 and trim1 > phi1_max:
+            return False, False
+        if not line2 and trim2 > phi2_max:
+            return False, False
+    # blendCheckConsume: a line remainder shorter than ARC_BLEND_GAP_CYCLES at the blend speed is
+    # swallowed (not a line that starts in a parabolic blend: tcCanConsume)
+    l_prev = max(pv.target - trim1, 0.0)
+    consume = line1 and (l_prev / v_plan) < gap_cycles * cycle and pv.blend_prev == 0
+    # the cut segments (pmCartLineStretch / pmCircleStretch refuse to cut to nothing)
+    if line1 and not line2 and not (pv.target - trim1 > DOUBLE_FUZZ):
         return False, False
+    if line2 and not line1 and not (cu.target - trim2 > DOUBLE_FUZZ):
+        return False, False
+    if line2 and trim2 > cu.target:
+        return False, False
+    if not line1 and not (pv.angle - trim1 > DOUBLE_FUZZ):
+        return False, False
+    if not line2 and not (cu.angle - trim2 > DOUBLE_FUZZ):
+        return False, False
+    start = np.empty(3)
+    end = np.empty(3)
+    if line1:
+        for a in range(3):
+            start[a] = pv.p1[a] - tan1[a] * trim1
+    else:
+        _circle_point_at(pv, pv.angle - trim1, start)
+    if line2:
+        for a in range(3):
+            end[a] = cu.p0[a] + tan2[a] * trim2
+    else:
+        _circle_point_at(cu, trim2, end)
+    # spherical_arc.c arcInitFromPoints
+    rs = np.empty(3)
+    re = np.empty(3)
+    for a in range(3):
+        rs[a] = start[a] - center[a]
+        re[a] = end[a] - center[a]
+    rad0 = math.sqrt(_dot(rs, rs))
+    rad1 = math.sqrt(_dot(re, re))
+    if rad0 < TP_POS_EPSILON or rad1 < TP_POS_EPSILON:
+        return False, False
+    ang = math.acos(max(-1.0, min(1.0, _dot(rs, re) / (rad0 * rad1))))
+    if ang < TP_ANGLE_EPSILON:
+        return False, False
+    # checkTangentAngle: the blend must meet a cut arc within the kink the servo cycle allows
+    if not line1 or not line2:
+        ang_max = BLEND_ACC_RATIO_NORMAL * BLEND_KINK_FACTOR * a_max / (v_plan / cycle)
+        ua = np.empty(3)
+        uc2 = np.empty(3)
+        if not line2:
+            _cross(binormal, re, ua)
+            for a in range(3):
+                ua[a] += re[a] / rad1 * ((rad1 - rad0) / ang)
+            _unit_eq(ua)
+            _circle_tangent_at(cu, trim2, uc2)
+            if math.acos(max(-1.0, min(1.0, _dot(ua, uc2)))) > ang_max:
+                return False, False
+        if not line1:
+            _cross(binormal, rs, ua)
+            for a in range(3):
+                ua[a] += rs[a] / rad0 * ((rad1 - rad0) / ang)
+            _unit_eq(ua)
+            _circle_tangent_at(pv, pv.angle - trim1, uc2)
+            if math.acos(max(-1.0, min(1.0, _dot(ua, uc2)))) > ang_max:
+                return False, False
     # the arc
     bl = q[i_blend]
     bl.kind = SEG_BLEND
     bl.line = cu.line
+    # LinuxCNC tags the arc with the next line, so its time counts with the next row-bearing segment. When it
+    # swallows the previous line, that line's MOVE rows go to the segment LinuxCNC showed executing under the
+    # line's number: the blend arc before it if there is one, else this arc.
     bl.row0 = -1
     bl.row1 = -1
-    center_dist = r_plan / math.sin(theta)
+    if consume:
+        ib = i_prev - 1
+        if (ib >= 0 and q[ib].kind == SEG_BLEND and q[ib].row0 < 0 and q[ib].line == pv.line
+                and q[ib].sync_after == 0):
+            q[ib].row0 = pv.row0
+            q[ib].row1 = pv.row1
+        else:
+            bl.row0 = pv.row0
+            bl.row1 = pv.row1
     for a in range(3):
-        P = pv.p1[a]
-        bl.c[a] = P + normal[a] * center_dist
-        start = P - tan1[a] * d_plan
-        bl.rt[a] = start - bl.c[a]
+        bl.c[a] = center[a]
+        bl.rt[a] = rs[a]
         bl.h[a] = 0.0
         bl.u[a] = tan1[a]
-    # rp = binormal × rt points along the motion at the start (tan1)
-    bl.rp[0] = binormal[1] * bl.rt[2] - binormal[2] * bl.rt[1]
-    bl.rp[1] = binormal[2] * bl.rt[0] - binormal[0] * bl.rt[2]
-    bl.rp[2] = binormal[0] * bl.rt[1] - binormal[1] * bl.rt[0]
+    # rp = binormal × rt points along the motion at the start
+    _cross(binormal, rs, bl.rp)
     if _dot(bl.rp, tan1) < 0.0:
         for a in range(3):
             bl.rp[a] = -bl.rp[a]
-    bl.radius = r_plan
-    bl.spiral = 0.0
-    bl.angle = phi
+    bl.radius = rad0
+    bl.spiral = rad1 - rad0
+    bl.angle = ang
     if consume:
         bl.lline = l_prev
         for a in range(3):
@@ -490,10 +771,10 @@ def line_line_blend(q, i_prev, i_cur, i_blend, acc_bound, vel_bound, cycle, gap_
     else:
         bl.lline = 0.0
         for a in range(3):
-            bl.p0[a] = pv.p1[a] - tan1[a] * d_plan
+            bl.p0[a] = start[a]
     for a in range(3):
-        bl.p1[a] = pv.p1[a] + tan2[a] * d_plan
-    bl.target = s_arc + bl.lline
+        bl.p1[a] = end[a]
+    bl.target = rad0 * ang + bl.lline
     bl.nominal = bl.target
     bl.reqvel = v_req
     bl.inivel = v_plan
@@ -517,8 +798,14 @@ def line_line_blend(q, i_prev, i_cur, i_blend, acc_bound, vel_bound, cycle, gap_
         return False, False
     # connect: the previous segment ends where the arc starts, this one starts where it ends
     if not consume:
-        trim_end(pv, d_plan)
-    trim_start(cu, d_plan)
+        if line1:
+            trim_end(pv, trim1)
+        else:
+            trim_end(pv, trim1 / pv.angle * pv.target)
+    if line2:
+        trim_start(cu, trim2)
+    else:
+        trim_start(cu, trim2 / cu.angle * cu.target)
     pv.term = TERM_TANGENT
     cu.blend_prev = 0
     return True, consume
@@ -597,8 +884,8 @@ def queue_kernel(segs, n_in, q, acc_bound, vel_bound, vlimit, cycle, kink_ratio,
                             and q[cur].kind != SEG_BLEND and q[prev].finalized == 0):
                         # the arc goes where ``cur`` is now; ``cur`` moves one slot on
                         q[n + 1] = q[cur]
-                        ok, consume = line_line_blend(q, prev, n + 1, n, acc_bound, vel_bound, cycle,
-                                                      gap_cycles, vlimit, tan1, tan2)
+                        ok, consume = blend_arc(q, prev, n + 1, n, acc_bound, vel_bound, cycle,
+                                                gap_cycles, vlimit, tan1, tan2)
                         if ok:
                             done = True
                             if consume:

@@ -442,6 +442,11 @@ def plot_axes(win: Window, machine=None, title: str | None = None, size_in=FIGSI
     G-code may change it), the extrude-only limit on E, and, when the machine has a finite
     ``max_step_rate``, the speed at which a stepper reaches it (max_step_rate / steps_per_mm).
     Corexy steppers: a = x + y, b = x − y (docs/design.md §9). Lines carry gids ``pos_<axis>``/``vel_<axis>``.
+
+    A delta, or a machine with input shaping, gets one row per motor that moves with X/Y: the position
+    and velocity it is driven to (X/Y shaped first, then the kinematics: gids ``motor_<name>``,
+    ``motor_vel_<name>``) against the commanded one (the planned path through the kinematics:
+    ``cmd_<name>``, ``cmd_vel_<name>``); see :func:`motor_motion`.
     """
     _need_segments(win)
     s = sample_plan(win.segs)
@@ -449,13 +454,36 @@ def plot_axes(win: Window, machine=None, title: str | None = None, size_in=FIGSI
     pos = {a: s.pos[:, i] for i, a in enumerate(AXES)}
     vel = {a: s.vel[:, i] for i, a in enumerate(AXES)}
     kin = getattr(machine, "kinematics", "cartesian") if machine is not None else "cartesian"
-    if kin == "corexy":
+    shaped = machine is not None and (getattr(machine, "shaper_freq_x", 0.0) > 0
+                                      or getattr(machine, "shaper_freq_y", 0.0) > 0)
+    motors = {}
+    if kin == "delta" or shaped:
+        for name, cp, cv, mp, mv in motor_motion(win.segs, machine, s.t):
+            motors[name] = (cp, cv, mp, mv)
+            pos[name], vel[name] = mp, mv
+    elif kin == "corexy":
         pos["a"], pos["b"] = pos["x"] + pos["y"], pos["x"] - pos["y"]
         vel["a"], vel["b"] = vel["x"] + vel["y"], vel["x"] - vel["y"]
         rows += ["a", "b"]
+    rows += list(motors)
     fig, axs = new_figure(len(rows), 2, size_in, dpi, sharex=True)
     for r, name in enumerate(rows):
         ax_p, ax_v = axs[r]
+        if r >= len(AXES) and name in motors:
+            cp, cv, mp, mv = motors[name]
+            label = f"motor {name}"
+            plot_series(ax_p, s, cp, f"cmd_{name}", color="0.55", lw=1.6)
+            plot_series(ax_p, s, mp, f"motor_{name}", color="tab:blue", lw=1.0)
+            plot_series(ax_v, s, cv, f"cmd_vel_{name}", "commanded", color="0.55", lw=1.6)
+            plot_series(ax_v, s, mv, f"motor_vel_{name}", "driven (shaped)" if shaped else "driven",
+                        color="tab:blue", lw=1.0)
+            ax_p.set_ylabel(f"{label} (mm)", fontsize=9)
+            ax_v.set_ylabel(f"{label} (mm/s)", fontsize=9)
+            for ax in (ax_p, ax_v):
+                ax.grid(True, alpha=0.3)
+                ax.tick_params(labelsize=8)
+            ax_v.legend(loc="upper left", bbox_to_anchor=(1.0, 1.0), fontsize=8)
+            continue
         label = f"{name} = x{'+' if name == 'a' else '−'}y" if name in ("a", "b") else name
         plot_series(ax_p, s, pos[name], f"pos_{name}", color="tab:blue", lw=1.0)
         plot_series(ax_v, s, vel[name], f"vel_{name}", f"{name} velocity", color="tab:blue", lw=1.0)
@@ -490,6 +518,57 @@ def plot_axes(win: Window, machine=None, title: str | None = None, size_in=FIGSI
     axs[0, 0].set_xlim(s.t[0], s.t[-1])
     fig.suptitle(title or _window_title(win, f"axes ({kin})"))
     return fig
+
+
+def _path_at(segs: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Position and velocity (n, 4) of the SEGMENT path at times ``t`` (s), at rest before and after it."""
+    k = np.clip(np.searchsorted(segs["t0"], t, side="right") - 1, 0, len(segs) - 1)
+    tau = np.clip(t - segs["t0"][k], 0.0, segs["dt"][k])
+    p, v, _, _ = eval_segments(segs, k, tau)
+    v[(t < segs["t0"][0]) | (t > segs["t0"][-1] + segs["dt"][-1])] = 0.0
+    return p, v
+
+
+def motor_motion(segs: np.ndarray, machine, t: np.ndarray) -> list[tuple]:
+    """Per motor that moves with X or Y: (name, commanded position mm, commanded velocity mm/s, driven
+    position, driven velocity) at times ``t`` (s).
+
+    Commanded: the planned path through the kinematics. Driven: X and Y first input-shaped as Klipper's
+    kin_shaper.c does (:mod:`gcodeplan.stepper.shaping`; the same pieces the step generator steps), then
+    the kinematics: a linear motor Σ w·axis, a delta tower its carriage height z + √(L² − (x − t_x)² −
+    (y − t_y)²) and that height's time derivative. The window is taken at rest outside its own pieces, so
+    within the shaper's reach (≤ 20 ms at usual frequencies) of the window's ends the driven curve is what
+    a machine starting and stopping there would do.
+    """
+    from ..kinematics import rails_for
+    from ..stepper.shaping import ShapedStream, as_segments, shaper_pulses
+
+    t = np.asarray(t, np.float64)
+    driven_path = segs
+    fx, fy = float(getattr(machine, "shaper_freq_x", 0.0)), float(getattr(machine, "shaper_freq_y", 0.0))
+    if (fx > 0 or fy > 0) and segs.size:
+        none = (np.zeros(0), np.zeros(0))
+        px = shaper_pulses(machine.shaper_type_x, fx, machine.damping_ratio_x) if fx > 0 else none
+        py = shaper_pulses(machine.shaper_type_y, fy, machine.damping_ratio_y) if fy > 0 else none
+        stream = ShapedStream(px, py)
+        driven_path = np.concatenate([as_segments(stream.feed(segs)), as_segments(stream.finish())])
+    cp, cv = _path_at(segs, t)
+    dp, dv = _path_at(driven_path, t)
+    out = []
+    for rail in rails_for(machine):
+        if rail.tower is not None:
+            arm2, tx, ty = rail.tower
+            motion = []
+            for p, v in ((cp, cv), (dp, dv)):
+                dx, dy = tx - p[:, 0], ty - p[:, 1]
+                with np.errstate(invalid="ignore"):
+                    root = np.sqrt(arm2 - dx * dx - dy * dy)
+                motion += [p[:, 2] + root, v[:, 2] + (dx * v[:, 0] + dy * v[:, 1]) / root]
+            out.append((rail.name, *motion))
+        elif rail.weights is not None and (rail.weights[0] or rail.weights[1]):
+            w = np.asarray(rail.weights, np.float64)
+            out.append((rail.name, cp @ w, cv @ w, dp @ w, dv @ w))
+    return out
 
 
 # ----------------------------------------------------------------------------- path
@@ -667,7 +746,7 @@ def plot_profile_1d(t, q, v, a, j, title: str = "", size_in=FIGSIZE_IN, dpi: int
 
 
 __all__ = [
-    "Window", "Samples", "LayerFeatureTimes", "eval_segments", "sample_plan", "toolhead_kinematics",
+    "Window", "Samples", "LayerFeatureTimes", "eval_segments", "sample_plan", "toolhead_kinematics", "motor_motion",
     "plot_velocity", "plot_axes", "plot_path", "plot_layers", "plot_profile_1d", "save_png", "png_bytes",
     "new_figure", "FIGSIZE_IN", "DPI",
 ]

@@ -47,66 +47,62 @@ _NO_LIMIT = np.int64(1) << np.int64(62)
 
 RUN_DTYPE = np.dtype([("interval", "i8"), ("count", "i4"), ("add", "i8"), ("dir", "i1")])
 
-
 BLOCK = 8                            # steps whose interval bounds are computed together (vectorised)
+SUB_CHUNK = 1 << 16                  # steps queued and compressed at a time: their clocks stay in the L2 cache
 
 
 @numba.njit(cache=True, inline="always", error_model="numpy")
-def _ceil_div(x, k):
-    return -((-x) // k)
-
-
-@numba.njit(cache=True, error_model="numpy")
-def window_lows(clocks, max_err, prev_clock):
-    """Earliest allowed clock of each step but a run's first: c − min(max_err, (c − c_prev)/2) (ticks).
-
-    Klipper's ``minmax_point`` for a step that follows another of the same
-    queue; ``prev_clock`` is the step before ``clocks[0]``.
-    """
-    lows = np.empty_like(clocks)
-    prev = prev_clock
-    for j in range(clocks.shape[0]):
-        c = clocks[j]
-        lows[j] = c - min((c - prev) >> 1, max_err)
-        prev = c
-    return lows
+def _floor_div(x, d):
+    """floor(x/d) for |x|, |d| < 2^53 with one float division: exact (the quotient is correctly rounded and a
+    non-integer quotient lies ≥ 1/|d| from any integer), and cheaper than a 64-bit integer division."""
+    return np.int64(math.floor(np.float64(x) / np.float64(d)))
 
 
 @numba.njit(cache=True, inline="always", error_model="numpy")
-def _longest_run(clocks, lows, pos, qlast, last, add, lo_i, hi_i, qlo, qhi):
-    """Longest run with this ``add`` whose integer interval stays in [lo_i, hi_i] and fits every window.
+def _ceil_div(x, d):
+    """ceil(x/d), exact as :func:`_floor_div`."""
+    return np.int64(math.ceil(np.float64(x) / np.float64(d)))
+
+
+@numba.njit(cache=True, inline="always", error_model="numpy")
+def _window_low(c, c_prev, max_err):
+    """Earliest clock for a step at c when it is not a run's first: c − min(max_err, (c − c_prev)/2) (minmax_point)."""
+    return c - min((c - c_prev) >> 1, max_err)
+
+
+@numba.njit(cache=True, inline="always", error_model="numpy")
+def _longest_run(clocks, pos, qlast, last, max_err, add, lo_i, hi_i, qlo, qhi):
+    """Longest run from ``pos`` with this ``add`` whose integer interval stays in [lo_i, hi_i] and fits every window.
 
     Returns (count, interval, failed, n, lo_i, hi_i, f, minp, maxp): when
     ``failed``, step n (1-based in the run) is the first that does not fit,
     [lo_i, hi_i] the (empty) range with it, f = n(n−1)/2 and [minp, maxp] its
-    window relative to ``last``. Otherwise the queue ended after ``count`` steps.
-    The bounds of BLOCK steps are computed at once (float division is exact
-    here: |x| < 2^53 and a non-integer quotient is ≥ 1/n from any integer).
+    window relative to ``last``. Otherwise the queue ended after ``count``
+    steps. The interval bounds of BLOCK steps are computed in one vectorised
+    loop, then scanned.
     """
     interval = hi_i
     n = 1
     while True:
         first = n + 1                                 # run length with the next step
-        m = qlast - (pos + first - 1)
-        if m > BLOCK:
-            m = BLOCK
+        j0 = pos + first - 1
+        m = min(qlast - j0, BLOCK)
         if m <= 0:
             return n, interval, False, 0, lo_i, hi_i, 0, 0, 0
         for k in range(m):
             nn = first + k
-            j = pos + nn - 1
             shift = add * ((nn * (nn - 1)) >> 1)
             nf = np.float64(nn)
-            qlo[k] = np.int64(math.ceil(np.float64(lows[j] - last - shift) / nf))
-            qhi[k] = np.int64(math.floor(np.float64(clocks[j] - last - shift) / nf))
+            qlo[k] = _ceil_div(_window_low(clocks[j0 + k], clocks[j0 + k - 1], max_err) - last - shift, nf)
+            qhi[k] = _floor_div(clocks[j0 + k] - last - shift, nf)
         for k in range(m):
             lo2 = max(lo_i, qlo[k])
             hi2 = min(hi_i, qhi[k])
             if lo2 > hi2:
                 nn = first + k
-                j = pos + nn - 1
+                j = j0 + k
                 return (nn - 1, interval, True, nn, lo2, hi2, (nn * (nn - 1)) >> 1,
-                        lows[j] - last, clocks[j] - last)
+                        _window_low(clocks[j], clocks[j - 1], max_err) - last, clocks[j] - last)
             lo_i = lo2
             hi_i = hi2
             interval = hi_i
@@ -114,19 +110,17 @@ def _longest_run(clocks, lows, pos, qlast, last, add, lo_i, hi_i, qlo, qhi):
 
 
 @numba.njit(cache=True, error_model="numpy")
-def bisect_add(clocks, lows, pos, qend, last, max_err, max_count, qlo, qhi):
+def bisect_add(clocks, pos, qend, last, max_err, max_count, qlo, qhi):
     """One run for the queued step clocks ``clocks[pos:qend]`` (ticks, one direction, non-decreasing) after ``last``.
 
-    Klipper's ``compress_bisect_add``: ``lows`` from :func:`window_lows`,
-    ``qlo``/``qhi`` scratch arrays of BLOCK int64. Returns (interval, count,
-    add, at_end) with ``at_end`` true when the search stopped at the end of the
-    queue (or its ``max_count`` look-ahead), where more queued steps could have
-    made the run longer. ``max_err`` is in ticks.
+    Klipper's ``compress_bisect_add``. ``max_err`` is in ticks; ``qlo``/``qhi``
+    are scratch arrays of BLOCK int64. Returns (interval, count, add, at_end)
+    with ``at_end`` true when the search stopped at the end of the queue (or of
+    its ``max_count`` look-ahead), where more queued steps could have made the
+    run longer.
     """
-    qlast = qend
-    if qlast > pos + max_count:
-        qlast = pos + max_count
-    # window of the head step: its half-gap is measured from the last sent step
+    qlast = min(qend, pos + max_count)
+    # window of the head step: its half-gap is measured from the last step sent
     c0 = clocks[pos] - last
     outer_min = c0 - min(c0 >> 1, max_err)
     outer_max = c0
@@ -141,7 +135,7 @@ def bisect_add(clocks, lows, pos, qend, last, max_err, max_count, qlo, qhi):
     zero_count = 0
     while True:
         count, interval, failed, n, lo_i, hi_i, f, next_minp, next_maxp = _longest_run(
-            clocks, lows, pos, qlast, last, add, outer_min, outer_max, qlo, qhi)
+            clocks, pos, qlast, last, max_err, add, outer_min, outer_max, qlo, qhi)
         if not failed:
             return interval, count, add, True
         reach = add * ((count * (count - 1)) >> 1) + interval * count
@@ -165,26 +159,24 @@ def bisect_add(clocks, lows, pos, qend, last, max_err, max_count, qlo, qhi):
             outer_min = lo_i
         if count > 1:
             # two quadratics both valid over `count` steps differ in add by at most QUADRATIC_DEV·err/count²
-            dev = (max_err * QUADRATIC_DEV) // (count * count)
-            if min_add < add - dev:
-                min_add = add - dev
-            if max_add > add + dev:
-                max_add = add + dev
+            dev = _floor_div(max_err * QUADRATIC_DEV, count * count)
+            min_add = max(min_add, add - dev)
+            max_add = min(max_add, add + dev)
         # the failing step must stay reachable with an interval of the outer range
         if min_add * f < next_minp - outer_max * n:
             min_add = _ceil_div(next_minp - outer_max * n, f)
         if max_add * f > next_maxp - outer_min * n:
-            max_add = (next_maxp - outer_min * n) // f
+            max_add = _floor_div(next_maxp - outer_min * n, f)
         if min_add > max_add:
             break
-        add = max_add - (max_add - min_add) // 4
-    if zero_count + zero_count // 16 >= best_count:
+        add = max_add - ((max_add - min_add) >> 2)
+    if zero_count + (zero_count >> 4) >= best_count:
         return zero_interval, zero_count, 0, False
     return best_interval, best_count, best_add, False
 
 
 @numba.njit(cache=True, error_model="numpy")
-def _flush_queue(clocks, lows, pos, qend, last, max_err, max_count, move_clock, only_final, direction,
+def _flush_queue(clocks, pos, qend, last, max_err, max_count, move_clock, only_final, direction,
                  o_interval, o_count, o_add, o_dir, nout, qlo, qhi):
     """Runs for ``clocks[pos:qend]`` while ``last < move_clock`` (Klipper's ``queue_flush``).
 
@@ -192,7 +184,7 @@ def _flush_queue(clocks, lows, pos, qend, last, max_err, max_count, move_clock, 
     sent: more steps could still change it. Returns (pos, last, nout).
     """
     while pos < qend and last < move_clock:
-        interval, count, add, at_end = bisect_add(clocks, lows, pos, qend, last, max_err, max_count, qlo, qhi)
+        interval, count, add, at_end = bisect_add(clocks, pos, qend, last, max_err, max_count, qlo, qhi)
         if only_final and at_end and qend - pos < max_count:
             break
         o_interval[nout] = interval
@@ -207,7 +199,7 @@ def _flush_queue(clocks, lows, pos, qend, last, max_err, max_count, move_clock, 
 
 @numba.njit(cache=True, error_model="numpy")
 def _first_bad_step(times, dirs, clock_hz, prev_clock):
-    """Index of the first step time that is not finite, goes backwards, or has a direction other than ±1; −1."""
+    """Index of the first step whose time is not finite or goes backwards, or whose direction is not ±1; else −1."""
     prev = prev_clock
     for k in range(times.shape[0]):
         t = times[k]
@@ -222,46 +214,49 @@ def _first_bad_step(times, dirs, clock_hz, prev_clock):
 
 
 @numba.njit(cache=True, error_model="numpy")
-def queue_clocks(times, dirs, clock_hz, max_err, prev_clock, clocks, lows):
-    """Step clocks floor(t·f + ½) and window lows (:func:`window_lows`) of ``times`` (s) into ``clocks``/``lows``.
+def queue_clocks(times, dirs, clock_hz, prev_clock, direction, clocks, changes):
+    """Step clocks floor(t·f + ½) of ``times`` (s) into ``clocks``, and where the direction changes.
 
-    ``prev_clock`` is the clock of the step before ``times[0]``. Returns the
-    index of the first bad step (:func:`_first_bad_step`) or −1.
+    ``prev_clock`` and ``direction`` are those of the step before ``times[0]``.
+    Writes the indices of the steps whose direction differs from the step
+    before into ``changes``. Returns (number of changes, index of the first
+    bad step or −1: not finite, going backwards, direction not ±1).
     """
     m = times.shape[0]
     if m == 0:
-        return -1
-    bad = 0
-    for k in range(m):                       # separate simple loops: they vectorise
-        t = times[k]
-        d = dirs[k]
-        bad += (not (abs(t) < 1e12)) | (d * d != 1)
-    if bad:
-        return _first_bad_step(times, dirs, clock_hz, prev_clock)
+        return 0, -1
+    # separate simple loops: the first three vectorise
     for k in range(m):
-        clocks[k] = np.int64(math.floor(times[k] * clock_hz + 0.5))
-    gap = clocks[0] - prev_clock
-    bad += gap < 0
-    lows[0] = clocks[0] - min(gap >> 1, max_err)
+        clocks[k] = np.int64(math.floor(min(max(times[k], -1e12), 1e12) * clock_hz + 0.5))
+    bad = 0
+    for k in range(m):
+        bad += (not (abs(times[k]) < 1e12)) | (dirs[k] * dirs[k] != 1)
+    bad += clocks[0] < prev_clock
     for k in range(1, m):
-        gap = clocks[k] - clocks[k - 1]
-        bad += gap < 0
-        lows[k] = clocks[k] - min(gap >> 1, max_err)
+        bad += clocks[k] < clocks[k - 1]
+    nch = 0
+    for k in range(m):
+        d = dirs[k]
+        if d != direction:
+            changes[nch] = k
+            nch += 1
+            direction = d
     if bad:
-        return _first_bad_step(times, dirs, clock_hz, prev_clock)
-    return -1
+        return nch, _first_bad_step(times, dirs, clock_hz, prev_clock)
+    return nch, -1
 
 
 @numba.njit(cache=True, error_model="numpy")
-def compress_queue(clocks, lows, dirs, new_from, last, direction, max_err, max_count, final,
+def compress_queue(clocks, dirs, changes, new_from, last, direction, max_err, max_count, final,
                    o_interval, o_count, o_add, o_dir):
     """Compress the queue ``clocks[:new_from]`` (pending, one direction) with the steps ``clocks[new_from:]`` appended.
 
-    ``lows`` from :func:`queue_clocks`, ``dirs`` the new steps' directions.
-    Klipper's ``queue_append`` step by step: a direction change flushes the
-    whole queue (``set_next_step_dir``), a far step flushes up to its clock −
-    CLOCK_DIFF_MAX + 1 and, if still far, goes alone at its exact clock
-    (``queue_append_far``). At the end, the runs that more steps could not
+    Klipper's ``queue_append`` for each new step: a direction change (at the
+    indices ``changes``, relative to ``new_from``; ``dirs`` the new steps'
+    directions) first flushes the whole queue (``set_next_step_dir``); a step
+    CLOCK_DIFF_MAX or more after the last one sent flushes the queue up to its
+    clock − CLOCK_DIFF_MAX + 1 and, if still that far, goes alone at its exact
+    clock (``queue_append_far``). At the end the runs that more steps could not
     change are sent; with ``final`` all of them. Returns (number of runs, queue
     head index, last, direction).
     """
@@ -271,26 +266,20 @@ def compress_queue(clocks, lows, dirs, new_from, last, direction, max_err, max_c
     pos = 0
     nout = 0
     i = new_from
-    while i < n:
-        # skip to the next direction change or far step
-        limit = last + CLOCK_DIFF_MAX
-        while i < n and dirs[i - new_from] == direction and clocks[i] < limit:
-            i += 1
-        if i == n:
-            break
-        d = dirs[i - new_from]
-        if d != direction:
-            pos, last, nout = _flush_queue(clocks, lows, pos, i, last, max_err, max_count, _NO_LIMIT, False,
-                                           direction, o_interval, o_count, o_add, o_dir, nout, qlo, qhi)
-            pos = i
-            direction = d
-        c = clocks[i]
-        if c - last >= CLOCK_DIFF_MAX:
+    ci = 0
+    while True:
+        seg_end = new_from + changes[ci] if ci < changes.shape[0] else n
+        # far steps in [i, seg_end): the clocks are sorted, and `last` only moves at such events
+        while i < seg_end:
+            k = i + np.searchsorted(clocks[i:seg_end], last + CLOCK_DIFF_MAX)
+            if k >= seg_end:
+                break
+            c = clocks[k]
             # runs that do not depend on the queue's end are Klipper's whenever they are sent
-            pos, last, nout = _flush_queue(clocks, lows, pos, i, last, max_err, max_count, _NO_LIMIT, True,
+            pos, last, nout = _flush_queue(clocks, pos, k, last, max_err, max_count, _NO_LIMIT, True,
                                            direction, o_interval, o_count, o_add, o_dir, nout, qlo, qhi)
             if c - last >= CLOCK_DIFF_MAX:
-                pos, last, nout = _flush_queue(clocks, lows, pos, i, last, max_err, max_count,
+                pos, last, nout = _flush_queue(clocks, pos, k, last, max_err, max_count,
                                                c - CLOCK_DIFF_MAX + 1, False, direction,
                                                o_interval, o_count, o_add, o_dir, nout, qlo, qhi)
                 if c - last >= CLOCK_DIFF_MAX:
@@ -300,9 +289,18 @@ def compress_queue(clocks, lows, dirs, new_from, last, direction, max_err, max_c
                     o_dir[nout] = direction
                     nout += 1
                     last = c
-                    pos = i + 1
-        i += 1
-    pos, last, nout = _flush_queue(clocks, lows, pos, n, last, max_err, max_count, _NO_LIMIT, not final,
+                    pos = k + 1
+            i = k + 1
+        if seg_end >= n:
+            break
+        # direction change: Klipper flushes every queued step of the old direction first
+        pos, last, nout = _flush_queue(clocks, pos, seg_end, last, max_err, max_count, _NO_LIMIT, False,
+                                       direction, o_interval, o_count, o_add, o_dir, nout, qlo, qhi)
+        pos = seg_end
+        direction = dirs[seg_end - new_from]
+        i = seg_end
+        ci += 1
+    pos, last, nout = _flush_queue(clocks, pos, n, last, max_err, max_count, _NO_LIMIT, not final,
                                    direction, o_interval, o_count, o_add, o_dir, nout, qlo, qhi)
     return nout, pos, last, direction
 
@@ -343,48 +341,53 @@ class Compressor:
         self.hold_back = bool(hold_back)
         self.last_clock = int(start_clock)     # clock of the last step sent (Klipper's last_step_clock)
         self.direction = 0                     # direction of the queued steps (0 = none yet)
-        # step clocks and window lows: the queue held back (one direction) is [_head, _head + _pending)
+        # step clocks; the queue held back (one direction) is [_head, _head + _pending)
         self._clocks = np.zeros(0, np.int64)
-        self._lows = np.zeros(0, np.int64)
         self._head = 0
         self._pending = 0
         self._prev_clock = int(start_clock)    # clock of the last step fed
 
-    def _workspace(self, m: int) -> tuple[np.ndarray, np.ndarray]:
-        """Buffers holding the pending queue at their start and room for m more steps (reused: no page faults)."""
+    def _workspace(self, m: int) -> np.ndarray:
+        """Buffer holding the pending queue at its start and room for m more steps (reused across feeds)."""
         p, h = self._pending, self._head
         need = p + m
         if len(self._clocks) < need:
-            size = max(need, 2 * len(self._clocks), 1024)
-            clocks = np.empty(size, np.int64)
-            lows = np.empty(size, np.int64)
+            clocks = np.empty(max(need, 2 * len(self._clocks), 1024), np.int64)
             clocks[:p] = self._clocks[h:h + p]
-            lows[:p] = self._lows[h:h + p]
-            self._clocks, self._lows = clocks, lows
+            self._clocks = clocks
         elif h:
             self._clocks[:p] = self._clocks[h:h + p].copy()
-            self._lows[:p] = self._lows[h:h + p].copy()
         self._head = 0
-        return self._clocks[:need], self._lows[:need]
+        return self._clocks[:need]
 
     def _compress(self, times: np.ndarray, dirs: np.ndarray, final: bool) -> np.ndarray:
+        """Queue and compress the steps in pieces of SUB_CHUNK steps, so that their clocks stay in the cache."""
+        if len(times) <= SUB_CHUNK:
+            return self._compress_piece(times, dirs, final)
+        pieces = [self._compress_piece(times[i:i + SUB_CHUNK], dirs[i:i + SUB_CHUNK],
+                                       final and i + SUB_CHUNK >= len(times))
+                  for i in range(0, len(times), SUB_CHUNK)]
+        return np.concatenate(pieces)
+
+    def _compress_piece(self, times: np.ndarray, dirs: np.ndarray, final: bool) -> np.ndarray:
         pending = self._pending
         m = len(times)
-        clocks, lows = self._workspace(m)
-        bad = queue_clocks(times, dirs, self.clock_hz, np.int64(self.max_err), np.int64(self._prev_clock),
-                           clocks[pending:], lows[pending:])
+        clocks = self._workspace(m)
+        changes = np.empty(m, np.int64)
+        nch, bad = queue_clocks(times, dirs, self.clock_hz, np.int64(self._prev_clock), np.int8(self.direction),
+                                clocks[pending:], changes)
         if bad < 0 and m and clocks[pending] < self.last_clock:
             bad = 0
         if bad >= 0:
-            raise ValueError(f"step {bad} of this chunk (t = {times[bad]!r} s, dir {dirs[bad]}): step times must be "
-                             "finite and never decrease, directions ±1")
+            raise ValueError(f"step t = {times[bad]!r} s, dir {dirs[bad]}: step times must be finite and never "
+                             "decrease, directions ±1")
         n = pending + m
         itv = np.empty(n, np.int64)
         cnt = np.empty(n, np.int32)
         add = np.empty(n, np.int64)
         rdir = np.empty(n, np.int8)
         nrun, pos, last, direction = compress_queue(
-            clocks, lows, dirs, pending, np.int64(self.last_clock), np.int8(self.direction),
+            clocks, dirs, changes[:nch], pending, np.int64(self.last_clock), np.int8(self.direction),
             np.int64(self.max_err), np.int64(self.max_count), final, itv, cnt, add, rdir)
         self.last_clock = int(last)
         self.direction = int(direction)

@@ -3,7 +3,8 @@
 :class:`StepGenerator` takes SEGMENT arrays batch by batch (as the streaming
 planner emits them), turns them into each stepper's polynomial pieces through
 the kinematics, and runs :func:`kernel.gen_steps` into a preallocated buffer per
-stepper. A full buffer is handed to ``sink(stepper_index, times, dirs)`` and
+stepper (:func:`kernel.gen_steps_delta` for a delta tower, which solves the carriage
+height of the x, y, z pieces itself). A full buffer is handed to ``sink(stepper_index, times, dirs)`` and
 reused, so memory stays bounded whatever the file size. The optional
 step+dir+step filter and the per-stepper statistics run on the way out.
 """

@@ -615,6 +615,8 @@ def _poly_newton(c, k, deg, target, lo, hi, f_lo, f_hi):
 # coefficients of the polynomials the delta kernel builds: R(τ) = arm² − dx² − dy² has degree ≤ 6 for
 # cubic pieces; h = 4·z'²·R − R'² degree ≤ 10
 DELTA_NCOEF = 11
+# s: a Newton step this small ends the delta crossing search (see _delta_crossing)
+NEWTON_DONE_S = 1e-10
 
 
 @numba.njit(cache=True, inline="always")
@@ -808,12 +810,15 @@ def delta_turning_points(arm2, tx, ty, px, py, vx, vy, vz, ax, ay, az, jx, jy, j
     return m
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, inline="always")
 def _delta_crossing(arm2, tx, ty, px, py, pz, vx, vy, vz, ax, ay, az, jx, jy, jz, target, lo, hi, f_lo, f_hi,
                     guess):
     """(τ, carriage velocity there) with τ in [lo, hi] where the carriage height equals ``target``: bracketed
     Newton from ``guess`` (inside the bracket, else the secant of the bracket). The height is monotone on
-    the bracket; ``f_lo``/``f_hi`` are height − target at its ends, of opposite signs."""
+    the bracket; ``f_lo``/``f_hi`` are height − target at its ends, of opposite signs.
+
+    Newton's error after a step of size δ is about (c''/2c')·δ², so a step below NEWTON_DONE_S leaves
+    under 1e-12 s wherever |c''/c'| < 1e8 /s: the result is returned then (one step from a good guess)."""
     rising = f_hi > 0.0
     tau = guess
     if not (lo < tau < hi):
@@ -831,7 +836,7 @@ def _delta_crossing(arm2, tx, ty, px, py, pz, vx, vy, vz, ax, ay, az, jx, jy, jz
         nxt = tau - f / d if d != 0.0 else 0.5 * (lo + hi)
         if not (lo < nxt < hi):
             nxt = 0.5 * (lo + hi)
-        if abs(nxt - tau) <= 1e-15 * (1.0 + abs(tau)) or hi - lo <= 1e-15 * (1.0 + abs(tau)):
+        if abs(nxt - tau) <= NEWTON_DONE_S or hi - lo <= 1e-15 * (1.0 + abs(tau)):
             return nxt, d
         tau = nxt
     return tau, d
@@ -944,6 +949,7 @@ def gen_steps_delta(t0, dt, pc, vc, ac, jc, reset, arm2, tx, ty, step_dist, stat
             c_hi = _carriage(arm2, tx, ty, px, py, pz, vx, vy, vz, ax, ay, az, jx, jy, jz, hi)
             dirv = np.int8(1) if sigma > 0.0 else np.int8(-1)
             guess = -1.0
+            inv_v_prev = 0.0
             for m in range(c):
                 target = anchor + (n + 0.5 * sigma) * step_dist
                 f_lo = c_left - target
@@ -958,8 +964,16 @@ def gen_steps_delta(t0, dt, pc, vc, ac, jc, reset, arm2, tx, ty, step_dist, stat
                 else:
                     tau, vel = _delta_crossing(arm2, tx, ty, px, py, pz, vx, vy, vz, ax, ay, az, jx, jy, jz,
                                                target, left, hi, f_lo, f_hi, guess)
-                    # the next crossing is one step further: extrapolate with the velocity found here
-                    guess = tau + sigma * step_dist / vel if vel != 0.0 else -1.0
+                    # the next crossing is one step further: integrate dτ/dc = 1/c' over the step (two-step
+                    # Adams–Bashforth with the velocities at the last two crossings; Euler after the first)
+                    if vel != 0.0:
+                        inv_v = 1.0 / vel
+                        w = inv_v if inv_v_prev == 0.0 else 1.5 * inv_v - 0.5 * inv_v_prev
+                        guess = tau + sigma * step_dist * w
+                        inv_v_prev = inv_v
+                    else:
+                        guess = -1.0
+                        inv_v_prev = 0.0
                 out_t[out_n] = base_t + tau
                 out_dir[out_n] = dirv
                 out_n += 1
