@@ -329,7 +329,9 @@ def _naive_arc_points(moves, r0, r1):
     sx, sy, sz = moves[r0].x0, moves[r0].y0, moves[r0].z0
     ex, ey, ez = moves[r1].x1, moves[r1].y1, moves[r1].z1
     if m < 2:
-        return False, 0.0, 0.0, 0.0, 0.0
+        # one chord: the parser found the arc within its chord tolerance of a line, so its deviation is
+        # below that (taken as 0); the chord's middle stands for the arc's, the plane is XY when Z stays
+        return sz == ez, 0.0, (sx + ex) / 2.0, (sy + ey) / 2.0, sz
     # the plane: the chords turn about Z only when the arc is in XY
     c1x, c1y, c1z = moves[r0].x1 - sx, moves[r0].y1 - sy, moves[r0].z1 - sz
     c2x, c2y, c2z = (moves[r0 + 1].x1 - moves[r0 + 1].x0, moves[r0 + 1].y1 - moves[r0 + 1].y0,

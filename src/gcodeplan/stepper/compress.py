@@ -225,19 +225,35 @@ def queue_clocks(times, dirs, clock_hz, prev_clock, direction, clocks, changes):
     m = times.shape[0]
     if m == 0:
         return 0, -1
-    # separate simple loops: the first three vectorise
-    for k in range(m):
-        clocks[k] = np.int64(math.floor(min(max(times[k], -1e12), 1e12) * clock_hz + 0.5))
+    # separate simple loops: the first two vectorise
     bad = 0
     for k in range(m):
-        bad += (not (abs(times[k]) < 1e12)) | (dirs[k] * dirs[k] != 1)
+        t = times[k]
+        clocks[k] = np.int64(math.floor(min(max(t, -1e12), 1e12) * clock_hz + 0.5))
+        bad += not (abs(t) < 1e12)
     bad += clocks[0] < prev_clock
     for k in range(1, m):
         bad += clocks[k] < clocks[k - 1]
+    # direction changes, eight directions (bytes) at a time while they equal the current one
     nch = 0
-    for k in range(m):
+    words = dirs[: m - m % 8].view(np.int64)
+    same = np.int64(0x0101010101010101) * np.int64(direction & 0xFF)
+    k = 0
+    for w in range(words.shape[0]):
+        if words[w] == same and direction != 0:
+            continue
+        for k in range(8 * w, 8 * w + 8):
+            d = dirs[k]
+            if d != direction:
+                bad += d * d != 1
+                changes[nch] = k
+                nch += 1
+                direction = d
+        same = np.int64(0x0101010101010101) * np.int64(direction & 0xFF)
+    for k in range(m - m % 8, m):
         d = dirs[k]
         if d != direction:
+            bad += d * d != 1
             changes[nch] = k
             nch += 1
             direction = d
