@@ -5,7 +5,7 @@ klippy/configfile.py sets it up (RawConfigParser(strict=False, inline_comment_pr
 each line first cut at '#', [include] files read in sorted order where they stand, the SAVE_CONFIG
 block found by its exact header, stripped of its '#*# ' prefixes, and its keys dropped where the
 regular config sets them). ``reference_sections`` below is that procedure; gcodeplan's
-``_KlipperCfg`` must give the same sections, keys and values on every shared config, on the test
+``KlipperCfg`` must give the same sections, keys and values on every shared config, on the test
 configs and on generated ones.
 """
 from __future__ import annotations
@@ -23,7 +23,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from conftest import REFERENCE, REPO
-from gcodeplan.config import _KlipperCfg, load_klipper_config, load_machine, machine_to_toml
+from gcodeplan.config import KlipperCfg, load_klipper_config, load_machine, machine_to_toml
 from gcodeplan.errors import ConfigError
 from gcodeplan.machine import AXES, Axis, Machine
 
@@ -107,7 +107,7 @@ def reference_sections(path) -> dict[str, dict[str, str]]:
 
 
 def ours(path) -> dict[str, dict[str, str]]:
-    cfg = _KlipperCfg(str(path)).read()
+    cfg = KlipperCfg(str(path)).read()
     return {s: {k: v.text for k, v in keys.items()} for s, keys in cfg.sections.items()}
 
 

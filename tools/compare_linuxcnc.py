@@ -95,7 +95,7 @@ def main(argv: list[str] | None = None) -> int:
     if not REF.exists():
         print(f"no reference at {REF}", file=sys.stderr)
         return 2
-    from gcodeplan.linuxcnc_ini import load_linuxcnc_ini
+    from gcodeplan.config.linuxcnc import load_linuxcnc_ini
 
     machine = load_linuxcnc_ini(str(REF / "config" / "mill.ini"))
     times = json.loads((REF / "times.json").read_text())

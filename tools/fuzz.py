@@ -360,8 +360,6 @@ class _Checks:
         gen = StepGenerator(rails, on_steps, chunk_steps=1 << 14)
 
         class Steps(Sink):
-            needs_segments = True
-
             def __init__(self):
                 self.pending = False
 
@@ -540,9 +538,9 @@ class Stats:
     slowest: tuple = (0.0, -1)
 
     def line(self) -> str:
-        return (f"{self.cases} cases in {self.seconds:.0f} s ({self.cases / max(self.seconds, 1e-9):.0f}/s): "
-                f"{self.failures} failures ({len(self.signatures)} distinct), slowest case "
-                f"{self.slowest[1]} {self.slowest[0]:.2f} s")
+        return (f"{self.cases} cases in {self.seconds:.0f} s ({self.cases / max(self.seconds, 1e-9):.0f}/s), "
+                f"{self.rejected} refused with a GcodeplanError: {self.failures} failures "
+                f"({len(self.signatures)} distinct), slowest case {self.slowest[1]} {self.slowest[0]:.2f} s")
 
 
 def fuzz(seed: int, cases: int | None, seconds: float | None, out: Path, max_steps: int = 2_000_000,
@@ -613,8 +611,7 @@ def main(argv=None) -> int:
         print(res[1] if isinstance(res, tuple) else ("PASS" if res is None else "PASS (rejected: GcodeplanError)"))
         return 1 if isinstance(res, tuple) else 0
     st = fuzz(args.seed, args.cases, args.seconds, args.out, args.max_steps, args.start)
-    print(f"seed {args.seed}, cases {args.start}..{args.start + st.cases - 1}: {st.line()}; "
-          f"{st.rejected} rejected")
+    print(f"seed {args.seed}, cases {args.start}..{args.start + st.cases - 1}: {st.line()}")
     for sig, (i, path) in st.signatures.items():
         print(f"  {sig}: first case {i}, minimised in {path}")
     return 1 if st.failures else 0

@@ -28,7 +28,7 @@ WINDOWS = [
 def main() -> int:
     sys.path.insert(0, str(ROOT / "src"))
     from gcodeplan.gcode.reader import read_moves
-    from gcodeplan.linuxcnc_ini import load_linuxcnc_ini
+    from gcodeplan.config.linuxcnc import load_linuxcnc_ini
     from gcodeplan.planner.linuxcnc import run_linuxcnc
 
     machine = load_linuxcnc_ini(str(REF / "config" / "mill.ini"))

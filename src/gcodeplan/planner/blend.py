@@ -39,6 +39,14 @@ of its first blend to the middle of its last one. PLAN.start_v / end_v are the c
 straight part begins and ends), accel_t / cruise_t / decel_t are those of the straight part, and
 duration = τ_in + accel_t + cruise_t + decel_t + τ_out. SEGMENT rows of a blend carry PHASE_BLEND.
 
+Streaming (bounded memory): the passes only ever lower corner speeds, and a corner whose cap is below the least
+bound the moves after it can impose — a stop, or enough distance ahead to brake from its cap whatever comes
+later (:func:`blend_settled_kernel`) — is never lowered from the right. Runs are split at such corners and
+planned left to right (:func:`blend_runs_kernel`), in whole-program planning and in the streaming planner
+alike, so a window ends at its last settled corner and the next window starts from that corner's final speed:
+a run that never stops (a spiral vase) is held for a braking distance, not whole, and the two plans are
+bit-identical.
+
 The extruder axis E is part of the velocity vector (E per mm of path times the path speed): inside a blend
 its rate moves linearly from the incoming ratio to the outgoing one, under the E acceleration limit if one
 is set. With no E limit and collinear XYZ segments whose E ratios differ, E changes rate at once (τ = 0).

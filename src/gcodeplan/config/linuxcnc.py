@@ -21,8 +21,8 @@ import math
 import os
 import re
 
-from .errors import ConfigError
-from .machine import Axis, Machine
+from ..errors import ConfigError
+from ..machine import Axis, Machine
 
 _UNITS = {"mm": 1.0, "metric": 1.0, "millimeter": 1.0, "millimeters": 1.0,
           "in": 25.4, "inch": 25.4, "inches": 25.4, "imperial": 25.4, "cm": 10.0}
@@ -90,7 +90,7 @@ class _Ini:
 
 def load_linuxcnc_ini(path: str) -> Machine:
     """A Machine (flavor 'linuxcnc', policy 'linuxcnc') from a LinuxCNC .ini file (module docstring)."""
-    from .planner.linuxcnc import LinuxcncSettings
+    from ..planner.linuxcnc import LinuxcncSettings
 
     ini = _Ini(os.fspath(path))
     if "TRAJ" not in ini.sections:
