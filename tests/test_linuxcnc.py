@@ -148,11 +148,12 @@ def test_blend_swallows_a_fully_used_line(tmp_path):
 
     m = load_linuxcnc_ini(_write_ini(tmp_path))
     f = tmp_path / "zig.ngc"
-    pts = "".join(f"X{0.2 * (k + 1):.4f} Y{0.02 * (k % 2):.4f}\n" for k in range(12))
-    f.write_text("G21 G90 G64\nG1 F600 " + pts + "M2\n")
+    # a zig-zag of 0.2 mm lines turning by up to 16°: every corner takes half of each line
+    pts = "".join(f"X{0.2 * (k + 1):.4f} Y{0.0007 * (k % 2) * (k + 1):.5f}\n" for k in range(40))
+    f.write_text("G21 G90 G64\nG1 F6000 " + pts + "M2\n")
     run, *_ = _run(f, m)
     q = run.queue
-    assert np.sum(q["kind"] == SEG_BLEND) == 11
+    assert np.sum(q["kind"] == SEG_BLEND) == 39
     assert not np.any(q["term"][:-1] == TERM_PARABOLIC)
 
 

@@ -13,7 +13,7 @@ from hypothesis import strategies as st
 
 from conftest import shared_path
 from gcodeplan.machine import Machine
-from gcodeplan.stepper.compress import (BLOCK, CLOCK_DIFF_MAX, MAX_ADD, MAX_COUNT, RUN_DTYPE, Compressor,
+from gcodeplan.stepper.compress import (CLOCK_DIFF_MAX, MAX_ADD, MAX_COUNT, RUN_DTYPE, Compressor,
                                         bisect_add, compress_steps, decompress_runs)
 from gcodeplan.stepper.generate import generate_steps
 from gcodeplan.stepper.synth import line_segments, polyline_segments
@@ -141,10 +141,9 @@ def test_prefers_add_zero_unless_a_sixteenth_longer(interval, add):
     k = np.arange(1, 2000)
     clocks = interval * k + add * k * (k - 1) // 2
     zc = add_zero_reach(clocks, MAX_ERR)
-    qlo, qhi = np.empty(BLOCK, np.int64), np.empty(BLOCK, np.int64)
     for n in (zc + 1, zc + zc // 16, zc + zc // 16 + 1):
         c = np.append(clocks[:n], clocks[n - 1] + 5 * interval)
-        itv, count, got_add, at_end = bisect_add(c, 0, len(c), 0, MAX_ERR, MAX_COUNT, qlo, qhi)
+        itv, count, got_add, at_end = bisect_add(c, 0, len(c), 0, MAX_ERR, MAX_COUNT)
         assert not at_end
         if n <= zc + zc // 16:
             assert (count, got_add) == (zc, 0)
@@ -275,7 +274,6 @@ def replay_mismatches(stepper, cmds, exact, start):
     c = clocks_of(exact[stepper])
     dirs = exact[stepper + "_dir"]
     run_end = direction_run_ends(dirs)
-    qlo, qhi = np.empty(BLOCK, np.int64), np.empty(BLOCK, np.int64)
     itv, cnt, add = (cmds[f"{stepper}_{k}"] for k in ("interval", "count", "add"))
     cdir, reason = cmds[stepper + "_dir"], cmds[stepper + "_end_reason"]
     last, pos, bad = start, 0, []
@@ -286,7 +284,7 @@ def replay_mismatches(stepper, cmds, exact, start):
             assert want == (c[pos] - last, 1, 0)
         elif reason[k] != -1:                   # −1: the one command Klipper's own clocks do not reproduce
             qend = run_end[pos] if reason[k] in (0, 1) else pos + cnt[k]     # 2: cut at the batch's queue end
-            got = bisect_add(c, pos, qend, last, MAX_ERR, MAX_COUNT, qlo, qhi)[:3]
+            got = bisect_add(c, pos, qend, last, MAX_ERR, MAX_COUNT)[:3]
             if got != want:
                 bad.append((k, pos, qend, last, want))
         last += want[0] * want[1] + want[2] * (want[1] * (want[1] - 1) // 2)
@@ -298,12 +296,11 @@ def replay_mismatches(stepper, cmds, exact, start):
 def explained_by_one_tick(c, start, mismatch):
     """True when moving one step of the command's queue by one tick reproduces Klipper's command."""
     k, pos, qend, last, want = mismatch
-    qlo, qhi = np.empty(BLOCK, np.int64), np.empty(BLOCK, np.int64)
     for j in range(pos, min(qend, pos + want[1] + 1)):
         for delta in (-1, 1):
             c2 = c.copy()
             c2[j] += delta
-            if bisect_add(c2, pos, qend, last, MAX_ERR, MAX_COUNT, qlo, qhi)[:3] == want:
+            if bisect_add(c2, pos, qend, last, MAX_ERR, MAX_COUNT)[:3] == want:
                 return True
     return False
 

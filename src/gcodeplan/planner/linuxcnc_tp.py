@@ -674,9 +674,7 @@ def blend_arc(q, i_prev, i_cur, i_blend, acc_bound, vel_bound, cycle, gap_cycles
             return False, False
     # blendCheckConsume: a line remainder shorter than ARC_BLEND_GAP_CYCLES at the blend speed is
     # swallowed (not a line that starts in a parabolic blend: tcCanConsume)
-    l_prev = pv.target - trim1
-    if l_prev < 0.0:
-        return False, False
+    l_prev = max(pv.target - trim1, 0.0)
     consume = line1 and (l_prev / v_plan) < gap_cycles * cycle and pv.blend_prev == 0
     # the cut segments (pmCartLineStretch / pmCircleStretch refuse to cut to nothing)
     if line1 and not line2 and not (pv.target - trim1 > DOUBLE_FUZZ):

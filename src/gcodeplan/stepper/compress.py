@@ -47,7 +47,6 @@ _NO_LIMIT = np.int64(1) << np.int64(62)
 
 RUN_DTYPE = np.dtype([("interval", "i8"), ("count", "i4"), ("add", "i8"), ("dir", "i1")])
 
-BLOCK = 8                            # steps whose interval bounds are computed together (vectorised)
 SUB_CHUNK = 1 << 16                  # steps queued and compressed at a time: their clocks stay in the L2 cache
 
 
@@ -65,59 +64,49 @@ def _ceil_div(x, d):
 
 
 @numba.njit(cache=True, inline="always", error_model="numpy")
-def _window_low(c, c_prev, max_err):
-    """Earliest clock for a step at c when it is not a run's first: c − min(max_err, (c − c_prev)/2) (minmax_point)."""
-    return c - min((c - c_prev) >> 1, max_err)
-
-
-@numba.njit(cache=True, inline="always", error_model="numpy")
-def _longest_run(clocks, pos, qlast, last, max_err, add, lo_i, hi_i, qlo, qhi):
+def _longest_run(clocks, pos, qlast, last, max_err, add, lo_i, hi_i):
     """Longest run from ``pos`` with this ``add`` whose integer interval stays in [lo_i, hi_i] and fits every window.
 
     Returns (count, interval, failed, n, lo_i, hi_i, f, minp, maxp): when
     ``failed``, step n (1-based in the run) is the first that does not fit,
     [lo_i, hi_i] the (empty) range with it, f = n(n−1)/2 and [minp, maxp] its
     window relative to ``last``. Otherwise the queue ended after ``count``
-    steps. The interval bounds of BLOCK steps are computed in one vectorised
-    loop, then scanned.
+    steps. Step n at last + n·interval + add·f must lie in its window, so the
+    interval range narrows to [⌈(minp − add·f)/n⌉, ⌊(maxp − add·f)/n⌋]; the
+    interval kept is the top of the range (the latest steps).
     """
     interval = hi_i
     n = 1
+    f = 0
+    prev = clocks[pos]
     while True:
-        first = n + 1                                 # run length with the next step
-        j0 = pos + first - 1
-        m = min(qlast - j0, BLOCK)
-        if m <= 0:
-            return n, interval, False, 0, lo_i, hi_i, 0, 0, 0
-        for k in range(m):
-            nn = first + k
-            shift = add * ((nn * (nn - 1)) >> 1)
-            nf = np.float64(nn)
-            qlo[k] = _ceil_div(_window_low(clocks[j0 + k], clocks[j0 + k - 1], max_err) - last - shift, nf)
-            qhi[k] = _floor_div(clocks[j0 + k] - last - shift, nf)
-        for k in range(m):
-            lo2 = max(lo_i, qlo[k])
-            hi2 = min(hi_i, qhi[k])
-            if lo2 > hi2:
-                nn = first + k
-                j = j0 + k
-                return (nn - 1, interval, True, nn, lo2, hi2, (nn * (nn - 1)) >> 1,
-                        _window_low(clocks[j], clocks[j - 1], max_err) - last, clocks[j] - last)
-            lo_i = lo2
-            hi_i = hi2
-            interval = hi_i
-        n = first + m - 1
+        n += 1
+        j = pos + n - 1
+        if j >= qlast:
+            return n - 1, interval, False, 0, lo_i, hi_i, 0, 0, 0
+        f += n - 1
+        shift = add * f
+        c = clocks[j]
+        maxp = c - last
+        minp = maxp - min((c - prev) >> 1, max_err)      # half the gap to the previous step, at most max_err
+        prev = c
+        if lo_i * n < minp - shift:
+            lo_i = _ceil_div(minp - shift, n)
+        if hi_i * n > maxp - shift:
+            hi_i = _floor_div(maxp - shift, n)
+        if lo_i > hi_i:
+            return n - 1, interval, True, n, lo_i, hi_i, f, minp, maxp
+        interval = hi_i
 
 
 @numba.njit(cache=True, error_model="numpy")
-def bisect_add(clocks, pos, qend, last, max_err, max_count, qlo, qhi):
+def bisect_add(clocks, pos, qend, last, max_err, max_count):
     """One run for the queued step clocks ``clocks[pos:qend]`` (ticks, one direction, non-decreasing) after ``last``.
 
-    Klipper's ``compress_bisect_add``. ``max_err`` is in ticks; ``qlo``/``qhi``
-    are scratch arrays of BLOCK int64. Returns (interval, count, add, at_end)
-    with ``at_end`` true when the search stopped at the end of the queue (or of
-    its ``max_count`` look-ahead), where more queued steps could have made the
-    run longer.
+    Klipper's ``compress_bisect_add``. ``max_err`` is in ticks. Returns
+    (interval, count, add, at_end) with ``at_end`` true when the search stopped
+    at the end of the queue (or of its ``max_count`` look-ahead), where more
+    queued steps could have made the run longer.
     """
     qlast = min(qend, pos + max_count)
     # window of the head step: its half-gap is measured from the last step sent
@@ -135,7 +124,7 @@ def bisect_add(clocks, pos, qend, last, max_err, max_count, qlo, qhi):
     zero_count = 0
     while True:
         count, interval, failed, n, lo_i, hi_i, f, next_minp, next_maxp = _longest_run(
-            clocks, pos, qlast, last, max_err, add, outer_min, outer_max, qlo, qhi)
+            clocks, pos, qlast, last, max_err, add, outer_min, outer_max)
         if not failed:
             return interval, count, add, True
         reach = add * ((count * (count - 1)) >> 1) + interval * count
@@ -177,14 +166,14 @@ def bisect_add(clocks, pos, qend, last, max_err, max_count, qlo, qhi):
 
 @numba.njit(cache=True, error_model="numpy")
 def _flush_queue(clocks, pos, qend, last, max_err, max_count, move_clock, only_final, direction,
-                 o_interval, o_count, o_add, o_dir, nout, qlo, qhi):
+                 o_interval, o_count, o_add, o_dir, nout):
     """Runs for ``clocks[pos:qend]`` while ``last < move_clock`` (Klipper's ``queue_flush``).
 
     With ``only_final`` a run whose search reached the end of the queue is not
     sent: more steps could still change it. Returns (pos, last, nout).
     """
     while pos < qend and last < move_clock:
-        interval, count, add, at_end = bisect_add(clocks, pos, qend, last, max_err, max_count, qlo, qhi)
+        interval, count, add, at_end = bisect_add(clocks, pos, qend, last, max_err, max_count)
         if only_final and at_end and qend - pos < max_count:
             break
         o_interval[nout] = interval
@@ -277,8 +266,6 @@ def compress_queue(clocks, dirs, changes, new_from, last, direction, max_err, ma
     head index, last, direction).
     """
     n = clocks.shape[0]
-    qlo = np.empty(BLOCK, np.int64)
-    qhi = np.empty(BLOCK, np.int64)
     pos = 0
     nout = 0
     i = new_from
@@ -293,11 +280,11 @@ def compress_queue(clocks, dirs, changes, new_from, last, direction, max_err, ma
             c = clocks[k]
             # runs that do not depend on the queue's end are Klipper's whenever they are sent
             pos, last, nout = _flush_queue(clocks, pos, k, last, max_err, max_count, _NO_LIMIT, True,
-                                           direction, o_interval, o_count, o_add, o_dir, nout, qlo, qhi)
+                                           direction, o_interval, o_count, o_add, o_dir, nout)
             if c - last >= CLOCK_DIFF_MAX:
                 pos, last, nout = _flush_queue(clocks, pos, k, last, max_err, max_count,
                                                c - CLOCK_DIFF_MAX + 1, False, direction,
-                                               o_interval, o_count, o_add, o_dir, nout, qlo, qhi)
+                                               o_interval, o_count, o_add, o_dir, nout)
                 if c - last >= CLOCK_DIFF_MAX:
                     o_interval[nout] = c - last
                     o_count[nout] = 1
@@ -311,13 +298,13 @@ def compress_queue(clocks, dirs, changes, new_from, last, direction, max_err, ma
             break
         # direction change: Klipper flushes every queued step of the old direction first
         pos, last, nout = _flush_queue(clocks, pos, seg_end, last, max_err, max_count, _NO_LIMIT, False,
-                                       direction, o_interval, o_count, o_add, o_dir, nout, qlo, qhi)
+                                       direction, o_interval, o_count, o_add, o_dir, nout)
         pos = seg_end
         direction = dirs[seg_end - new_from]
         i = seg_end
         ci += 1
     pos, last, nout = _flush_queue(clocks, pos, n, last, max_err, max_count, _NO_LIMIT, not final,
-                                   direction, o_interval, o_count, o_add, o_dir, nout, qlo, qhi)
+                                   direction, o_interval, o_count, o_add, o_dir, nout)
     return nout, pos, last, direction
 
 

@@ -1,0 +1,369 @@
+"""The interpreter's motion commands: G0/G1, arcs, canned cycles, G10/G11 retraction, G28 homing and G92
+(a part of :class:`.interp.Interpreter`)."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ..schema import (FLAG_ARC, FLAG_CANNED, FLAG_FIRMWARE_RETRACT, FLAG_HOMING, FLAG_RAPID, FLAG_RETRACT,
+                      KIND_DWELL, KIND_EXTRUDE_ONLY, KIND_PRINT, KIND_TRAVEL, KIND_WAIT)
+from . import scan as S
+from .lexing import Word
+
+
+
+class MotionCommands:
+    """Mixed into :class:`.interp.Interpreter`: commands that move the head or set its position."""
+
+    # ------------------------------------------------------------------ G10/G11/G28/G92
+    def _g10(self, params: dict[str, Word], used: set[str]) -> bool:
+        """Work offsets (L2/L20) or firmware retraction. True when the axis words were consumed."""
+        ell = self._value(params, "L")
+        if ell is not None:
+            used.update(("L", "P", "R"))
+            if ell not in (2, 20):
+                self.unknown_command(f"G10 L{ell:g}")
+                return True
+            p = self._value(params, "P")
+            idx = self.work_index if p is None or p == 0 else int(p) - 1
+            if p is not None and (p != int(p) or not 0 <= idx < 9):
+                self.error("G10 P must be 0..9 (the coordinate system)")
+            scale = float(self.st[S.S_UNIT])
+            for a, k in enumerate("XYZ"):
+                v = self._value(params, k)
+                if v is None:
+                    continue
+                if ell == 2:
+                    self.work[idx, a] = v * scale
+                else:   # L20: make the current position read v
+                    extra = self.tool_z if a == 2 else 0.0
+                    self.work[idx, a] = float(self.st[S.S_X + a]) - v * scale - self.g92[a] - extra
+            self._update_offsets()
+            return True
+        if self.machine.is_cnc:
+            self.error("G10 needs L2 or L20")
+        if "P" in params or "S" in params or "R" in params:
+            used.update(params)    # RepRapFirmware G10 P<tool> S<temp>: tool temperatures
+            return True
+        self._firmware_retract(True)
+        return True
+
+    def _g11(self) -> None:
+        if self.machine.is_cnc:
+            self.unknown_command("G11")
+            return
+        self._firmware_retract(False)
+
+    def _firmware_retract(self, retract: bool) -> None:
+        m = self.machine
+        if retract == self.retracted:
+            return    # Marlin and Klipper ignore a repeated G10 / a G11 without G10
+        self.retracted = retract
+        length = m.retract_length if retract else m.retract_length + m.unretract_extra_length
+        speed = m.retract_speed if retract else m.unretract_speed
+        if length <= 0.0:
+            return
+        st = self.st
+        e0 = float(st[S.S_E])
+        e1 = e0 - length if retract else e0 + length
+        st[S.S_E] = e1
+        x, y, z = float(st[S.S_X]), float(st[S.S_Y]), float(st[S.S_Z])
+        flags = FLAG_FIRMWARE_RETRACT | (FLAG_RETRACT if retract else 0)
+        # the firmware's own retraction speed: M220 scales G0/G1 feeds, not this one (Marlin fwretract)
+        self._row(KIND_EXTRUDE_ONLY, flags, x, y, z, e0, x, y, z, e1, length, speed, float(st[S.S_ACC_R]), 0.0)
+
+    def _g28(self, params: dict[str, Word], used: set[str]) -> None:
+        st = self.st
+        axes = [k for k in "XYZ" if k in params]
+        used.update(axes)
+        if not axes:
+            axes = ["X", "Y", "Z"]
+        x0, y0, z0, e0 = (float(st[i]) for i in (S.S_X, S.S_Y, S.S_Z, S.S_E))
+        for k in axes:
+            a = "XYZ".index(k)
+            st[S.S_X + a] = self.machine.axes[k.lower()].home
+            if not self.machine.is_cnc:
+                # homing drops the G92 offset of the axis (Marlin set_axis_is_at_home, Klipper's
+                # base_position = homing_position); CNC G28 is a move to a stored point, offsets kept
+                self.g92[a] = 0.0
+        self._update_offsets()
+        self.event("G28 home " + "".join(axes))
+        self.waits["G28"] = self.waits.get("G28", 0) + 1
+        if self.machine.homing_time > 0.0:
+            self.wait_time_s["G28"] = self.wait_time_s.get("G28", 0.0) + self.machine.homing_time
+        self._row(KIND_WAIT, FLAG_HOMING, x0, y0, z0, e0, float(st[S.S_X]), float(st[S.S_Y]), float(st[S.S_Z]),
+                  e0, 0.0, 0.0, 0.0, self.machine.homing_time)
+
+    def _g92(self, params: dict[str, Word], used: set[str]) -> None:
+        st = self.st
+        scale = float(st[S.S_UNIT])
+        given = {k: self._value(params, k) for k in "XYZE" if k in params}
+        used.update(given)
+        if not given:
+            if self.dialect == S.DIALECT_KLIPPER:
+                given = {k: 0.0 for k in "XYZE"}   # Klipper: bare G92 zeroes every axis
+            elif self.dialect == S.DIALECT_CNC:
+                self.error("G92 needs at least one axis word")
+            else:
+                return                              # Marlin: nothing to set
+        for k, v in given.items():
+            if k == "E":
+                st[S.S_ELOG] = v * scale
+            else:
+                a = "XYZ".index(k)
+                extra = self.tool_z if a == 2 else 0.0
+                self.g92[a] = float(st[S.S_X + a]) - v * scale - self.work[self.work_index, a] - extra
+        self._update_offsets()
+
+    # ------------------------------------------------------------------ motion
+    def _targets(self, params: dict[str, Word], machine_coords: bool):
+        """End point (machine mm) of a straight move; the scanner's arithmetic exactly."""
+        st, ist = self.st, self.ist
+        scale = float(st[S.S_UNIT])
+        x0, y0, z0 = float(st[S.S_X]), float(st[S.S_Y]), float(st[S.S_Z])
+        absc = ist[S.I_ABS_COORD] != 0
+        out = [x0, y0, z0]
+        for a, k in enumerate("XYZ"):
+            v = self._value(params, k)
+            if v is None:
+                continue
+            if machine_coords:
+                out[a] = v * scale
+            elif absc:
+                out[a] = v * scale + float(st[S.S_OX + a])
+            else:
+                out[a] = out[a] + v * scale
+        return out
+
+    def _e_target(self, params: dict[str, Word]):
+        """(machine e1, new logical E) after the line's E word (or unchanged)."""
+        st, ist = self.st, self.ist
+        e0 = float(st[S.S_E])
+        elog = float(st[S.S_ELOG])
+        v = self._value(params, "E")
+        if v is None:
+            return e0, elog
+        ev = v * float(st[S.S_UNIT])
+        if ist[S.I_ABS_E] != 0 and (ist[S.I_ABS_COORD] != 0 or ist[S.I_G90_SETS_E] != 0):
+            de_log = ev - elog
+            elog = ev
+        else:
+            de_log = ev
+            elog = elog + ev
+        return e0 + de_log * float(st[S.S_FLOW_F]), elog
+
+    def _accel(self, has_xyz: bool, de: float) -> float:
+        st = self.st
+        if not has_xyz:
+            return float(st[S.S_ACC_R])
+        if de != 0.0:
+            return float(st[S.S_ACC_P])
+        return float(st[S.S_ACC_T])
+
+    def _layer_check(self, z1: float) -> None:
+        """A printing move: start a layer by Z when the file has no layer comments; set the layer's Z."""
+        st, ist = self.st, self.ist
+        if ist[S.I_LAYER_BY_Z] and z1 > float(st[S.S_MAXZ]):
+            st[S.S_MAXZ] = z1
+            self._new_layer(z1)
+        elif ist[S.I_LAYER_Z_TODO]:
+            layer = int(ist[S.I_LAYER])
+            if layer >= 0:
+                self.layer_z[layer] = z1
+            ist[S.I_LAYER_Z_TODO] = 0
+
+    def _linear(self, code: int, params: dict[str, Word], used: set[str], f: float | None,
+                machine_coords: bool) -> None:
+        st = self.st
+        used.update("XYZEF")
+        scale = float(st[S.S_UNIT])
+        x0, y0, z0, e0 = float(st[S.S_X]), float(st[S.S_Y]), float(st[S.S_Z]), float(st[S.S_E])
+        x1, y1, z1 = self._targets(params, machine_coords)
+        e1, elog = self._e_target(params)
+        feed = float(st[S.S_FEED])
+        if f is not None:
+            feed = f * scale / 60.0
+        dx = x1 - x0
+        dy = y1 - y0
+        dz = z1 - z0
+        de = e1 - e0
+        move_d = math.sqrt(dx * dx + dy * dy + dz * dz)
+        if not all(math.isfinite(v) for v in (x1, y1, z1, e1, move_d)):
+            self.error("coordinate out of range")
+        if move_d > 0.0 and de > 0.0:
+            self._layer_check(z1)
+        st[S.S_X] = x1
+        st[S.S_Y] = y1
+        st[S.S_Z] = z1
+        st[S.S_E] = e1
+        st[S.S_ELOG] = elog
+        st[S.S_FEED] = feed
+        if move_d > 0.0 or de != 0.0:
+            flags = 0
+            if move_d > 0.0:
+                kind = KIND_PRINT if de > 0.0 else KIND_TRAVEL
+            else:
+                kind = KIND_EXTRUDE_ONLY
+                move_d = abs(de)
+            if de < 0.0:
+                flags |= FLAG_RETRACT
+            feed_v = feed * float(st[S.S_SPEED_F])
+            if code == 0:
+                flags |= FLAG_RAPID
+                if self.dialect == S.DIALECT_CNC:
+                    feed_v = math.inf
+            accel = self._accel(kind != KIND_EXTRUDE_ONLY, de)
+            self._row(kind, flags, x0, y0, z0, e0, x1, y1, z1, e1, move_d, feed_v, accel, 0.0)
+
+    def _arc(self, clockwise: bool, params: dict[str, Word], used: set[str], f: float | None) -> None:
+        from .arcs import ArcError, arc_chords
+
+        st = self.st
+        used.update("XYZEFIJKRP")
+        scale = float(st[S.S_UNIT])
+        if f is not None:
+            st[S.S_FEED] = f * scale / 60.0
+        x0, y0, z0, e0 = float(st[S.S_X]), float(st[S.S_Y]), float(st[S.S_Z]), float(st[S.S_E])
+        x1, y1, z1 = self._targets(params, False)
+        e1, elog = self._e_target(params)
+        centre = [self._value(params, k) for k in "IJK"]
+        r = self._value(params, "R")
+        p = self._value(params, "P")
+        flavor = self.machine.flavor
+        if p is not None and flavor == "klipper":
+            self.warn("G2/G3 P is not supported by Klipper: ignored")
+            p = None
+        turns = 1 if p is None else p
+        if p is not None and flavor == "marlin":
+            # Marlin (ARC_P_CIRCLES): P complete circles in addition to the arc; LinuxCNC: P turns in all
+            if p != int(p) or p < 0:
+                self.error(f"arc circle count P must be a whole number >= 0, got {params['P'].text}")
+            turns = p + 1
+        elif p is not None and (p != int(p) or p < 1):
+            self.error(f"arc turn count P must be a whole number >= 1, got {params['P'].text}")
+        ijk = None
+        if any(c is not None for c in centre):
+            if r is not None:
+                self.error("arc has both I/J/K and R")
+            start = (x0, y0, z0)
+            ijk = []
+            for a, c in enumerate(centre):
+                if c is None:
+                    ijk.append(0.0)
+                elif self.arc_abs_centre:
+                    ijk.append(c * scale + float(st[S.S_OX + a]) - start[a])
+                else:
+                    ijk.append(c * scale)
+        elif r is None:
+            self.error(f"G{2 if clockwise else 3} needs I/J/K (centre) or R (radius)")
+        else:
+            r = r * scale
+        m = self.machine
+        try:
+            pts = arc_chords((x0, y0, z0), (x1, y1, z1), ijk=ijk, r=r, plane=self.plane, clockwise=clockwise,
+                             turns=int(turns), tolerance=m.arc_tolerance, resolution=m.arc_resolution,
+                             units_mm=float(st[S.S_UNIT]) == 1.0)
+        except ArcError as err:
+            self.error(str(err))
+        self.arcs += 1
+        n = pts.shape[0]
+        de = e1 - e0
+        starts = np.vstack([[x0, y0, z0], pts[:-1]]) if n else np.empty((0, 3))
+        d = np.sqrt(((pts - starts) ** 2).sum(axis=1)) if n else np.empty(0)
+        es = e0 + de * (np.arange(1, n + 1) / n) if n else np.empty(0)
+        if n:
+            es[-1] = e1
+        e_starts = np.concatenate([[e0], es[:-1]]) if n else np.empty(0)
+        if n and de > 0.0 and d.max() > 0.0:
+            self._layer_check(float(pts[0, 2]))
+        st[S.S_X], st[S.S_Y], st[S.S_Z] = x1, y1, z1
+        if n:
+            st[S.S_X], st[S.S_Y], st[S.S_Z] = float(pts[-1, 0]), float(pts[-1, 1]), float(pts[-1, 2])
+        st[S.S_E] = e1
+        st[S.S_ELOG] = elog
+        self._bulk(pts, starts, es, e_starts, d, FLAG_ARC, float(st[S.S_FEED]) * float(st[S.S_SPEED_F]))
+
+    def _bulk(self, ends, starts, es, e_starts, d, flags, feed_v, rapid_mask=None, dwell=None) -> None:
+        """Rows for a sequence of straight pieces (arc chords, cycle moves)."""
+        from ..schema import MOVE_DTYPE
+
+        self._flush_rows_to_arrays()
+        st, ist = self.st, self.ist
+        n = ends.shape[0]
+        a = np.zeros(n, dtype=MOVE_DTYPE)
+        a["line"] = self.line
+        a["feature"] = ist[S.I_FEATURE]
+        a["layer"] = ist[S.I_LAYER]
+        a["limits"] = ist[S.I_LIMITS]
+        a["x0"], a["y0"], a["z0"], a["e0"] = starts[:, 0], starts[:, 1], starts[:, 2], e_starts
+        a["x1"], a["y1"], a["z1"], a["e1"] = ends[:, 0], ends[:, 1], ends[:, 2], es
+        de = es - e_starts
+        xyz = d > 0.0
+        a["kind"] = np.where(xyz, np.where(de > 0.0, KIND_PRINT, KIND_TRAVEL), KIND_EXTRUDE_ONLY)
+        a["flags"] = flags | np.where(de < 0.0, FLAG_RETRACT, 0)
+        a["move_d"] = np.where(xyz, d, np.abs(de))
+        a["feed_v"] = feed_v
+        if rapid_mask is not None:
+            a["flags"] |= np.where(rapid_mask, FLAG_RAPID, 0).astype(np.uint8)
+            if self.dialect == S.DIALECT_CNC:
+                a["feed_v"] = np.where(rapid_mask, math.inf, feed_v)
+        a["accel"] = np.where(xyz, np.where(de != 0.0, st[S.S_ACC_P], st[S.S_ACC_T]), st[S.S_ACC_R])
+        a["blend_p"] = st[S.S_BLEND_P]
+        a["blend_q"] = st[S.S_BLEND_Q]
+        a["object"] = ist[S.I_OBJECT]
+        a["exact_stop"] = ist[S.I_EXACT_STOP]
+        keep = xyz | (de != 0.0)
+        if dwell is not None:
+            a["kind"][dwell] = KIND_DWELL
+            a["move_d"][dwell] = 0.0
+            a["accel"][dwell] = 0.0
+            a["feed_v"][dwell] = 0.0
+            keep = keep | dwell
+        self.row_arrays.append(a[keep])
+
+    def _cycle(self, code: int, params: dict[str, Word], used: set[str], f: float | None) -> None:
+        from .cycles import CycleError, CycleState, expand_cycle
+
+        st, ist = self.st, self.ist
+        scale = float(st[S.S_UNIT])
+        used.update("XYZRQPLF")
+        if f is not None:
+            st[S.S_FEED] = f * scale / 60.0
+        off = [float(st[S.S_OX + a]) for a in range(3)]
+        pos = [float(st[S.S_X + a]) - off[a] for a in range(3)]
+        words = {}
+        for k in "XYZRQL":
+            v = self._value(params, k)
+            if v is not None:
+                words[k] = v if k == "L" else v * scale
+        p = self._value(params, "P")
+        if p is not None:
+            words["P"] = p        # seconds (LinuxCNC)
+        if self.cycle_state is None:
+            self.cycle_state = CycleState.enter(pos[0], pos[1], pos[2], self.retract_mode,
+                                                ist[S.I_ABS_COORD] == 0)
+        state = self.cycle_state
+        state.x, state.y, state.z = pos
+        state.incremental = ist[S.I_ABS_COORD] == 0
+        state.retract_mode = self.retract_mode
+        try:
+            rows, new_state = expand_cycle(code, words, state, 0.254, plane=self.plane)
+        except CycleError as err:
+            self.error(str(err))
+        self.cycle_state = new_state
+        self.canned_cycles += 1
+        if rows.shape[0] == 0:
+            return
+        ends = rows[:, :3] + np.array(off)
+        starts = np.vstack([[float(st[S.S_X]), float(st[S.S_Y]), float(st[S.S_Z])], ends[:-1]])
+        d = np.sqrt(((ends - starts) ** 2).sum(axis=1))
+        e = float(st[S.S_E])
+        es = np.full(rows.shape[0], e)
+        motion = rows[:, 3]
+        dwell = motion == 2
+        self._bulk(ends, starts, es, es, d, FLAG_CANNED, float(st[S.S_FEED]) * float(st[S.S_SPEED_F]),
+                   rapid_mask=motion == 0, dwell=dwell)
+        if dwell.any():
+            self.row_arrays[-1]["dwell_t"][self.row_arrays[-1]["kind"] == KIND_DWELL] = rows[dwell, 4]
+        st[S.S_X], st[S.S_Y], st[S.S_Z] = float(ends[-1, 0]), float(ends[-1, 1]), float(ends[-1, 2])

@@ -1,0 +1,351 @@
+"""The interpreter's state commands: Klipper extended commands, M codes, accelerations and limits,
+pressure advance and input shaper settings, tool changes and dwells (a part of :class:`.interp.Interpreter`)."""
+from __future__ import annotations
+
+import math
+
+
+from ..schema import KIND_DWELL, KIND_WAIT
+from . import scan as S
+from .lexing import KV_RE, QUIET_EXT, QUIET_M, WAIT_M, Word
+from .objects import KlipperExclude
+
+
+
+class StateCommands:
+    """Mixed into :class:`.interp.Interpreter`: commands that change the machine's state, not the position."""
+
+    # ------------------------------------------------------------------ Klipper extended commands
+    def _extended(self, name: str, rest: str) -> None:
+        uname = name.upper()
+        params: dict[str, str] = {}
+        pos = 0
+        rest = rest.rstrip()
+        while pos < len(rest):
+            m = KV_RE.match(rest, pos)
+            if not m:
+                break
+            params[m.group(1).upper()] = m.group(2).strip("\"'")
+            pos = m.end()
+        if pos < len(rest) and uname in ("SET_VELOCITY_LIMIT", "SET_KINEMATIC_POSITION"):
+            # Klipper refuses parameters that are not NAME=value ("Malformed command"); dropping them would
+            # silently skip the limit or position change
+            self.error(f"{uname}: malformed parameter {rest[pos:].strip()[:30]!r} (expected NAME=value)")
+
+        def num(key: str) -> float | None:
+            if key not in params:
+                return None
+            try:
+                v = float(params[key])
+            except ValueError:
+                self.error(f"{uname}: {key}={params[key]!r} is not a number")
+            if not math.isfinite(v):
+                self.error(f"{uname}: {key}={params[key]} is out of range")
+            return v
+
+        if uname == "SET_VELOCITY_LIMIT":
+            changes = {}
+            v = num("VELOCITY")
+            if v is not None:
+                if not v > 0:
+                    self.error("SET_VELOCITY_LIMIT: VELOCITY must be > 0")
+                changes["max_v"] = v
+            a = num("ACCEL")
+            if a is not None:
+                if not a > 0:
+                    self.error("SET_VELOCITY_LIMIT: ACCEL must be > 0")
+                changes["max_a"] = a
+                self.st[S.S_ACC_P] = self.st[S.S_ACC_T] = self.st[S.S_ACC_R] = a
+            scv = num("SQUARE_CORNER_VELOCITY")
+            if scv is not None:
+                if scv < 0:
+                    self.error("SET_VELOCITY_LIMIT: SQUARE_CORNER_VELOCITY must be >= 0")
+                changes["scv"] = scv
+            mcr = num("MINIMUM_CRUISE_RATIO")
+            if mcr is not None:
+                if not 0 <= mcr < 1:
+                    self.error("SET_VELOCITY_LIMIT: MINIMUM_CRUISE_RATIO must be in [0, 1)")
+                changes["mcr"] = mcr
+            a2d = num("ACCEL_TO_DECEL")
+            if a2d is not None and mcr is None:   # Klipper: MINIMUM_CRUISE_RATIO wins when both are given
+                if not a2d > 0:
+                    self.error("SET_VELOCITY_LIMIT: ACCEL_TO_DECEL must be > 0")
+                # Klipper's legacy setting: max_accel_to_decel = accel·(1 − mcr)
+                accel = float(self.st[S.S_ACC_P])
+                changes["mcr"] = max(0.0, 1.0 - a2d / accel)
+            self._new_limits(**changes)
+        elif uname == "SET_KINEMATIC_POSITION":
+            st = self.st
+            x0, y0, z0, e0 = (float(st[i]) for i in (S.S_X, S.S_Y, S.S_Z, S.S_E))
+            for i, k in enumerate("XYZ"):
+                v = num(k)
+                if v is not None:
+                    st[S.S_X + i] = v
+            self.waits["SET_KINEMATIC_POSITION"] = self.waits.get("SET_KINEMATIC_POSITION", 0) + 1
+            self._row(KIND_WAIT, 0, x0, y0, z0, e0, float(st[S.S_X]), float(st[S.S_Y]), float(st[S.S_Z]), e0,
+                      0.0, 0.0, 0.0, 0.0)
+        elif uname == "SET_PRESSURE_ADVANCE":
+            ext = params.get("EXTRUDER", "extruder").lower()
+            if ext != "extruder":
+                self.unknown_command(f"SET_PRESSURE_ADVANCE EXTRUDER={ext}")   # one extruder is modelled
+                return
+            k, smooth = num("ADVANCE"), num("SMOOTH_TIME")
+            if k is not None and k < 0:
+                self.error("SET_PRESSURE_ADVANCE: ADVANCE must be >= 0")
+            if smooth is not None and not 0 <= smooth <= 0.2:
+                self.error("SET_PRESSURE_ADVANCE: SMOOTH_TIME must be in [0, 0.2] s")
+            self._pressure_advance(k, smooth)
+        elif uname == "SET_INPUT_SHAPER":
+            self._set_input_shaper(params, num)
+        elif uname == "EXCLUDE_OBJECT_START":
+            self._set_object(params.get("NAME") or None)
+        elif uname == "EXCLUDE_OBJECT_END":
+            self._set_object(None)
+        elif uname == "EXCLUDE_OBJECT_DEFINE" and params.get("NAME"):
+            idx = self.objects.index(params["NAME"])
+            if self.exclude is not None:
+                self.exclude.register(params["NAME"], idx)
+        elif uname == "EXCLUDE_OBJECT" and params.get("NAME"):
+            # cancelled from inside the file: from here on, as on the printer
+            if self.exclude is None:
+                self.exclude = KlipperExclude([])
+            self.exclude.exclude(params["NAME"], self.objects.index(params["NAME"]))
+            self._exclude_wake()
+        elif uname in self._macros:
+            self._wait(uname, self._macros[uname])
+        elif uname in QUIET_EXT:
+            pass
+        else:
+            self.unknown_command(uname)
+
+    # ------------------------------------------------------------------ M commands
+    def _m_command(self, mc: int, params: dict[str, Word], used: set[str]) -> None:
+        st, ist = self.st, self.ist
+        m = self.machine
+        if mc in (82, 83):
+            ist[S.I_ABS_E] = 1 if mc == 82 else 0
+        elif mc in QUIET_M:
+            used.update(params)
+        elif mc in WAIT_M:
+            used.update(params)
+            self._wait(f"M{mc}", m.heat_wait_time if mc in (109, 190, 191) else 0.0)
+        elif mc == 400:
+            self._wait("M400")
+        elif mc in (0, 1):
+            used.update(params)
+            self.event(f"M{mc} pause")
+            self._wait(f"M{mc}")
+        elif mc in (2, 30):
+            pass   # after the motion of the line
+        elif mc in (3, 4, 5):
+            used.add("S")
+            self.spindle_commands += 1
+            if m.flavor == "linuxcnc":
+                self._wait(f"M{mc}")   # LinuxCNC's task waits for the motion queue to empty
+        elif mc == 6:
+            t = params.get("T")
+            used.add("T")
+            self._tool_change(int(t.value) if t is not None and t.value is not None else -1)
+        elif mc == 204:
+            self._m204(params, used)
+        elif mc in (201, 203, 205):
+            used.update(params)
+            if self.dialect == S.DIALECT_KLIPPER:
+                self.ignore(f"M{mc}")   # Klipper: "Unknown command"
+            elif self.dialect == S.DIALECT_CNC:
+                self.unknown_command(f"M{mc}")
+            else:
+                self._marlin_limits(mc, params)
+        elif mc in (900, 572):
+            used.update(params)
+            self._m_linear_advance(mc, params)
+        elif mc in (220, 221):
+            used.add("S")
+            s = self._value(params, "S")
+            if s is None and self.dialect == S.DIALECT_KLIPPER:
+                s = 100.0    # Klipper: S defaults to 100 (a bare M220/M221 resets the factor); Marlin: no change
+            if s is not None:
+                if not s > 0:
+                    self.error(f"M{mc} S must be > 0 (percent)")
+                st[S.S_SPEED_F if mc == 220 else S.S_FLOW_F] = s / 100.0
+        elif mc == 600:
+            used.update(params)
+            self._wait("M600", self._macros.get("M600", float(getattr(m, "filament_change_time", 0.0))))
+        else:
+            used.update(params)
+            self._unknown_or_macro(f"M{mc}")
+
+    def _unknown_or_macro(self, name: str) -> None:
+        """A command the machine's [time] macros time (G29 = 90: a wait of 90 s), else unknown."""
+        if name.upper() in self._macros:
+            self._wait(name.upper(), self._macros[name.upper()])
+        else:
+            self.unknown_command(name)
+
+    def _m204(self, params: dict[str, Word], used: set[str]) -> None:
+        st = self.st
+        used.update(params)
+        if self.dialect == S.DIALECT_CNC:
+            self.unknown_command("M204")
+            return
+        vals = {}
+        for k in "SPTR":
+            v = self._value(params, k)
+            if v is not None:
+                vals[k] = v
+        if self.dialect == S.DIALECT_KLIPPER:
+            if "S" in vals:
+                a = vals["S"]
+            elif "P" in vals and "T" in vals:
+                a = min(vals["P"], vals["T"])
+            else:
+                self.ist[S.I_M204_IGNORED] += 1
+                return
+            if not a > 0.0:
+                self.error("M204 acceleration must be > 0")
+            st[S.S_ACC_P] = a
+            st[S.S_ACC_T] = a
+            st[S.S_ACC_R] = a
+            return
+        for k, v in vals.items():
+            if not v > 0.0:
+                self.error(f"M204 {k} must be > 0")
+        if "S" in vals:
+            st[S.S_ACC_P] = vals["S"]
+            st[S.S_ACC_T] = vals["S"]
+        if "P" in vals:
+            st[S.S_ACC_P] = vals["P"]
+        if "R" in vals:
+            st[S.S_ACC_R] = vals["R"]
+        if "T" in vals:
+            st[S.S_ACC_T] = vals["T"]
+
+    def _marlin_limits(self, mc: int, params: dict[str, Word]) -> None:
+        changes = {}
+        for k in params:
+            v = self._value(params, k)
+            if mc == 203 and k in "XYZE":
+                if not v > 0:
+                    self.error(f"M203 {k} must be > 0")
+                # Marlin's M203 is in units/s, RepRapFirmware's in units/min (config.g: M203 X6000 ...)
+                changes["axis_v_" + k.lower()] = v / 60.0 if self.machine.flavor == "reprap" else v
+            elif mc == 201 and k in "XYZE":
+                if not v > 0:
+                    self.error(f"M201 {k} must be > 0")
+                changes["axis_a_" + k.lower()] = v
+            elif mc == 205:
+                if v < 0:
+                    self.error(f"M205 {k} must be >= 0")
+                if k in "XYZE":
+                    changes["jerk_" + k.lower()] = v
+                elif k == "J":
+                    changes["junction_dev"] = v
+                elif k == "S":
+                    changes["min_feed_v"] = v
+                elif k == "T":
+                    changes["min_travel_v"] = v
+                else:
+                    self.warn(f"M205 {k} ignored")
+            else:
+                self.warn(f"M{mc} {k} ignored")
+        self._new_limits(**changes)
+
+    # ------------------------------------------------------------------ step-stream settings
+    def _pressure_advance(self, k: float | None, smooth: float | None, klipper_flush: bool = True) -> None:
+        """New pressure advance K (s) and/or smoothing time (s) from here on (LIMITS pa_k, pa_smooth_t).
+
+        Klipper (kinematics/extruder.py) flushes the step generation, a full stop, when the smoothing
+        window in effect changes (turning pressure advance on or off included); a new K alone takes
+        effect with the next move, without a stop. Marlin's M900 and RepRapFirmware's M572 plan no stop
+        (``klipper_flush`` False): their times do not change.
+        """
+        cur = self._limits_rows[int(self.ist[S.I_LIMITS])]
+        old_k, old_s = float(cur["pa_k"]), float(cur["pa_smooth_t"])
+        new_k = old_k if k is None else k
+        new_s = old_s if smooth is None else smooth
+        if klipper_flush and (new_s if new_k else 0.0) != (old_s if old_k else 0.0):
+            self._wait("SET_PRESSURE_ADVANCE")
+        self._new_limits(pa_k=new_k, pa_smooth_t=new_s)
+
+    def _m_linear_advance(self, mc: int, params: dict[str, Word]) -> None:
+        """Marlin M900 K (linear advance, mm per mm/s = s) and RepRapFirmware M572 D S (s): the same physics
+        as Klipper's pressure advance, smoothed with the machine's pressure_advance_smooth_time."""
+        if self.dialect == S.DIALECT_KLIPPER or self.dialect == S.DIALECT_CNC:
+            self.ignore(f"M{mc}")       # Klipper: "Unknown command"; CNC controllers have no extruder
+            return
+        letter = "K" if mc == 900 else "S"
+        k = self._value(params, letter)
+        if mc == 572:
+            d = self._value(params, "D")
+            if d is not None and d != 0:
+                self.unknown_command(f"M572 D{d:g}")     # one extruder is modelled
+                return
+        if k is None:
+            return
+        if k < 0:
+            self.error(f"M{mc} {letter} must be >= 0")
+        if "linear_advance" not in self.ignored:
+            self.ignore("linear_advance")
+            self.warn(f"M{mc} {letter}{k:g}: planned as Klipper's pressure advance (K = {k:g} s, smoothed over "
+                      f"{float(self._limits_rows[0]['pa_smooth_t']):g} s)")
+        self._pressure_advance(k, None, klipper_flush=False)
+
+    def _set_input_shaper(self, params: dict[str, str], num) -> None:
+        """Klipper's SET_INPUT_SHAPER: new shaper types / frequencies / damping ratios for X and Y.
+
+        Klipper (extras/input_shaper.py) flushes the step generation first: a full stop.
+        """
+        from ..machine import SHAPER_TYPE_CODES
+
+        changes = {}
+        for a in ("x", "y"):
+            for key in (f"SHAPER_TYPE_{a.upper()}", "SHAPER_TYPE"):
+                if key in params:
+                    name = params[key].lower()
+                    if name not in SHAPER_TYPE_CODES or name == "none":
+                        self.error(f"SET_INPUT_SHAPER: {key}={params[key]} is not a modelled shaper "
+                                   f"(zv, mzv, zvd, ei, 2hump_ei, 3hump_ei)")
+                    changes["shaper_type_" + a] = float(SHAPER_TYPE_CODES[name])
+                    break
+            f = num(f"SHAPER_FREQ_{a.upper()}")
+            if f is not None:
+                if f < 0:
+                    self.error(f"SET_INPUT_SHAPER: SHAPER_FREQ_{a.upper()} must be >= 0")
+                changes["shaper_freq_" + a] = f
+            z = num(f"DAMPING_RATIO_{a.upper()}")
+            if z is not None:
+                if not 0 <= z < 1:
+                    self.error(f"SET_INPUT_SHAPER: DAMPING_RATIO_{a.upper()} must be in [0, 1)")
+                changes["damping_" + a] = z
+        for key in params:
+            if key.endswith("_Z") or key.startswith(("SHAPER_A_", "SHAPER_T_")):
+                self.error(f"SET_INPUT_SHAPER: {key} is not modelled (X and Y named shapers only)")
+        self._wait("SET_INPUT_SHAPER")
+        self._new_limits(**changes)
+
+    def _tool_change(self, tool: int) -> None:
+        self.tool_changes += 1
+        self.event(f"tool change T{tool}" if tool >= 0 else "tool change")
+        # [time] tool_change_time: only when the tool changes (T0 at the start of a print selects the tool
+        # already in use, as Marlin and Klipper start with tool 0); M6 without T is a change
+        changed = tool < 0 or tool != self.tool
+        if tool >= 0:
+            self.tool = tool
+        self._wait("tool_change", float(getattr(self.machine, "tool_change_time", 0.0)) if changed else 0.0)
+
+    def _dwell(self, params: dict[str, Word], used: set[str]) -> None:
+        used.update(("P", "S"))
+        p = self._value(params, "P")
+        s = self._value(params, "S")
+        t = 0.0
+        if p is not None:
+            t = p if self.dialect == S.DIALECT_CNC else p / 1000.0
+        if s is not None:
+            if self.dialect == S.DIALECT_KLIPPER:
+                self.warn("G4 S is not supported by Klipper (only P, in ms): ignored")
+            else:
+                t = s
+        if not t >= 0.0:
+            self.error("G4 dwell must be >= 0")
+        self._stop_row(KIND_DWELL, 0, t)
+
