@@ -7,13 +7,12 @@ import gzip
 import json
 
 import numpy as np
+
 import pytest
 
 from conftest import shared_path
-from gcodeplan.planner import StreamPlanner, plan_moves
-
-config = pytest.importorskip("gcodeplan.config")
-gcode = pytest.importorskip("gcodeplan.gcode")
+from gcodeplan import config, gcode, pipeline
+from gcodeplan.planner import plan_moves
 
 SYNTHETIC = ["a_long_x", "b_square", "c_circle200", "d_slicer_like", "e_spiral20k"]
 SMALL = ["prusaslicer25_cube20_marlin2", "cncjs_jscut_tball_pocket_laser", "cura413_ender3_cylinder30"]
@@ -77,13 +76,9 @@ def test_corpus_big(stem, machine):
 def test_stream_from_reader_batches_matches_whole(batch, machine):
     path = str(shared_path("reference", "klipper", "synthetic", "d_slicer_like.gcode"))
     moves, plan = plan_file(path, machine)
-    reader = gcode.GcodeReader(path, machine, batch_moves=batch)
-    sp = StreamPlanner(machine, "klipper")
-    outs = []
-    for chunk in reader.batches():
-        outs.extend(sp.feed(chunk, reader.limits))
-    outs.extend(sp.finish())
-    got = np.concatenate([o[1] for o in outs])
+    sink = pipeline.Collect(segments=False)
+    pipeline.run(path, machine, policy="klipper", sinks=[sink], batch_moves=batch)
+    got = sink.arrays()[1]
     for f in plan.dtype.names:
         assert np.array_equal(got[f], plan[f]), f
 

@@ -254,26 +254,21 @@ def test_plan_with_segments_offsets_segment_move_indices():
                                      ("prusaslicer25_cube20_marlin2.gcode", {"jerk": 2e4}),
                                      ("prusaslicer25_cube20_marlin2.gcode", {"policy": "blend"})])
 def test_corpus_file_streams_bit_identically_with_a_bounded_window(name, kw):
-    from gcodeplan.gcode import GcodeReader
+    from gcodeplan import pipeline
     from gcodeplan.planner.blend import corner_geometry
 
     path = shared_path("gcode", name)
     m = blend_machine()
     batch_moves = 997
-    reader = GcodeReader(str(path), m, batch_moves=batch_moves)
-    sp = StreamPlanner(m, **kw)
+    run = pipeline.Run(str(path), m, batch_moves=batch_moves, **kw)
     parts, segs, batches = [], [], []
-    first = window = 0
-    for batch in reader.batches():
-        batches.append(batch)
-        for mv, pl in sp.feed(batch, reader.limits):
-            parts.append(pl)
-            segs.append(sp.segments_for(mv, pl, first))
-            first += len(mv)
-        window = max(window, sp.pending)
-    for mv, pl in sp.finish():
-        parts.append(pl)
-        segs.append(sp.segments_for(mv, pl, first))
+    window = 0
+    for piece in run:
+        batches.append(piece.moves)
+        parts.append(piece.plan)
+        segs.append(piece.segments)
+        window = max(window, run.planner.pending)
+    reader = run.reader
     moves = np.concatenate(batches)
     want, want_segs = plan_with_segments(moves, reader.limits, m, kw.get("policy"), jerk=kw.get("jerk"))
     assert len(moves) > 5000

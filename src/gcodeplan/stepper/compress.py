@@ -47,7 +47,7 @@ _NO_LIMIT = np.int64(1) << np.int64(62)
 
 RUN_DTYPE = np.dtype([("interval", "i8"), ("count", "i4"), ("add", "i8"), ("dir", "i1")])
 
-SUB_CHUNK = 1 << 16                  # steps queued and compressed at a time: their clocks stay in the L2 cache
+SUB_CHUNK = 1 << 17                  # steps queued and compressed at a time: their clocks stay in the L2 cache
 
 
 @numba.njit(cache=True, inline="always", error_model="numpy")
