@@ -272,11 +272,9 @@ def test_blend_toolhead_acceleration_and_jerk_are_the_derivatives_of_the_plotted
     assert np.all(jp > 0)  # the speed's curvature through a blend is positive (a dip)
 
 
-def test_velocity_plot_matches_the_planners_sampler_when_present():
-    planner = pytest.importorskip("gcodeplan.planner")
-    sample_segments = getattr(planner, "sample_segments", None)
-    if sample_segments is None:
-        pytest.skip("planner.sample_segments not written yet")
+def test_velocity_plot_matches_the_planners_sampler():
+    from gcodeplan.planner import sample_segments
+
     win = corner_window()
     fig = plots.plot_velocity(win)
     t, v = xy(line_by_gid(fig, "speed"))
