@@ -88,6 +88,6 @@ def test_the_checks_catch_a_negative_time(monkeypatch):
 def test_short_fuzz_round_finds_nothing_new(tmp_path):
     st = fuzz.fuzz(seed=13, cases=None, seconds=60, out=tmp_path, log=print, minimise_s=10)
     assert st.cases > 500
-    assert st.rejected < st.cases                 # most cases are planned, not refused
+    assert st.cases - st.rejected > 0.3 * st.cases     # a good share is planned and stepped, not refused
     new = {sig: where for sig, where in st.signatures.items() if not sig.startswith(KNOWN)}
     assert not new, new

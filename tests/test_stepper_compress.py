@@ -151,6 +151,16 @@ def test_prefers_add_zero_unless_a_sixteenth_longer(interval, add):
             assert count == n and got_add != 0
 
 
+def test_equal_reach_goes_to_the_larger_interval():
+    # max_err 500 ticks: (17558, 3, 295) and (17229, 3, 624) both fit the three windows and both put the third
+    # step at 53559; Klipper keeps the larger interval (the fourth step fits neither)
+    clocks = np.array([17563, 35460, 53561, 70787], np.int64)
+    for itv, add in ((17558, 295), (17229, 624)):
+        runs = np.array([(itv, 3, add, 1), (70787 - 53559, 1, 0, 1)], RUN_DTYPE)
+        check_klipper_windows(clocks, runs, 500)
+    assert bisect_add(clocks, 0, 4, 0, 500, MAX_COUNT) == (17558, 3, 295, False)
+
+
 def test_far_step_goes_alone_at_its_exact_clock():
     # 17 s without a step (≥ CLOCK_DIFF_MAX = 3·2^28 ticks): the steps before are flushed, the far step is a
     # count-1 command at its exact clock (Klipper's queue_append_far / stepcompress_flush_far)
@@ -345,3 +355,22 @@ def test_whole_direction_runs_give_klippers_counts(stem):
         assert np.array_equal(decompress_runs(runs)[1], d)
         # fewer commands than Klipper sent with its batch cuts (compression/README.md "Summary")
         assert len(runs) <= len(cmds[stepper + "_count"])
+
+
+def test_steps_command_compresses_whole_direction_runs(tmp_path):
+    """`gcodeplan steps --compress` on d_slicer_like with Klipper's corexy config: the runs held back across the
+    generator's chunks equal one-piece compression of the exported steps, within Klipper's windows, and the command
+    counts are Klipper's "without batch cuts" figures to 1 % (our steps may differ from Klipper's by a tick)."""
+    from gcodeplan.cli import main
+    from gcodeplan.stepper.export import load_npz
+
+    gcode = shared_path("reference", "klipper", "synthetic", "d_slicer_like.gcode")
+    cfg = shared_path("reference", "klipper", "corexy_corpus.cfg")
+    out = tmp_path / "s.npz"
+    assert main([str(a) for a in ["steps", gcode, "--klipper-config", cfg, "-o", out, "--compress", "-q"]]) == 0
+    z = load_npz(out)
+    for stepper, want in zip(STEPPERS, WHOLE_RUN_COUNTS["d_slicer_like"]):
+        t, d, runs = z[stepper], z[stepper + "_dir"], z[stepper + "_runs"]
+        assert np.array_equal(runs, compress_steps(t, d))
+        check_klipper_windows(clocks_of(t), runs, MAX_ERR)
+        assert abs(len(runs) - want) <= 0.01 * want

@@ -36,7 +36,6 @@ def spiral(n):
         yield f"G1 X{100.0 + r * math.cos(theta):.4f} Y{100.0 + r * math.sin(theta):.4f} E0.02\n"
 
 class Count(Sink):
-    needs_segments = True
     def __init__(self):
         self.moves = 0
         self.end = 0.0
@@ -73,8 +72,8 @@ def main(argv: list[str]) -> int:
     total = time.perf_counter() - t0
     ok = r["peak_mb"] < args.max_mb and r["mode"] == "blend" and r["moves"] >= args.moves and math.isfinite(
         r["planned_s"])
-    print(f"| moves | wall s (generate + parse + plan) | moves/s | planned time s | time in blends | peak RSS MB |")
-    print(f"|---:|---:|---:|---:|---:|---:|")
+    print("| moves | wall s (generate + parse + plan) | moves/s | planned time s | time in blends | peak RSS MB |")
+    print("|---:|---:|---:|---:|---:|---:|")
     print(f"| {r['moves']:,} | {r['wall_s']:.1f} | {r['moves'] / r['wall_s']:,.0f} | {r['planned_s']:.1f} | "
           f"{100 * r['blend_share']:.1f} % | {r['peak_mb']:.0f} |")
     print(f"(process {total:.1f} s with start-up; peak RSS limit {args.max_mb:.0f} MB: {'ok' if ok else 'FAILED'})")

@@ -4,6 +4,7 @@
     python tools/fuzz.py --seed 1 --cases 100000            # a fixed number of cases
     python tools/fuzz.py --seed 7 --seconds 60              # as many as fit in a minute
     python tools/fuzz.py --seed 7 --replay 1234             # run case 1234 of seed 7 again, verbosely
+    python tools/fuzz.py --file fuzz_failures/7-1234.gcode  # run a written (minimised) case again
 
 Each case takes a window of consecutive lines from a real G-code file (``gcode_samples/`` and, when it is
 there, ``../shared/gcode/``), mutates some of them (digits, signs, exponents, absurd numbers, comments,

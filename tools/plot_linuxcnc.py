@@ -23,8 +23,8 @@ WINDOWS = [
      REF / "validation" / "programs" / "linuxcnc_plasmatest_G64P0254_line1.ngc", 12.5, 16.0),
     ("linuxcnc_plasmatest_g61", REF / "programs" / "variants" / "linuxcnc_plasmatest_g61.ngc", 14.5, 17.0),
     ("linuxcnc_arcspiral_g64", ROOT / "gcode_samples" / "linuxcnc_arcspiral.ngc", 0.0, 4.0),
-    ("linuxcnc_stellabee1_first20000_g64", REF / "programs" / "linuxcnc_stellabee1_first20000.ngc", 1.9, 2.7),
     ("linuxcnc_stellabee1_first20000_g64", REF / "programs" / "linuxcnc_stellabee1_first20000.ngc", 40.0, 44.0),
+    ("linuxcnc_stellabee1_first20000_g64", REF / "programs" / "linuxcnc_stellabee1_first20000.ngc", 1.9, 2.7),
 ]
 
 
@@ -49,6 +49,7 @@ def main() -> int:
     machine = load_linuxcnc_ini(str(REF / "config" / "mill.ini"))
     out_dir = ROOT / "docs" / "images"
     out_dir.mkdir(parents=True, exist_ok=True)
+    written: set[Path] = set()
     for stem, program, t0, t1 in WINDOWS:
         trace = REF / ("validation/velocity" if "speedup10" in stem else "velocity") / f"{stem}.npz"
         if not trace.exists() or not program.exists():
@@ -69,7 +70,11 @@ def main() -> int:
         ax.set_title(f"{stem}: ours {run.total_time:.3f} s total")
         ax.legend(loc="upper right", fontsize=8)
         fig.tight_layout()
-        target = out_dir / f"linuxcnc_{stem.replace('linuxcnc_', '')}.png"
+        name = stem.replace("linuxcnc_", "").replace("-on-line1_speedup10", "").replace(".", "")
+        target = out_dir / f"linuxcnc_{name}.png"
+        if target in written:         # a second window of the same run
+            target = out_dir / f"linuxcnc_{name}_{t0:g}s.png"
+        written.add(target)
         fd, tmp = tempfile.mkstemp(suffix=".png", dir=out_dir)
         os.close(fd)
         fig.savefig(tmp, dpi=110)

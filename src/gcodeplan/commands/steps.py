@@ -106,7 +106,7 @@ def run(args) -> int:
                 writer.declare(name + "_dir", np.int8)
         compressors = None
         if args.compress:
-            compressors = [cmp.Compressor(args.clock_hz, args.max_error) for _ in rails]
+            compressors = [cmp.Compressor(args.clock_hz, args.max_error, hold_back=True) for _ in rails]
             for name in names:
                 writer.declare(name + "_runs", cmp.RUN_DTYPE)
 
@@ -128,6 +128,9 @@ def run(args) -> int:
         bar, progress = progress_bar(args.file, args.quiet)
         pipeline.run(args.file, machine, policy=args.policy, jerk=args.jerk, strict=args.strict, sinks=[gen],
                      progress=progress)
+        if compressors is not None:             # the runs held back until the last step (compress.Compressor)
+            for name, comp in zip(names, compressors):
+                writer.append(name + "_runs", comp.finish())
 
         if encoders is not None:
             for name, enc in zip(names, encoders):

@@ -4,7 +4,8 @@ MOVE rows → TP segments (:func:`build_segments`), the way LinuxCNC's canon (``
 the planner:
 
 * G1 runs within the naive-CAM tolerance (G64 Q; Q = P when only P is given) merge into one segment tagged
-  with the last merged line (at most 101 points, the feed and mode unchanged);
+  with the last merged line (at most 101 points, the feed and mode unchanged); an XY arc that deviates less
+  than Q from its chord joins such a run as its middle and end point (``ARC_FEED``'s ``chord_deviation``);
 * the chords the parser cut an arc into are regrouped into one circular segment (centre, radius and swept
   angle from the chord end points, which lie on the circle; the helix axis is the coordinate axis normal to
   the chords' plane);
@@ -16,9 +17,10 @@ the planner:
 
 Then :mod:`gcodeplan.planner.linuxcnc_tp` queues them (blends, tangent joins, look-ahead) and runs them one
 servo cycle at a time. The result: PLAN rows (one per MOVE row; a segment's time is split over its MOVE
-rows in proportion to their length, a blend arc's time goes to the line after it as LinuxCNC tags it; rows
-that make no segment last 0 s), the per-cycle trace, and SEGMENT rows (constant-acceleration pieces
-fitted to the cycle positions).
+rows in proportion to their length, a blend arc's time goes to the line after it as LinuxCNC tags it, and a
+line a blend arc swallowed ends with the segment LinuxCNC showed under its number; rows that make no segment
+last 0 s), the per-cycle trace, and SEGMENT rows (constant-acceleration pieces fitted to the cycle
+positions).
 
 How it differs from the 'blend' policy (:mod:`gcodeplan.planner.blend`): 'blend' is the textbook
 parabolic blend (constant acceleration across the corner at full acceleration, deviation |Δv|·τ/4 ≤ P,

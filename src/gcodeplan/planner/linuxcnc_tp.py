@@ -5,8 +5,11 @@ Our own code after reading LinuxCNC's ``src/emc/tp/tp.c``, ``tc.c``, ``blendmath
 
 * :func:`queue_kernel` adds the TP segments one by one as LinuxCNC's ``tpAddLine``/``tpAddCircle`` do:
   terminal condition of the previous segment (G61.1 stop, G61 exact path, G64 blend), rapid↔feed stop,
-  tangency test with the kink-ratio acceleration reduction (``tpSetupTangent``), line-line blend arcs within
-  the tolerance (``blendmath.c``; ARC_BLEND_ENABLE), the parabolic fallback chosen by the same performance
+  tangency test with the kink-ratio acceleration reduction (``tpSetupTangent``), blend arcs within the
+  tolerance between lines and arcs in any combination (``blendmath.c``'s geometry, with its exact
+  line-arc / arc-line / arc-arc post-processing, convexity, trim-angle and tangency checks, and the
+  consumption of a line remainder shorter than ARC_BLEND_GAP_CYCLES; ARC_BLEND_ENABLE), the parabolic
+  fallback chosen by the same performance
   comparison (``tpChooseBestBlend``), finalisation (sample-rate velocity clamp, the circle's normal
   acceleration limit) and the backward "rising tide" optimisation to ARC_BLEND_OPTIMIZATION_DEPTH after
   every segment (``tpRunOptimization``).

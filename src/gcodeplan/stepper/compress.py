@@ -44,6 +44,7 @@ QUADRATIC_DEV = 11                   # Klipper stepcompress.c: two valid quadrat
 CLOCK_DIFF_MAX = 3 << 28             # ticks; a step this far after the last sent one is sent alone (stepcompress.c)
 NO_IMPROVE_COUNT = 0x200             # Klipper stops bisecting once a best run covers more steps than this
 _NO_LIMIT = np.int64(1) << np.int64(62)
+_CLOCK_LIMIT = 2.0 ** 62             # ticks; a step clock beyond this is refused (int64 arithmetic stays exact)
 
 RUN_DTYPE = np.dtype([("interval", "i8"), ("count", "i4"), ("add", "i8"), ("dir", "i1")])
 
@@ -191,11 +192,11 @@ def _first_bad_step(times, dirs, clock_hz, prev_clock):
     """Index of the first step whose time is not finite or goes backwards, or whose direction is not ±1; else −1."""
     prev = prev_clock
     for k in range(times.shape[0]):
-        t = times[k]
+        x = times[k] * clock_hz + 0.5
         d = dirs[k]
-        if not (abs(t) < 1e12) or (d != 1 and d != -1):
+        if not (abs(x) < _CLOCK_LIMIT) or (d != 1 and d != -1):
             return k
-        c = np.int64(math.floor(t * clock_hz + 0.5))
+        c = np.int64(math.floor(x))
         if c < prev:
             return k
         prev = c
@@ -209,7 +210,8 @@ def queue_clocks(times, dirs, clock_hz, prev_clock, direction, clocks, changes):
     ``prev_clock`` and ``direction`` are those of the step before ``times[0]``.
     Writes the indices of the steps whose direction differs from the step
     before into ``changes``. Returns (number of changes, index of the first
-    bad step or −1: not finite, going backwards, direction not ±1).
+    bad step or −1: clock not finite or beyond 2^62, going backwards,
+    direction not ±1).
     """
     m = times.shape[0]
     if m == 0:
@@ -217,9 +219,10 @@ def queue_clocks(times, dirs, clock_hz, prev_clock, direction, clocks, changes):
     # separate simple loops: the first two vectorise
     bad = 0
     for k in range(m):
-        t = times[k]
-        clocks[k] = np.int64(math.floor(min(max(t, -1e12), 1e12) * clock_hz + 0.5))
-        bad += not (abs(t) < 1e12)
+        x = times[k] * clock_hz + 0.5
+        ok = abs(x) < _CLOCK_LIMIT                        # false for NaN
+        clocks[k] = np.int64(math.floor(x if ok else 0.0))
+        bad += not ok
     bad += clocks[0] < prev_clock
     for k in range(1, m):
         bad += clocks[k] < clocks[k - 1]
@@ -227,7 +230,6 @@ def queue_clocks(times, dirs, clock_hz, prev_clock, direction, clocks, changes):
     nch = 0
     words = dirs[: m - m % 8].view(np.int64)
     same = np.int64(0x0101010101010101) * np.int64(direction & 0xFF)
-    k = 0
     for w in range(words.shape[0]):
         if words[w] == same and direction != 0:
             continue
@@ -382,8 +384,8 @@ class Compressor:
         if bad < 0 and m and clocks[pending] < self.last_clock:
             bad = 0
         if bad >= 0:
-            raise ValueError(f"step t = {times[bad]!r} s, dir {dirs[bad]}: step times must be finite and never "
-                             "decrease, directions ±1")
+            raise ValueError(f"step t = {times[bad]!r} s, dir {dirs[bad]}: step times must be finite, never "
+                             "decrease nor come before the start clock; directions ±1")
         n = pending + m
         itv = np.empty(n, np.int64)
         cnt = np.empty(n, np.int32)
@@ -406,12 +408,18 @@ class Compressor:
         return runs
 
     def feed(self, times: np.ndarray, dirs: np.ndarray) -> np.ndarray:
-        """Runs (RUN_DTYPE) ready after this chunk of step times (s) and directions (±1)."""
+        """Runs (RUN_DTYPE) ready after this chunk of step times (s, non-decreasing) and directions (±1).
+
+        Without ``hold_back`` every step fed is in the runs returned. Raises
+        ValueError on a time that is not finite, goes backwards or comes
+        before ``start_clock``, or a direction other than ±1; the compressor is
+        not to be used after that.
+        """
         times = np.ascontiguousarray(times, np.float64)
         dirs = np.ascontiguousarray(dirs, np.int8)
         if times.shape != dirs.shape or times.ndim != 1:
             raise ValueError("times and dirs must be 1-D arrays of the same length")
-        if len(times) == 0 and not (self._pending and not self.hold_back):
+        if len(times) == 0:
             return np.zeros(0, RUN_DTYPE)
         return self._compress(times, dirs, final=not self.hold_back)
 
