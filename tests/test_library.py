@@ -243,3 +243,12 @@ def test_cli_plugin_registers_a_policy_in_the_command_line(tmp_path, capsys):
         gp.unregister_policy("plugin-stop")
     assert main(["estimate", "--plugin", str(tmp_path / "missing.py"), f]) == 2
     assert "--plugin" in capsys.readouterr().err
+
+
+def test_load_machine_reads_a_linuxcnc_ini_and_plans_as_linuxcnc():
+    m = gp.load_machine(linuxcnc_ini=str(shared_path("reference", "linuxcnc", "config", "mill.ini")))
+    assert m.junction_policy == "linuxcnc"
+    est = gp.estimate(str(SAMPLES / "linuxcnc_plasmatest.ngc"), m)
+    assert est.total_time_s == pytest.approx(79.275, rel=5e-3)       # LinuxCNC 2.9's own (noidle) total
+    with pytest.raises(gp.GcodeplanError):
+        gp.load_machine("klipper", linuxcnc_ini="x.ini")

@@ -13,10 +13,12 @@ import numpy as np
 from . import pipeline
 
 
-def load_machine(spec: str | None = None, *, klipper_config: str | None = None, flavor: str | None = None):
+def load_machine(spec: str | None = None, *, klipper_config: str | None = None, linuxcnc_ini: str | None = None,
+                 flavor: str | None = None):
     """A :class:`~gcodeplan.machine.Machine`: a preset name (``klipper``, ``marlin``, ``grbl``), a machine
     ``.toml`` path, or ``klipper_config=`` a Klipper ``printer.cfg`` (includes followed; the G-code then
-    has Klipper's meanings). ``flavor`` overrides the G-code dialect. Default: the ``klipper`` preset.
+    has Klipper's meanings), or ``linuxcnc_ini=`` a LinuxCNC machine ``.ini`` (planned with the ``linuxcnc``
+    policy). ``flavor`` overrides the G-code dialect. Default: the ``klipper`` preset.
     Its limits are in mm, mm/s, mm/s² (docs/machine.md lists every key)."""
     from dataclasses import replace
 
@@ -24,9 +26,16 @@ def load_machine(spec: str | None = None, *, klipper_config: str | None = None, 
     from .config import load_machine as load
     from .errors import ConfigError
 
-    if spec is not None and klipper_config is not None:
-        raise ConfigError("give a machine or klipper_config=, not both")
-    machine = load_klipper_config(str(klipper_config)) if klipper_config is not None else load(spec or "klipper")
+    if sum(x is not None for x in (spec, klipper_config, linuxcnc_ini)) > 1:
+        raise ConfigError("give one of a machine, klipper_config= or linuxcnc_ini=")
+    if klipper_config is not None:
+        machine = load_klipper_config(str(klipper_config))
+    elif linuxcnc_ini is not None:
+        from .config.linuxcnc import load_linuxcnc_ini
+
+        machine = load_linuxcnc_ini(str(linuxcnc_ini))
+    else:
+        machine = load(spec or "klipper")
     if flavor is not None:
         from .machine import FLAVORS
 
