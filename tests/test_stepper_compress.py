@@ -56,7 +56,8 @@ def check_klipper_windows(exact, runs, max_err, start_clock=0):
     early = np.minimum(max_err, (exact - prev) // 2)
     assert np.all(got <= exact), "a step is late"
     assert np.all(got >= exact - early), "a step is earlier than Klipper's window allows"
-    assert np.all(runs["interval"] < 2 ** 31) and np.all(np.abs(runs["add"]) <= MAX_ADD)
+    # what Klipper's check_line and the MCU accept: uint32 interval below 2^31, int16 add, uint16 count ≥ 1
+    assert np.all((runs["interval"] >= 0) & (runs["interval"] < 2 ** 31)) and np.all(np.abs(runs["add"]) <= MAX_ADD)
     assert np.all((runs["count"] >= 1) & (runs["count"] <= MAX_COUNT))
     return exact - got
 
