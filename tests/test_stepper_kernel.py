@@ -11,7 +11,7 @@ from hypothesis import strategies as st
 from gcodeplan.kinematics import Rail
 from gcodeplan.machine import Machine
 from gcodeplan.schema import SEGMENT_DTYPE
-from gcodeplan.stepper import kernel
+from gcodeplan.stepper import KLIPPER_SDS_FILTER_T, kernel
 from gcodeplan.stepper.generate import StepGenerator, generate_steps
 from gcodeplan.stepper.synth import (concat_plans, line_segments, polyline_segments, scurve_line_segments,
                                      trapezoid_times)
@@ -268,3 +268,123 @@ def test_non_finite_piece_is_reported_not_skipped():
     seg = np.concatenate([_piece(0.0, 1.0, 0.0, 1.0, 0.0), _piece(1.0, 1.0, 1.0, np.nan, 0.0)])
     with pytest.raises(RuntimeError, match="non-finite"):
         generate_steps(seg, rails=X_RAIL)
+
+
+# ----------------------------------------------------------------- Klipper's own search (itersolve)
+
+STEP = 0.01            # mm
+H_BUMP = 0.006         # mm: a bump 1 mm·10⁻³ past the half-step point (0.005)
+
+
+def _bump_pieces(tc: float, w: float, h: float = H_BUMP):
+    """At rest at 0, then p(t) = h·(1 − ((t − tc)/w)²) on [tc − w, tc + w], then at rest again: power-basis pieces.
+    Its excursion past the half-step point h/… lasts 2w·√(1 − STEP/2/h)."""
+    t0 = np.array([-1.0, tc - w, tc + w])
+    dt = np.array([tc - w + 1.0, 2.0 * w, 10.0])
+    coef = np.zeros((3, kernel.POLY_NCOEF))
+    coef[1, 1] = 2.0 * h / w          # h·(1 − (s/w − 1)²) = h·(2s/w − s²/w²)
+    coef[1, 2] = -h / (w * w)
+    return t0, dt, coef
+
+
+def _at_half_step(t, tc, w, h=H_BUMP):
+    """Klipper calls a step found once a guess is within 1 nm of the half-step point (or its bracket within
+    1 ns): the bump's position at the step times, minus the half-step point (mm)."""
+    return h * (1.0 - ((t - tc) / w) ** 2) - 0.5 * STEP
+
+
+def _klipper_search(t0, dt, coef, flush, sds_t=0.0):
+    """Klipper's steps of one active trapq move [0, 3] (tail sentinel after), windows ending at ``flush``."""
+    m_start = np.array([0.0, 3.0])
+    m_len = np.array([3.0, kernel.ITS_NEVER_S])
+    m_act = np.array([True, False])
+    state = kernel.new_itersolve_state()
+    out_t = np.empty(10000)
+    out_d = np.empty(10000, np.int8)
+    done, n = kernel.itersolve_steps(np.asarray(flush, np.float64), m_start, m_len, m_act, 0.0, 0.0, t0, dt, coef,
+                                     STEP, sds_t, state, out_t, out_d, 0)
+    assert done == len(flush)
+    t, d = kernel.itersolve_flush_pending(state)
+    return np.concatenate([out_t[:n], t]), np.concatenate([out_d[:n], d])
+
+
+def test_search_finds_the_exact_crossings_of_monotone_motion():
+    """A ramp from rest (p = 50·s², 1 s): every half-step crossing, within 1 ns of √((k + ½)·0.01/50)."""
+    t0 = np.array([-1.0, 0.0, 1.0])
+    dt = np.array([1.0, 1.0, 10.0])
+    coef = np.zeros((3, kernel.POLY_NCOEF))
+    coef[1, 2] = 50.0
+    coef[2, 0] = 50.0
+    t, d = _klipper_search(t0, dt, coef, [10.0])
+    want = np.sqrt((np.arange(5000) + 0.5) * STEP / 50.0)
+    assert len(t) == 5000 and np.all(d == 1)
+    assert np.max(np.abs(t - want)) < 1e-9
+
+
+def test_search_misses_an_excursion_between_its_probes():
+    """From the start of its range Klipper probes 100 µs, 200 µs, … 0.8192 s, 1.6384 s after it: a 41 ms
+    excursion past the half-step point centred at 1.2 s lies between two probes, and neither of its two
+    steps is taken. The exact solver takes both."""
+    t0, dt, coef = _bump_pieces(1.2, 0.05)
+    t, d = _klipper_search(t0, dt, coef, [10.0])
+    assert len(t) == 0
+    exact_t = np.empty(10)
+    exact_d = np.empty(10, np.int8)
+    c = coef
+    _, n, _ = kernel.gen_steps(t0, dt, c[:, 0].copy(), c[:, 1].copy(), 2.0 * c[:, 2], 6.0 * c[:, 3],
+                               np.zeros(3, np.uint8), STEP, kernel.new_state(), 0, exact_t, exact_d, 0)
+    assert n == 2 and list(exact_d[:2]) == [1, -1]
+    # the same excursion under a probe (1.6384 s) is seen: both steps, at the exact crossings
+    t0, dt, coef = _bump_pieces(1.6384, 0.05)
+    t, d = _klipper_search(t0, dt, coef, [10.0])
+    half_w = 0.05 * math.sqrt(1.0 - 0.005 / H_BUMP)
+    assert list(d) == [1, -1]
+    assert np.allclose(t, [1.6384 - half_w, 1.6384 + half_w], rtol=0, atol=1e-7)
+    assert np.all(np.abs(_at_half_step(t, 1.6384, 0.05)) <= 1e-9)
+
+
+def test_a_window_boundary_restarts_the_probes():
+    """A step-generation window ending at 1.19 s restarts the search there: its probes at 1.19 s + 100 µs·2^k
+    hit the excursion (1.2028 s) that one long window misses."""
+    t0, dt, coef = _bump_pieces(1.2, 0.05)
+    t, d = _klipper_search(t0, dt, coef, [1.19, 10.0])
+    half_w = 0.05 * math.sqrt(1.0 - 0.005 / H_BUMP)
+    assert list(d) == [1, -1]
+    assert np.allclose(t, [1.2 - half_w, 1.2 + half_w], rtol=0, atol=1e-7)
+    assert np.all(np.abs(_at_half_step(t, 1.2, 0.05)) <= 1e-9)
+
+
+def test_step_dir_step_inside_750us_is_taken_back():
+    """A 0.4 ms excursion seen by the probes: two steps 0.4 ms apart, which Klipper's stepcompress deletes
+    together (an opposite step within 750 µs of a held one); without the filter both stay."""
+    w = 0.0002 / math.sqrt(1.0 - 0.005 / H_BUMP)          # excursion lasts 2·0.0002 s
+    t0, dt, coef = _bump_pieces(1.2, w)
+    flush = [1.2 - 0.0001, 10.0]                          # probes restart 100 µs before the peak: inside it
+    t, d = _klipper_search(t0, dt, coef, flush, sds_t=0.0)
+    assert list(d) == [1, -1] and t[1] - t[0] == pytest.approx(0.0004, abs=1e-9)
+    t, d = _klipper_search(t0, dt, coef, flush, sds_t=KLIPPER_SDS_FILTER_T)
+    assert len(t) == 0
+
+
+def test_search_state_survives_a_full_buffer():
+    """Windows are emitted whole: with room for 3 steps per call the ramp still comes out complete and in order."""
+    t0 = np.array([-1.0, 0.0, 1.0])
+    dt = np.array([1.0, 1.0, 10.0])
+    coef = np.zeros((3, kernel.POLY_NCOEF))
+    coef[1, 2] = 0.5                                   # 50 steps in 1 s
+    coef[2, 0] = 0.5
+    flush = np.arange(0.05, 3.0, 0.05)
+    m_start, m_len, m_act = np.array([0.0, 3.0]), np.array([3.0, kernel.ITS_NEVER_S]), np.array([True, False])
+    state = kernel.new_itersolve_state()
+    got = []
+    k = 0
+    while k < len(flush):
+        out_t, out_d = np.empty(8), np.empty(8, np.int8)
+        done, n = kernel.itersolve_steps(flush[k:], m_start, m_len, m_act, 0.0, 0.0, t0, dt, coef, STEP, 0.0,
+                                         state, out_t, out_d, 0)
+        got.append(out_t[:n].copy())
+        k += done
+        assert done > 0
+    t = np.concatenate(got)
+    assert len(t) == 50 and np.all(np.diff(t) > 0)
+    assert np.allclose(t, np.sqrt((np.arange(50) + 0.5) * STEP / 0.5), rtol=0, atol=1e-9)

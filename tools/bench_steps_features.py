@@ -7,7 +7,9 @@ plain, shaped (mzv 45 Hz on X, ei 38 Hz on Y: the reference's shaper_cartesian.c
 pressure advance (K = 0.045 s, smooth time 0.04 s: pa_cartesian.cfg); then on a linear delta
 (the reference's delta.cfg: arm 400 mm, radius 196 mm, 80 steps/mm towers), plain and shaped. Prints
 steps per second of step-stage time (best of --runs) and the cost ratios per step against plain
-cartesian. Target: ≥ 50 M steps/s shaped.
+cartesian. Target: ≥ 50 M steps/s shaped. Shaped and pressure-advanced motors run Klipper's own step search
+(kernel.itersolve_steps: closed-form crossings where its probes cannot leave a monotone run, its probe
+sequence near turning points); delta towers keep the exact kernel.
 """
 from __future__ import annotations
 

@@ -245,7 +245,7 @@ class Interpreter(StateCommands, MotionCommands):
         if "S" in words:
             try:
                 n = int(float(words["S"]))
-            except ValueError:
+            except (ValueError, OverflowError):     # OverflowError: S-inf / Sinf (found by tools/fuzz.py)
                 self.error(f"M486 S needs an object number, got {words['S']!r}")
             if n < 0:
                 self._set_object(None)

@@ -7,6 +7,10 @@ stepper (:func:`kernel.gen_steps_delta` for a delta tower, which solves the carr
 height of the x, y, z pieces itself). A full buffer is handed to ``sink(stepper_index, times, dirs)`` and
 reused, so memory stays bounded whatever the file size. The optional
 step+dir+step filter and the per-stepper statistics run on the way out.
+
+Motors whose position is shaped or pressure-advanced (linear kinematics) take Klipper's own search instead
+(:func:`kernel.itersolve_steps`, docs/design.md §11): its trapq (:class:`_Trapq`) and step-generation
+windows decide where the search restarts, and it skips the excursions Klipper's probes miss.
 """
 from __future__ import annotations
 
@@ -21,6 +25,15 @@ from . import KLIPPER_SDS_FILTER_T, kernel  # noqa: F401  (re-exported)
 
 DEFAULT_CHUNK_STEPS = 1 << 20
 PENDING_ROWS = 16384      # SEGMENT rows gathered before shaping / smoothing them in one go
+# Klipper generates steps in windows of 0.25 s of print time (motion_queuing.py: BGFLUSH_SG_HIGH_TIME −
+# BGFLUSH_SG_LOW_TIME), counted from print time 0, and starts the first move at print time 0.25 s
+# (toolhead.py BUFFER_TIME_START): window ends at t = −0.25 + k·0.25 s from the first move's start
+KLIPPER_FLUSH_STEP_T = 0.25
+KLIPPER_FIRST_MOVE_T = 0.25
+KLIPPER_KINEMATIC_MIN_MM = 1e-9     # toolhead.py: shorter XYZ moves are extrude-only (not in the XY trapq)
+# per-row motion bits for the trapq model: which axes the row's move displaces, and which queue it enters
+BIT_X, BIT_Y, BIT_Z, BIT_E, BIT_KIN = 1, 2, 4, 8, 16
+TRAPQ_KEEP_S = 2.0        # s of trapq history kept for motors whose search has not started (≫ any shaper reach)
 
 Sink = Callable[[int, np.ndarray, np.ndarray], None]
 
@@ -38,12 +51,20 @@ class StepGenerator:
     SET_INPUT_SHAPER / SET_PRESSURE_ADVANCE / M900 / M572 act mid-file). Shaping
     (:mod:`.shaping`) turns the pieces of the motors that move with X or Y; pressure
     advance (:mod:`.pressure_advance`) those of a motor that drives E alone; Z and pure
-    extruder motors without pressure advance see the planner's pieces untouched.
+    extruder motors without pressure advance see the planner's pieces untouched. A linear motor while
+    shaped or smoothed is stepped by Klipper's own search (:class:`_Itersolve`), which applies the
+    step+dir+step filter the way Klipper's stepcompress does (when ``sds_filter_t`` is set).
     """
 
     def __init__(self, rails: list[Rail], sink: Sink, *, chunk_steps: int = DEFAULT_CHUNK_STEPS,
-                 sds_filter_t: float | None = None, settings: np.ndarray | None = None):
+                 sds_filter_t: float | None = None, settings: np.ndarray | None = None,
+                 flush_times: np.ndarray | None = None):
+        """``flush_times``: the ends (s from the first move's start, increasing) of Klipper's step-generation
+        windows, where its search restarts (shaped and pressure-advanced motors; see :class:`_Itersolve`).
+        Default: every 0.25 s, as Klipper batches while the printer keeps up; Klipper's batch mode skips
+        some (its recorded schedule can be given here)."""
         self.rails = list(rails)
+        self.flush_times = None if flush_times is None else np.asarray(flush_times, np.float64)
         self.sink = sink
         self.sds_filter_t = sds_filter_t
         n = len(self.rails)
@@ -68,6 +89,13 @@ class StepGenerator:
         self._pending: list[tuple] = []
         self._pending_rows = 0
         self._last_settings = None
+        # Klipper's own search on the shaped / pressure-advanced motors (linear rails; delta towers keep the
+        # exact kernel): one trapq per motion queue, one search state per motor
+        self._trapq_xy = _Trapq(BIT_KIN, lambda bits: bits,
+                                sum(self.rails[i].tower is None for i in self._xy_rails))
+        self._trapq_e = _Trapq(BIT_E, lambda bits: np.where(bits & BIT_E, BIT_E, 0), len(self._e_rails))
+        self._its: dict[int, _Itersolve] = {}
+        self._its_mode = [False] * n         # rail currently stepped by the search (else the exact kernels)
 
     # ---------------------------------------------------------------- settings per piece
     def _piece_settings(self, segments, moves, limits, first_move):
@@ -138,9 +166,10 @@ class StepGenerator:
             st = (np.repeat(last[0][-1:], n, axis=0), np.zeros(n) if last[1] is None else np.repeat(last[1][-1:], n),
                   np.repeat(last[2][-1:], n))
         self._last_settings = st
+        bits = _row_bits(segments, moves, first_move)
         # shaping and smoothing cost a little per call: gather small batches (the planner emits one per
         # full stop) into big ones
-        self._pending.append((segments, reset) + tuple(st))
+        self._pending.append((segments, reset) + tuple(st) + (bits,))
         self._pending_rows += len(segments)
         if self._pending_rows >= PENDING_ROWS:
             self._process_pending()
@@ -152,7 +181,7 @@ class StepGenerator:
         self._pending = []
         self._pending_rows = 0
         segments = parts[0][0] if len(parts) == 1 else np.concatenate([p[0] for p in parts])
-        reset, raw, k_pa, h = (np.concatenate([p[i] for p in parts]) for i in range(1, 5))
+        reset, raw, k_pa, h, bits = (np.concatenate([p[i] for p in parts]) for i in range(1, 6))
         # runs of equal shaper settings: a new run where any column changes
         changed = np.flatnonzero(np.any(raw[1:] != raw[:-1], axis=1)) + 1
         key_idx = np.zeros(len(raw), np.int64)
@@ -163,11 +192,13 @@ class StepGenerator:
             t0, dt, p, v, a, j = stepper_pieces(segments, self.rails[si])
             self._run(si, t0, dt, p, v, a, j, reset)
         if self._xy_rails:
+            self._trapq_xy.add(segments["t0"], segments["dt"], bits)
             self._feed_shaped(segments, reset, key_idx, keys)
         if self._e_rails:
             if self._mixed_e and np.any(k_pa != 0):
                 raise ConfigError(f"pressure advance on a motor that also moves with X/Y/Z "
                                   f"({', '.join(self._mixed_e)}) is not modelled")
+            self._trapq_e.add(segments["t0"], segments["dt"], bits)
             self._feed_pa(segments, reset, k_pa, h)
 
     # ---------------------------------------------------------------- input shaping
@@ -193,10 +224,18 @@ class StepGenerator:
                 if reset[i0] == kernel.RESET_ANCHOR:
                     cur.flag = kernel.RESET_ANCHOR
             out = cur.stream.feed(segments[i0:i1])
-            self._step_group(cur, self._xy_rails, out)
+            self._step_group(cur, self._xy_rails, out, horizon=cur.stream.end_u)
 
-    def _step_group(self, cur, rails, out):
+    def _step_group(self, cur, rails, out, horizon=None):
+        """Step the pieces ``out`` (shaped Pieces or SEGMENT rows) on ``rails``. A linear motor that the current
+        stream shapes runs Klipper's own search up to ``horizon`` (s, where the pieces known so far end; None:
+        the pieces' end); the others, and delta towers, the exact kernels."""
+        flag = cur.flag
         if len(out) == 0:
+            if horizon is not None:
+                for si in rails:
+                    if self._its_mode[si]:
+                        self._run_its(si, horizon)
             return
         rs = np.zeros(len(out), np.uint8)
         if cur.flag:
@@ -204,18 +243,93 @@ class StepGenerator:
             cur.flag = 0
         cols = None
         for si in rails:
-            if self.rails[si].tower is not None:
-                # delta: the shaped x, y (and z) pieces through the tower's own kernel
+            rail = self.rails[si]
+            if rail.tower is not None:
+                # delta: the shaped x, y (and z) pieces through the tower's own (exact) kernel
                 if cols is None:
                     cols = _xyz_columns(out) if isinstance(out, np.ndarray) else (out.t0, out.dt, out.p, out.v,
                                                                                   out.a, out.j)
                 self._run_delta(si, *cols, rs)
                 continue
             if isinstance(out, np.ndarray):
-                t0, dt, p, v, a, j = stepper_pieces(out, self.rails[si])
+                t0, dt, p, v, a, j = stepper_pieces(out, rail)
             else:
-                t0, dt, p, v, a, j = out.rail(self.rails[si].weights)
-            self._run(si, t0, dt, p, v, a, j, rs)
+                t0, dt, p, v, a, j = out.rail(rail.weights)
+            reach = _reach(cur.stream, rail, si in self._e_rails)
+            if reach == (0.0, 0.0):
+                # not shaped: Klipper's search finds exactly the crossings of these monotone phases
+                self._leave_its(si)
+                self._run(si, t0, dt, p, v, a, j, rs)
+                continue
+            its = self._enter_its(si, reach, float(t0[0]), flag)
+            its.add_pieces(t0, dt, p, v, a, j)
+            self._run_its(si, float(t0[-1] + dt[-1]) if horizon is None else horizon)
+
+    # ---------------------------------------------------------------- Klipper's search (itersolve)
+    def _enter_its(self, si, reach, t_from, flag) -> "_Itersolve":
+        """Rail ``si``'s search, its reach (pre, post) s set. On entry from the exact kernel the commanded
+        position and the last direction carry over; a position set at ``t_from`` restarts it there."""
+        its = self._its.get(si)
+        rail = self.rails[si]
+        if its is None:
+            trapq = self._trapq_e if si in self._e_rails else self._trapq_xy
+            mask = BIT_E if si in self._e_rails else (BIT_X * (rail.weights[0] != 0) | BIT_Y * (rail.weights[1] != 0)
+                                                      | BIT_Z * (rail.weights[2] != 0))
+            its = self._its[si] = _Itersolve(trapq, int(mask), rail.step_dist, self.sds_filter_t or 0.0,
+                                             self.flush_times)
+        if flag == kernel.RESET_ANCHOR and self._its_mode[si]:
+            self._close_its(si, t_from)
+            its.restart(t_from)
+        if not self._its_mode[si]:
+            # the exact steps so far leave through their own filter; the search takes over from t_from
+            self._flush(si)
+            if self.sds_filter_t is not None:
+                t, d = kernel.sds_flush(self._sds[si])
+                self._emit(si, t, d)
+            ex = self.states[si]
+            anchored = ex[kernel.S_ANCHORED] != 0.0 and flag != kernel.RESET_ANCHOR
+            its.resume(t_from, ex[kernel.S_ANCHOR] + ex[kernel.S_N] * rail.step_dist if anchored else None,
+                       self.stats[si][3] > 0)
+            self._its_mode[si] = True
+        its.pre_t, its.post_t = reach
+        return its
+
+    def _leave_its(self, si) -> None:
+        """Back to the exact kernel (shaping or smoothing switched off): it goes on from the commanded position."""
+        if not self._its_mode[si]:
+            return
+        its = self._its[si]
+        self._flush(si)
+        t, d = kernel.itersolve_flush_pending(its.state)
+        self._emit(si, t, d)
+        ex = self.states[si]
+        ex[kernel.S_ANCHOR] = its.state[kernel.I_COMMANDED]
+        ex[kernel.S_N] = 0.0
+        ex[kernel.S_LAST_POS] = its.end_position()
+        ex[kernel.S_ANCHORED] = 1.0
+        self._its_mode[si] = False
+        its.running = False
+
+    def _run_its(self, si, horizon):
+        its = self._its[si]
+        while True:
+            done, fill = its.run(horizon, self._buf_t[si], self._buf_d[si], self._fill[si])
+            self.steps_generated += fill - self._fill[si]
+            self._fill[si] = fill
+            if done:
+                return
+            if fill == 0:        # one window holds more steps than the buffer: grow it
+                self._buf_t[si] = np.empty(2 * len(self._buf_t[si]), np.float64)
+                self._buf_d[si] = np.empty(2 * len(self._buf_d[si]), np.int8)
+            else:
+                self._flush(si)
+
+    def _close_its(self, si, end_t):
+        """Klipper flushes all steps when the position is set or a shaper / smoothing changes: a window
+        ends at ``end_t``."""
+        if self._its_mode[si]:
+            self._its[si].force_flush(end_t)
+            self._run_its(si, end_t)
 
     # ---------------------------------------------------------------- pressure advance
     def _feed_pa(self, segments, reset, k_pa, h):
@@ -241,7 +355,8 @@ class StepGenerator:
                 # no smoothing: the nominal pieces (after a smoothed stretch, from where it ended)
                 if np.isfinite(cur.end_u):
                     part = _clip_start(part, cur.end_u)
-                self._step_group(cur, self._e_rails, part)
+                self._step_group(cur, self._e_rails, part,
+                                 horizon=float(part["t0"][-1] + part["dt"][-1]) if len(part) else None)
                 if len(part):
                     cur.end_u = float(part["t0"][-1] + part["dt"][-1])
                 continue
@@ -251,15 +366,18 @@ class StepGenerator:
 
     def _step_poly(self, cur, t0, dt, c):
         if len(t0) == 0:
+            for si in self._e_rails:
+                if self._its_mode[si] and cur.stream is not None:
+                    self._run_its(si, cur.stream.end_u)
             return
-        rs = np.zeros(len(t0), np.uint8)
-        if cur.flag:
-            rs[0] = cur.flag
-            cur.flag = 0
+        flag = cur.flag
+        cur.flag = 0
         for si in self._e_rails:
             w = self.rails[si].weights[3]
             coef = c if w == 1.0 else c * w
-            self._run_poly(si, t0, dt, np.ascontiguousarray(coef), rs)
+            its = self._enter_its(si, _reach(cur.stream, self.rails[si], True), float(t0[0]), flag)
+            its.add_coef(t0, dt, np.ascontiguousarray(coef))
+            self._run_its(si, float(t0[-1] + dt[-1]))
         cur.end_u = float(t0[-1] + dt[-1])
 
     def _close_stream(self, cur, rails, shaped: bool) -> None:
@@ -272,6 +390,9 @@ class StepGenerator:
                 t0, dt, c = cur.stream.finish()
                 self._step_poly(cur, t0, dt, c)
                 cur.end_u = max(cur.end_u, cur.stream.end_u)
+        if np.isfinite(cur.end_u):
+            for si in rails:
+                self._close_its(si, cur.end_u)
         cur.stream = None
         cur.started = False
 
@@ -332,7 +453,7 @@ class StepGenerator:
             return
         times = self._buf_t[si][:fill]
         dirs = self._buf_d[si][:fill]
-        if self.sds_filter_t is not None:
+        if self.sds_filter_t is not None and not self._its_mode[si]:    # Klipper's search filters as it goes
             out_t = np.empty(fill, np.float64)
             out_d = np.empty(fill, np.int8)
             m = kernel.sds_filter(times, dirs, self.sds_filter_t, self._sds[si], out_t, out_d)
@@ -355,8 +476,15 @@ class StepGenerator:
             if self._e_rails:
                 self._close_stream(self._pa, self._e_rails, shaped=False)
         for si in range(len(self.rails)):
+            its = self._its.get(si) if self._its_mode[si] else None
+            if its is not None:
+                its.force_flush(np.inf)
+                self._run_its(si, np.inf)
             self._flush(si)
-            if self.sds_filter_t is not None:
+            if its is not None:
+                t, d = kernel.itersolve_flush_pending(its.state)
+                self._emit(si, t, d)
+            elif self.sds_filter_t is not None:
                 t, d = kernel.sds_flush(self._sds[si])
                 self._emit(si, t, d)
 
@@ -373,6 +501,261 @@ class _StreamState:
 
 
 _SHAPER_NAMES = SHAPER_TYPES
+
+
+def _row_bits(segments: np.ndarray, moves: np.ndarray | None, first_move: int) -> np.ndarray:
+    """Per SEGMENT row, BIT_* of its move: the axes it displaces (Klipper's axes_r != 0, hence check_active)
+    and BIT_KIN when it enters the XY trapq (toolhead.py: XYZ length ≥ 1e-9 mm). From the MOVE rows when
+    given, else from the row's own coefficients."""
+    n = len(segments)
+    bits = np.zeros(n, np.int64)
+    if moves is not None and len(moves):
+        idx = segments["move"].astype(np.int64)
+        if idx.min() >= first_move and idx.max() < first_move + len(moves):
+            idx = idx - first_move
+        mv = moves[np.clip(idx, 0, len(moves) - 1)]
+        d = [mv[ax + "1"] - mv[ax + "0"] for ax in "xyz"]
+        for b, di in zip((BIT_X, BIT_Y, BIT_Z), d):
+            bits |= np.where(di != 0, b, 0)
+        bits |= np.where(mv["e1"] != mv["e0"], BIT_E, 0)
+        kin = np.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]) >= KLIPPER_KINEMATIC_MIN_MM
+    else:
+        for b, ax in zip((BIT_X, BIT_Y, BIT_Z, BIT_E), "xyze"):
+            moving = (segments["v" + ax] != 0) | (segments["a" + ax] != 0) | (segments["j" + ax] != 0)
+            bits |= np.where(moving, b, 0)
+        kin = (bits & (BIT_X | BIT_Y | BIT_Z)) != 0
+    bits |= np.where(kin, BIT_KIN, 0)
+    return bits
+
+
+def _reach(stream, rail: Rail, is_e: bool) -> tuple[float, float]:
+    """(pre, post) s: how long before / after its active moves Klipper steps this motor (kin_shaper.c
+    shaper_note_generation_time: the latest and earliest pulse of the axes it follows; kin_extruder.c: the
+    half smooth time)."""
+    if stream is None:
+        return 0.0, 0.0
+    if is_e:
+        return float(stream.h), float(stream.h)
+    pre = post = 0.0
+    for q in (0, 1):
+        if rail.weights[q] == 0.0:
+            continue
+        sel = (stream.ch_axis == q) & (stream.ch_tau != 0.0)
+        if np.any(sel):
+            pre = max(pre, float(stream.ch_tau[sel].max()))
+            post = max(post, float(-stream.ch_tau[sel].min()))
+    return pre, post
+
+
+class _Trapq:
+    """One of Klipper's motion queues as its itersolve walks it (trapq.c): the planner's phases of the moves that
+    enter it (``enter_bit`` in their row bits), the gaps between them as null moves, and before the first one the
+    head sentinel and a null move from print time 0 (t = −0.25 s). ``axes_of(bits)`` gives the bits the
+    motors' active masks test. Moves are kept from ``base`` (global index of ``start[0]``) on."""
+
+    def __init__(self, enter_bit: int, axes_of, n_users: int):
+        self.enter_bit = enter_bit
+        self.n_users = n_users          # motors that will read this queue (moves are kept until all have passed)
+        self.axes_of = axes_of
+        self.start = np.array([-KLIPPER_FIRST_MOVE_T])
+        self.length = np.zeros(1)
+        self.bits = np.zeros(1, np.int64)
+        self.end = -KLIPPER_FIRST_MOVE_T
+        self.base = 0
+        self.users: list[_Itersolve] = []        # the searches reading this queue (``running`` while they do)
+        self.keep_t = self.end
+
+    def add(self, t0, dt, bits) -> None:
+        """Append SEGMENT rows (time order): those entering the queue with a non-zero duration become moves."""
+        # a search that starts later starts within this batch: nothing before the previous batch's end matters
+        self.keep_t = self.end
+        sel = np.flatnonzero(((bits & self.enter_bit) != 0) & (dt > 0))
+        if len(sel) == 0:
+            return
+        s = np.asarray(t0[sel], np.float64)
+        ln = np.asarray(dt[sel], np.float64)
+        b = np.asarray(self.axes_of(bits[sel]), np.int64)
+        e = s + ln
+        prev_end = np.concatenate(([self.end], e[:-1]))
+        gap = s > prev_end
+        m = len(sel) + int(gap.sum())
+        start = np.empty(m)
+        length = np.empty(m)
+        mb = np.zeros(m, np.int64)
+        pos = np.arange(len(sel)) + np.cumsum(gap)
+        start[pos] = s
+        length[pos] = ln
+        mb[pos] = b
+        gpos = pos[gap] - 1
+        start[gpos] = prev_end[gap]
+        length[gpos] = s[gap] - prev_end[gap]
+        self.start = np.concatenate((self.start, start))
+        self.length = np.concatenate((self.length, length))
+        self.bits = np.concatenate((self.bits, mb))
+        self.end = float(e[-1])
+        self.trim()
+
+    def index_after(self, t: float) -> int:
+        """Global index of the first move ending after ``t``."""
+        return self.base + int(np.searchsorted(self.start + self.length, t, side="right"))
+
+    def trim(self) -> None:
+        """Drop the moves every running search has passed; a search that is not running starts from the recent
+        past only (:meth:`_Itersolve.resume`)."""
+        running = [u.move_base for u in self.users if u.running]
+        keep = min(running) if running else None
+        if keep is None or len(running) < self.n_users:
+            recent = self.index_after(self.keep_t - TRAPQ_KEEP_S)
+            keep = recent if keep is None else min(keep, recent)
+        k = keep - self.base
+        if k > 4096:
+            self.start, self.length, self.bits = self.start[k:], self.length[k:], self.bits[k:]
+            self.base += k
+
+
+class _Itersolve:
+    """One motor under Klipper's own search (:func:`kernel.itersolve_steps`): its pieces (degree ≤ 5, power
+    basis) as they stream in, its place in the trapq, its step-generation windows and search state."""
+
+    def __init__(self, trapq: _Trapq, mask: int, step_dist: float, sds_t: float, flush_times):
+        self.trapq = trapq
+        trapq.users.append(self)
+        self.mask = mask
+        self.step_dist = step_dist
+        self.sds_t = sds_t
+        self.flush_times = flush_times
+        self.next_flush = 0                   # index into flush_times, or k of the regular windows
+        self.forced: list[float] = []
+        self.state = kernel.new_itersolve_state()
+        self.move_base = trapq.base           # global trapq index of the state's move 0
+        self.running = False                  # stepping its motor now (else the exact kernel does)
+        self.pt0 = np.zeros(0)
+        self.pdt = np.zeros(0)
+        self.coef = np.zeros((0, kernel.POLY_NCOEF))
+        self.pre_t = 0.0
+        self.post_t = 0.0
+
+    def add_pieces(self, t0, dt, p, v, a, j) -> None:
+        c = np.zeros((len(t0), kernel.POLY_NCOEF))
+        c[:, 0] = p
+        c[:, 1] = v
+        c[:, 2] = 0.5 * a
+        c[:, 3] = j * (1.0 / 6.0)
+        self.add_coef(t0, dt, c)
+
+    def add_coef(self, t0, dt, c) -> None:
+        # the pieces the search has passed are dropped first (it never looks back past its last window)
+        lft = self.state[kernel.I_LAST_FLUSH]
+        k = int(np.searchsorted(self.pt0 + self.pdt, lft, side="left")) if len(self.pt0) else 0
+        k = min(k, max(len(self.pt0) - 1, 0), int(self.state[kernel.I_PIECE]))
+        if k == len(self.pt0):
+            self.pt0, self.pdt, self.coef = np.asarray(t0, np.float64), np.asarray(dt, np.float64), c
+        else:
+            self.pt0 = np.concatenate((self.pt0[k:], np.asarray(t0, np.float64)))
+            self.pdt = np.concatenate((self.pdt[k:], np.asarray(dt, np.float64)))
+            self.coef = np.concatenate((self.coef[k:], c))
+        self.state[kernel.I_PIECE] -= k
+
+    def resume(self, t: float, commanded: float | None, forward: bool) -> None:
+        """Take over at ``t`` from the exact kernel: its commanded position (None: read it at t) and the
+        direction of its last step; windows and pieces before t are done."""
+        st = self.state
+        st[kernel.I_STARTED] = 0.0 if commanded is None else 1.0
+        st[kernel.I_COMMANDED] = 0.0 if commanded is None else commanded
+        st[kernel.I_START_T] = t
+        st[kernel.I_DIR] = 1.0 if forward else 0.0
+        st[kernel.I_PENDING] = 0.0
+        # nothing before t is stepped (again)
+        st[kernel.I_LAST_FLUSH] = t
+        st[kernel.I_LAST_MOVE] = -np.inf
+        self.forced = []
+        if self.flush_times is not None:
+            self.next_flush = int(np.searchsorted(self.flush_times, t, side="right"))
+        else:
+            self.next_flush = max(int(np.floor((t + KLIPPER_FIRST_MOVE_T) / KLIPPER_FLUSH_STEP_T + 1e-9)) + 1, 0)
+        self.pt0 = np.zeros(0)
+        self.pdt = np.zeros(0)
+        self.coef = np.zeros((0, kernel.POLY_NCOEF))
+        st[kernel.I_PIECE] = 0.0
+        st[kernel.I_MOVE] = 0.0
+        self.move_base = max(self.move_base, min(self.trapq.index_after(t - TRAPQ_KEEP_S),
+                                                 self.trapq.base + len(self.trapq.start) - 1))
+        self.running = True
+
+    def end_position(self) -> float:
+        """The position (mm) at the end of the pieces received."""
+        c = self.coef[-1]
+        s = self.pdt[-1]
+        return float(c[0] + s * (c[1] + s * (c[2] + s * (c[3] + s * (c[4] + s * c[5])))))
+
+    def restart(self, t: float) -> None:
+        """The position was set at ``t`` (G28 / SET_KINEMATIC_POSITION): the commanded position is the position
+        there (Klipper's itersolve_set_position)."""
+        self.state[kernel.I_STARTED] = 0.0
+        self.state[kernel.I_START_T] = t
+
+    def force_flush(self, t: float) -> None:
+        """A window ends at ``t`` (Klipper's flush_step_generation)."""
+        self.forced.append(t)
+
+    def _windows(self, horizon: float) -> np.ndarray:
+        """The window ends not yet processed, up to ``horizon`` (the forced ones merged in)."""
+        last = self.state[kernel.I_LAST_FLUSH]
+        if self.flush_times is not None:
+            ft = self.flush_times
+            k = self.next_flush
+            hi = int(np.searchsorted(ft, horizon, side="right"))
+            reg = ft[k:hi]
+        else:
+            k0 = max(self.next_flush, 0)
+            top = horizon if np.isfinite(horizon) else (self.pt0[-1] + self.pdt[-1] + 1.0 if len(self.pt0) else last)
+            k1 = int(np.floor((top + KLIPPER_FIRST_MOVE_T) / KLIPPER_FLUSH_STEP_T)) + 1
+            reg = -KLIPPER_FIRST_MOVE_T + KLIPPER_FLUSH_STEP_T * np.arange(k0, max(k1, k0), dtype=np.float64)
+            reg = reg[reg <= horizon]
+        forced = [f for f in self.forced if f <= horizon]
+        w = np.concatenate((reg, np.array(forced, np.float64))) if forced else reg
+        if forced:
+            w = np.unique(w)
+        return w[w > last]
+
+    def run(self, horizon: float, out_t, out_dir, out_n) -> tuple[bool, int]:
+        """Process the windows ending up to ``horizon``; (all done, new out_n) — not all done means ``out_t`` is
+        full (empty it and call again)."""
+        if len(self.pt0) == 0:
+            return True, out_n
+        w = self._windows(horizon)
+        if len(w) == 0:
+            return True, out_n
+        tq = self.trapq
+        k0 = self.move_base - tq.base
+        m_start = np.concatenate((tq.start[k0:], [tq.end]))
+        m_len = np.concatenate((tq.length[k0:], [kernel.ITS_NEVER_S]))
+        m_act = np.concatenate(((tq.bits[k0:] & self.mask) != 0, [False]))
+        done, out_n = kernel.itersolve_steps(w, m_start, m_len, m_act, self.pre_t, self.post_t, self.pt0, self.pdt,
+                                             self.coef, self.step_dist, self.sds_t, self.state, out_t, out_dir, out_n)
+        if done:
+            last = w[done - 1]
+            if self.flush_times is not None:
+                self.next_flush = int(np.searchsorted(self.flush_times, last, side="right"))
+            elif np.isfinite(last):
+                self.next_flush = int(np.floor((last + KLIPPER_FIRST_MOVE_T) / KLIPPER_FLUSH_STEP_T + 1e-9)) + 1
+            self.forced = [f for f in self.forced if f > last]
+            self._trim()
+        return done == len(w), out_n
+
+    def _trim(self) -> None:
+        st = self.state
+        mi = int(st[kernel.I_MOVE])
+        if mi > 0:
+            self.move_base += mi
+            st[kernel.I_MOVE] = 0
+        self.trapq.trim()
+        lft = st[kernel.I_LAST_FLUSH]
+        ends = self.pt0 + self.pdt
+        k = min(int(np.searchsorted(ends, lft, side="left")), len(self.pt0) - 1)
+        if k > 1024:
+            self.pt0, self.pdt, self.coef = self.pt0[k:], self.pdt[k:], self.coef[k:]
+            st[kernel.I_PIECE] = max(st[kernel.I_PIECE] - k, 0.0)
 
 
 def _xyz_columns(seg: np.ndarray) -> tuple[np.ndarray, ...]:
@@ -404,8 +787,8 @@ def _clip_start(part: np.ndarray, u: float) -> np.ndarray:
 
 def generate_steps(segments: np.ndarray | Iterable[np.ndarray], machine=None, *, rails: list[Rail] | None = None,
                    kinematics=None, klipper_names: bool = False, sds_filter_t: float | None = None,
-                   reset: np.ndarray | None = None, settings: np.ndarray | None = None
-                   ) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+                   reset: np.ndarray | None = None, settings: np.ndarray | None = None,
+                   flush_times: np.ndarray | None = None) -> dict[str, tuple[np.ndarray, np.ndarray]]:
     """All step times in memory: {stepper name: (times s, dirs int8)}. For tests and small files.
 
     ``segments`` is one SEGMENT array or an iterable of batches (``reset`` only
@@ -413,7 +796,8 @@ def generate_steps(segments: np.ndarray | Iterable[np.ndarray], machine=None, *,
     (a built-in name or an object with ``rails(machine, klipper_names)``, e.g.
     :class:`gcodeplan.kinematics.Linear`), else from the machine. ``settings``: the
     LIMITS row whose input-shaper / pressure-advance columns apply (default: the
-    machine's, ``machine.limits_row()``).
+    machine's, ``machine.limits_row()``). ``flush_times``: Klipper's step-generation windows (see
+    :class:`StepGenerator`).
     """
     if rails is None:
         rails = rails_for(machine, klipper_names, kinematics=kinematics)
@@ -424,7 +808,7 @@ def generate_steps(segments: np.ndarray | Iterable[np.ndarray], machine=None, *,
     def sink(si, t, d):
         parts[si].append((t.copy(), d.copy()))
 
-    gen = StepGenerator(rails, sink, sds_filter_t=sds_filter_t, settings=settings)
+    gen = StepGenerator(rails, sink, sds_filter_t=sds_filter_t, settings=settings, flush_times=flush_times)
     if isinstance(segments, np.ndarray):
         gen.feed(segments, reset)
     else:

@@ -987,3 +987,399 @@ def gen_steps_delta(t0, dt, pc, vc, ac, jc, reset, arm2, tx, ty, step_dist, stat
     state[S_LAST_POS] = last_pos
     state[S_ANCHORED] = 1.0 if anchored else 0.0
     return i, out_n, need
+
+
+# ------------------------------------------------------------------ Klipper's own step search (itersolve)
+#
+# Klipper does not solve crossings exactly: its itersolve.c (itersolve_gen_steps_range, Klipper ≥ 2020)
+# walks forward from the last step with secant guesses and an exponential search (first probe 100 µs after
+# the start of a range, else 1.5 × the last step interval, doubling while nothing is found), and calls a
+# step found when a guess lands within 1 nm of the half-step point or the bracket shrinks below 1 ns. A
+# reversal counts only once the position is 10 nm past the half-step point behind. Each call covers one
+# trapq move clipped to one step-generation window (itersolve_generate_steps: moves where the stepper is
+# active, plus the shaper's / pressure advance's reach before and after them), and the search restarts at
+# every call. An excursion past a half-step point that falls between two probes is not seen. Its
+# stepcompress.c holds the last step back: an opposite step less than 750 µs later deletes both
+# (stepcompress_append), unless the search had already seen the position reach the held step's commanded
+# position (stepcompress_commit). :func:`itersolve_steps` reproduces this decision for decision, with our
+# exact pieces where Klipper calls its position callback (docs/design.md §11).
+
+I_LAST_FLUSH = 0    # s, the previous window's end (sk->last_flush_time)
+I_LAST_MOVE = 1     # s, end of the last active move stepped (sk->last_move_time)
+I_COMMANDED = 2     # mm, the commanded position (sk->commanded_pos)
+I_DIR = 3           # 1.0 forward, 0.0 backward: the direction of the next step (stepcompress next_step_dir)
+I_PENDING = 4       # 1.0 while a step is held back (stepcompress next_step_clock != 0)
+I_PEND_T = 5        # s, the held step's time
+I_MOVE = 6          # index of the first trapq move still to visit
+I_PIECE = 7         # piece index hint for the position lookups
+I_STARTED = 8       # 1.0 once the commanded position is set
+I_START_T = 9       # s, where the commanded position is read when it is not (−inf: the first piece's start)
+ITS_LEN = 10
+
+ITS_SEEK_RESET_S = 1e-4     # itersolve.c SEEK_TIME_RESET
+ITS_CLOSE_MM = 1e-9         # a guess this close to the half-step point is the step
+ITS_CLOSE_S = 1e-9          # a bracket this narrow is the step
+ITS_REVERSE_MM = 1e-8       # a reversal needs the position this far past the half-step point behind
+ITS_NEVER_S = 1e15          # the trapq's tail sentinel lasts forever
+
+
+def new_itersolve_state() -> np.ndarray:
+    """A fresh :func:`itersolve_steps` state: nothing stepped, the commanded position set by the first piece."""
+    st = np.zeros(ITS_LEN, dtype=np.float64)
+    st[I_LAST_FLUSH] = -np.inf
+    st[I_LAST_MOVE] = -np.inf
+    st[I_START_T] = -np.inf
+    return st
+
+
+@numba.njit(cache=True, inline="always")
+def _its_position(pt0, pdt, coef, k, t):
+    """(position mm, piece index) at absolute time t: Σ coef[k, i]·s^i, s = t − pt0[k] clamped to the piece (at rest
+    before the first piece and after the last); ``k`` is the search's starting guess."""
+    n = pt0.shape[0]
+    while k > 0 and t < pt0[k]:
+        k -= 1
+    while k + 1 < n and t >= pt0[k + 1]:
+        k += 1
+    s = t - pt0[k]
+    if s < 0.0:
+        s = 0.0
+    elif s > pdt[k]:
+        s = pdt[k]
+    return coef[k, 0] + s * (coef[k, 1] + s * (coef[k, 2] + s * (coef[k, 3] + s * (coef[k, 4] + s * coef[k, 5])))), k
+
+
+@numba.njit(cache=True, error_model="numpy", inline="always")
+def _its_range(m_start, m_len, abs_start, abs_end, pt0, pdt, coef, half, sds_t, st, out_t, out_dir, out_n):
+    """One itersolve_gen_steps_range call: the steps of trapq move [m_start, m_start + m_len] inside
+    [abs_start, abs_end]. Updates the state ``st``; returns the new out_n, or −1 when ``out_t`` is full."""
+    cap = out_t.shape[0]
+    start = abs_start - m_start
+    if start < 0.0:
+        start = 0.0
+    end = abs_end - m_start
+    if end > m_len:
+        end = m_len
+    commanded = st[I_COMMANDED]
+    k = np.int64(st[I_PIECE])
+    pend = st[I_PENDING] != 0.0
+    pend_t = st[I_PEND_T]
+    sdir = st[I_DIR] != 0.0
+    og_t = start
+    og_p = commanded
+    g_t = start
+    g_p = commanded
+    is_dir_change = False
+    have_bracket = False
+    check_osc = False
+    target = commanded + half if sdir else commanded - half
+    last_t = start
+    low_t = start
+    high_t = start + ITS_SEEK_RESET_S
+    if high_t > end:
+        high_t = end
+    while True:
+        # secant through the last two guesses
+        g_d = g_p - target
+        og_d = og_p - target
+        nxt = (og_t * g_d - g_t * og_d) / (g_d - og_d)
+        if not (nxt > low_t and nxt < high_t):
+            if have_bracket:
+                nxt = 0.5 * (low_t + high_t)
+                check_osc = False
+            elif g_t >= end:
+                break
+            else:
+                # exponential search ahead
+                nxt = high_t
+                high_t = 2.0 * high_t - last_t
+                if high_t > end:
+                    high_t = end
+        og_t = g_t
+        og_p = g_p
+        g_t = nxt
+        g_p, k = _its_position(pt0, pdt, coef, k, m_start + nxt)
+        g_d = g_p - target
+        if abs(g_d) > ITS_CLOSE_MM:
+            rel = g_d if sdir else -g_d
+            if rel > 0.0:
+                # past the half-step point: a step lies before this guess
+                if have_bracket and og_t <= low_t:
+                    if check_osc:
+                        og_t = g_t
+                        og_p = g_p
+                    check_osc = True
+                high_t = g_t
+                have_bracket = True
+            elif rel < -(half + half + ITS_REVERSE_MM):
+                # reversal: the next step is back across the last half-step point
+                sdir = not sdir
+                target = target + half + half if sdir else target - half - half
+                low_t = last_t
+                high_t = g_t
+                is_dir_change = True
+                have_bracket = True
+                check_osc = False
+            else:
+                low_t = g_t
+            if (not have_bracket) or high_t - low_t > ITS_CLOSE_S:
+                if (not is_dir_change) and rel >= -half and pend:
+                    # the motor reached the held step's position: it can no longer be taken back
+                    if out_n >= cap:
+                        return -1
+                    out_t[out_n] = pend_t
+                    out_dir[out_n] = np.int8(1) if st[I_DIR] != 0.0 else np.int8(-1)
+                    out_n += 1
+                    pend = False
+                continue
+        # a step at g_t (stepcompress_append)
+        t_step = m_start + g_t
+        taken_back = False
+        if sds_t > 0.0:
+            if pend:
+                pend_dir = st[I_DIR] != 0.0
+                if sdir != pend_dir and t_step - pend_t < sds_t:
+                    pend = False
+                    taken_back = True
+                else:
+                    if out_n >= cap:
+                        return -1
+                    out_t[out_n] = pend_t
+                    out_dir[out_n] = np.int8(1) if pend_dir else np.int8(-1)
+                    out_n += 1
+            if not taken_back:
+                pend = True
+                pend_t = t_step
+        else:
+            if out_n >= cap:
+                return -1
+            out_t[out_n] = t_step
+            out_dir[out_n] = np.int8(1) if sdir else np.int8(-1)
+            out_n += 1
+        st[I_DIR] = 1.0 if sdir else 0.0
+        target = target + half + half if sdir else target - half - half
+        seek = 1.5 * (g_t - last_t)
+        if seek < ITS_CLOSE_S:
+            seek = ITS_CLOSE_S
+        if is_dir_change and seek > ITS_SEEK_RESET_S:
+            seek = ITS_SEEK_RESET_S
+        last_t = g_t
+        low_t = g_t
+        high_t = g_t + seek
+        if high_t > end:
+            high_t = end
+        is_dir_change = False
+        have_bracket = False
+        check_osc = False
+        # Fast path. While the next step is the crossing of a monotone run of quadratic pieces (trapezoid phases,
+        # shaped or not) that Klipper's probes for it cannot leave — they stay below last + 2·max(interval, seek)
+        # — its search finds exactly that crossing: take it in closed form, then hand the search the state
+        # it would have (the step as its last guess, a point just before it as the one before).
+        n_p = pt0.shape[0]
+        t_prev = m_start + last_t
+        while k > 0 and t_prev < pt0[k]:
+            k -= 1
+        while k + 1 < n_p and t_prev >= pt0[k + 1]:
+            k += 1
+        # where the run on which the position keeps moving in direction sdir ends (at most 32 pieces ahead)
+        lim = t_prev
+        kk = k
+        for _ in range(32):
+            if coef[kk, 3] != 0.0 or coef[kk, 4] != 0.0 or coef[kk, 5] != 0.0:
+                break
+            c1 = coef[kk, 1]
+            c2 = coef[kk, 2]
+            s_from = t_prev - pt0[kk]
+            if s_from < 0.0:
+                s_from = 0.0
+            v_from = c1 + 2.0 * c2 * s_from
+            if (v_from > 0.0) != sdir and v_from != 0.0:
+                break
+            s_end = pdt[kk]
+            if c2 != 0.0:
+                s_r = -c1 / (2.0 * c2)
+                if s_from < s_r < s_end:
+                    lim = pt0[kk] + s_r
+                    break
+            lim = pt0[kk] + s_end
+            if kk + 1 >= n_p:
+                break
+            kk += 1
+        taken = 0
+        kc = k
+        base = t_prev
+        s_b = t_prev - pt0[kc]
+        c2 = coef[kc, 2]
+        v_b = coef[kc, 1] + 2.0 * c2 * s_b
+        p_b = coef[kc, 0] + s_b * (coef[kc, 1] + s_b * c2)
+        p_e = coef[kc, 0] + pdt[kc] * (coef[kc, 1] + pdt[kc] * c2)
+        while lim > t_prev and coef[kc, 3] == 0.0 and coef[kc, 4] == 0.0 and coef[kc, 5] == 0.0:
+            if (p_e < target) if sdir else (p_e > target):
+                # not reached on this piece: the next one of the run
+                if kc + 1 >= n_p or pt0[kc + 1] >= lim:
+                    break
+                kc += 1
+                base = pt0[kc]
+                c2 = coef[kc, 2]
+                v_b = coef[kc, 1]
+                p_b = coef[kc, 0]
+                p_e = p_b + pdt[kc] * (v_b + pdt[kc] * c2)
+                continue
+            cc = p_b - target
+            disc = v_b * v_b - 4.0 * c2 * cc
+            if disc < 0.0:
+                disc = 0.0
+            den = v_b + math.sqrt(disc) if sdir else v_b - math.sqrt(disc)
+            if den == 0.0:
+                break
+            t_step = base - 2.0 * cc / den
+            gap = t_step - t_prev
+            if not (gap > 0.0):
+                break
+            reach = gap if gap > seek else seek
+            if t_prev + 2.0 * reach >= lim or t_step - m_start >= end:
+                break
+            if sds_t > 0.0:
+                if pend:
+                    if out_n >= cap:
+                        return -1
+                    out_t[out_n] = pend_t
+                    out_dir[out_n] = np.int8(1) if sdir else np.int8(-1)
+                    out_n += 1
+                pend = True
+                pend_t = t_step
+            else:
+                if out_n >= cap:
+                    return -1
+                out_t[out_n] = t_step
+                out_dir[out_n] = np.int8(1) if sdir else np.int8(-1)
+                out_n += 1
+            g_p = target
+            target = target + half + half if sdir else target - half - half
+            seek = 1.5 * gap
+            if seek < ITS_CLOSE_S:
+                seek = ITS_CLOSE_S
+            t_prev = t_step
+            taken += 1
+        if taken:
+            # the state Klipper's search would hold after this step
+            last_t = t_prev - m_start
+            g_t = last_t
+            delta = seek * (1e-3 / 1.5)
+            og_t = g_t - delta
+            og_p, k = _its_position(pt0, pdt, coef, kc, m_start + og_t)
+            low_t = g_t
+            high_t = g_t + seek
+            if high_t > end:
+                high_t = end
+    st[I_COMMANDED] = target - half if sdir else target + half
+    st[I_PIECE] = k
+    st[I_PENDING] = 1.0 if pend else 0.0
+    st[I_PEND_T] = pend_t
+    return out_n
+
+
+@numba.njit(cache=True, error_model="numpy")
+def itersolve_steps(flush_t, m_start, m_len, m_active, pre_t, post_t, pt0, pdt, coef, step_dist, sds_t, state,
+                    out_t, out_dir, out_n):
+    """Klipper's steps for the step-generation windows ending at ``flush_t`` (s, increasing), itersolve_generate_steps
+    call by call.
+
+    Trapq moves: start ``m_start``, duration ``m_len`` (s; the last one is the tail sentinel, ITS_NEVER_S long),
+    ``m_active`` (Klipper's check_active: the move has motion on an axis this stepper follows). ``pre_t``/``post_t``:
+    how long before/after its active moves the stepper moves (the shaper's or pressure advance's reach; Klipper's
+    gen_steps_pre_active / post_active). Position: Σ coef[k, i]·(t − pt0[k])^i on piece k (degree ≤ 5, mm), at rest
+    outside the pieces. ``sds_t`` > 0: hold each step back and drop it with an opposite step less than sds_t later
+    (stepcompress.c); 0: no filter. ``state`` (I_*) carries everything between calls; the commanded position
+    starts at the position of the first piece.
+
+    Returns (windows done, new out_n). A window is emitted whole: when ``out_t`` fills up the state is restored
+    to the window's start and the call returns early (empty the buffer and call again from ``flush_t[done:]``).
+    """
+    n_moves = m_start.shape[0]
+    half = 0.5 * step_dist
+    saved = np.empty(ITS_LEN)
+    if state[I_STARTED] == 0.0:
+        p0, k0 = _its_position(pt0, pdt, coef, 0, state[I_START_T])
+        state[I_PIECE] = k0
+        state[I_COMMANDED] = p0
+        state[I_STARTED] = 1.0
+    done = 0
+    for w in range(flush_t.shape[0]):
+        F = flush_t[w]
+        for q in range(ITS_LEN):
+            saved[q] = state[q]
+        n_before = out_n
+        lft = state[I_LAST_FLUSH]
+        state[I_LAST_FLUSH] = F
+        mi = np.int64(state[I_MOVE])
+        while mi < n_moves - 1 and lft >= m_start[mi] + m_len[mi]:
+            mi += 1
+        state[I_MOVE] = mi
+        force = state[I_LAST_MOVE] + post_t
+        skip = 0
+        full = False
+        while mi < n_moves:
+            ms = m_start[mi]
+            me = ms + m_len[mi]
+            if m_active[mi]:
+                if skip > 0 and pre_t > 0.0:
+                    # steps leading up to the activity (the shaper looks ahead)
+                    a0 = ms - pre_t
+                    if a0 < lft:
+                        a0 = lft
+                    if a0 < force:
+                        a0 = force
+                    pm = mi - 1
+                    skip -= 1
+                    while skip > 0 and m_start[pm] > a0:
+                        pm -= 1
+                        skip -= 1
+                    while pm != mi:
+                        out_n = _its_range(m_start[pm], m_len[pm], a0, F, pt0, pdt, coef, half, sds_t, state,
+                                           out_t, out_dir, out_n)
+                        if out_n < 0:
+                            break
+                        pm += 1
+                    if out_n < 0:
+                        full = True
+                        break
+                out_n = _its_range(ms, m_len[mi], lft, F, pt0, pdt, coef, half, sds_t, state, out_t, out_dir, out_n)
+                if out_n < 0:
+                    full = True
+                    break
+                if me >= F:
+                    state[I_LAST_MOVE] = F
+                    break
+                skip = 0
+                state[I_LAST_MOVE] = me
+                force = me + post_t
+            else:
+                if ms < force:
+                    # steps just past the activity (the shaper / smoothing lags behind)
+                    a1 = force if force < F else F
+                    out_n = _its_range(ms, m_len[mi], lft, a1, pt0, pdt, coef, half, sds_t, state, out_t, out_dir,
+                                       out_n)
+                    if out_n < 0:
+                        full = True
+                        break
+                    skip = 1
+                else:
+                    skip += 1
+                if F + pre_t <= me:
+                    break
+            mi += 1
+        if full:
+            for q in range(ITS_LEN):
+                state[q] = saved[q]
+            return done, n_before
+        done = w + 1
+    return done, out_n
+
+
+def itersolve_flush_pending(state: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The step :func:`itersolve_steps` still holds back (0 or 1 of them), released at the end of the run."""
+    if state[I_PENDING] == 0.0:
+        return np.empty(0, np.float64), np.empty(0, np.int8)
+    state[I_PENDING] = 0.0
+    return np.array([state[I_PEND_T]], np.float64), np.array([1 if state[I_DIR] != 0.0 else -1], np.int8)
