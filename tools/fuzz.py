@@ -535,6 +535,7 @@ class Stats:
     rejected: int = 0              # GcodeplanError: a clear error, a pass
     failures: int = 0
     signatures: dict = field(default_factory=dict)   # signature -> first (case index, written file)
+    counts: dict = field(default_factory=dict)       # signature -> failing cases
     seconds: float = 0.0
     slowest: tuple = (0.0, -1)
 
@@ -571,6 +572,7 @@ def fuzz(seed: int, cases: int | None, seconds: float | None, out: Path, max_ste
         elif res is not None:
             st.failures += 1
             sig, tb = res
+            st.counts[sig] = st.counts.get(sig, 0) + 1
             if sig not in st.signatures:
                 small = minimise(case, sig, max_steps, minimise_s)
                 path = write_failure(out, case, sig, tb, small)
@@ -614,7 +616,7 @@ def main(argv=None) -> int:
     st = fuzz(args.seed, args.cases, args.seconds, args.out, args.max_steps, args.start)
     print(f"seed {args.seed}, cases {args.start}..{args.start + st.cases - 1}: {st.line()}")
     for sig, (i, path) in st.signatures.items():
-        print(f"  {sig}: first case {i}, minimised in {path}")
+        print(f"  {sig}: {st.counts[sig]} cases, first case {i}, minimised in {path}")
     return 1 if st.failures else 0
 
 

@@ -40,7 +40,7 @@ MOTION_FEED = 1
 MOTION_DWELL = 2
 
 # A cycle needing more rows than this is a typo (Q of a micron over a metre, L of a million), not a part.
-MAX_CYCLE_ROWS = 10_000_000
+MAX_CYCLE_ROWS = 1_000_000     # a real hole: a few thousand rows (1 mm pecks over 1 m); fuzzing found slower typos
 
 # Two depths closer than this are one: stops r − k·Q landing a rounding error above the bottom from making
 # a sliver of a peck.

@@ -168,8 +168,12 @@ class GcodeReader:
         self._started = True
         self._out = np.empty(self.batch_moves, dtype=MOVE_DTYPE)
         self._n = 0
-        for data, pos, end in self._chunks():
-            yield from self._scan(data, pos, end)
+        try:
+            for data, pos, end in self._chunks():
+                yield from self._scan(data, pos, end)
+        except GcodeError:
+            self.source.check_rest()   # a corrupt gzip member explains a garbage line better than the line does
+            raise
         if self._n:
             yield self._finish(self._out, self._n)
         self._complete_summary()

@@ -107,6 +107,13 @@ class _GzipInput(io.RawIOBase):
         except (OSError, EOFError, zlib.error) as err:
             raise GcodeError(f"corrupt gzip data: {err}", self._name) from None
 
+    def check_rest(self) -> None:
+        """Read the rest of the stream only to check it: a flipped byte inside deflate data decodes to
+        garbage text first and fails the CRC check only at the end of the member."""
+        buf = bytearray(1 << 16)
+        while self.readinto(buf):
+            pass
+
     def read(self, n: int = -1) -> bytes:
         try:
             return self._gz.read(n)
@@ -220,6 +227,13 @@ class Source:
     def bytes_in(self) -> int:
         """Input bytes consumed so far (compressed bytes for gzip / binary G-code)."""
         return self._counter.count
+
+    def check_rest(self) -> None:
+        """Raise the container's own error (corrupt gzip data) if the rest of the input has one: called when
+        a line failed, since corrupt compressed data decodes to garbage lines before its checksum fails."""
+        check = getattr(self.stream, "check_rest", None)
+        if check is not None:
+            check()
 
     def close(self) -> None:
         """Close what this source opened (never a file object or stdin it was given)."""

@@ -492,7 +492,7 @@ def blend_row_limits(moves: np.ndarray, limits: np.ndarray, machine):
     moves = np.asarray(moves)
     limits = np.asarray(limits)
     tol = _tolerance(moves, machine)
-    prep = prepare(moves, limits, machine, "exact-stop")
+    prep = prepare(moves, limits, machine, "exact-stop")     # refuses accelerations too small to plan with
     aux = np.empty((len(moves), 5))
     aux[:, 0] = tol
     lim_row = moves["limits"]

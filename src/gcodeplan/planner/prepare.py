@@ -375,6 +375,13 @@ def prepare_with_context(moves: np.ndarray, limits: np.ndarray, policy: int,
     err, row = _move_limits_kernel(moves, lim, policy, prep)
     if err != ERR_NONE:
         raise _line_error(moves, row, _ERR_TEXT[err])
+    # Every planner divides by the acceleration and squares speeds: below ~1e-150 mm/s² (M204 /
+    # SET_VELOCITY_LIMIT ACCEL=1e-320, found by tools/fuzz.py) that gives inf, NaN or 0 s instead of the
+    # astronomically long time it means (S-curves planned a 123 mm move in 0 s)
+    tiny = np.flatnonzero(prep["is_move"] & ~(prep["accel"] >= 1e-150))
+    if tiny.size:
+        raise _line_error(moves, int(tiny[0]), f"acceleration {float(prep['accel'][tiny[0]])!r} mm/s² is too small "
+                                                "to plan with")
     if prev_prep is not None:
         ctx = concat_rows(prev_prep, prep)
         ctx_moves = concat_rows(prev_moves, moves)

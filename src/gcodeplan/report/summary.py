@@ -89,9 +89,14 @@ class TimeSummary:
         dur = plan["duration"]
         self.moves_planned += moves.size
         end = plan["t_start"] + dur
-        self.end_t = max(self.end_t, float(end.max()))
+        end_max = float(end.max())
+        # not max(): a NaN time (one the planner could not compute) must not vanish (found by tools/fuzz.py)
+        self.end_t = end_max if not end_max <= self.end_t else self.end_t
         if not self.end_t <= MAX_TOTAL_S:
             i = int(np.argmax(~(end <= MAX_TOTAL_S)))
+            if self.end_t != self.end_t:
+                raise GcodeError("the planned time is not a number by here: an absurd feed rate, acceleration or "
+                                 "distance?", None, int(moves["line"][i]))
             raise GcodeError(f"the program would run {self.end_t / 3600:.3g} h by here (over {MAX_TOTAL_S / 3600:g} h,"
                              f" more than eleven years): an absurd feed rate or distance?", None,
                              int(moves["line"][i]))

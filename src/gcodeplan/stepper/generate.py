@@ -74,6 +74,7 @@ class StepGenerator:
         self._buf_t = [np.empty(chunk_steps, np.float64) for _ in range(n)]
         self._buf_d = [np.empty(chunk_steps, np.int8) for _ in range(n)]
         self._fill = [0] * n
+        self._last_t = [-np.inf] * n      # s, the last step time handed out per stepper (kernel.monotone_times)
         self.steps_generated = 0      # before the filter
         self.settings = None if settings is None else np.asarray(settings).reshape(-1)[:1]
         # which motors shaping and pressure advance act on (a delta tower moves with X and Y)
@@ -463,6 +464,7 @@ class StepGenerator:
 
     def _emit(self, si: int, times: np.ndarray, dirs: np.ndarray) -> None:
         if len(times):
+            self._last_t[si] = kernel.monotone_times(times, self._last_t[si])
             kernel.step_stats(times, dirs, self.stats[si])
             self.sink(si, times, dirs)
 

@@ -303,6 +303,21 @@ SDS_STATE_LEN = 3
 
 
 @numba.njit(cache=True)
+def monotone_times(times, last_t):
+    """Make step times non-decreasing in place, continuing from ``last_t`` (s); returns the new last time.
+
+    A piece's last crossing is t0 + τ and the next piece's first is t0' + τ', with t0' = t0 + dt rounded: the
+    two sums can come out one ulp in the wrong order at a piece boundary (found by tools/fuzz.py). Raising the
+    later step to the earlier one's time moves it by that ulp and keeps every consumer's order (compression,
+    deltas in compact files) true."""
+    for i in range(times.shape[0]):
+        if times[i] < last_t:
+            times[i] = last_t
+        last_t = times[i]
+    return last_t
+
+
+@numba.njit(cache=True)
 def sds_filter(times, dirs, window_t, state, out_t, out_dir):
     """Klipper's step+dir+step filter, streaming.
 
