@@ -254,3 +254,26 @@ def limits_variants(machine, n: int, rng: np.random.Generator) -> np.ndarray:
         rows[k]["junction_dev"] = rng.choice([0.005, 0.013, 0.05])
         rows[k]["icv"] = rng.choice([0.5, 1.0, 3.0])
     return rows
+
+
+# ----------------------------------------------------------------------------- steps against Klipper's
+def compare_with_klipper_steps(ours, ref, figures, tol_s, truncated_at=None) -> float:
+    """Counts and net steps of the full run (Klipper's times.json ``figures``), then step for step against the
+    reference npz ``ref`` (only steps before ``truncated_at`` s when the file is truncated). Returns the worst
+    time difference (s); every step must be within ``tol_s``."""
+    worst = 0.0
+    for name, (t, d) in ours.items():
+        full = figures[name]
+        assert len(t) == full["n_steps"], f"{name}: {len(t)} steps, Klipper {full['n_steps']}"
+        assert int(d.sum(dtype=np.int64)) == full["net_steps"], name
+        if truncated_at is not None:
+            keep = t < truncated_at
+            t, d = t[keep], d[keep]
+        rt, rd = ref[name], ref[name + "_dir"]
+        assert len(t) == len(rt), f"{name}: {len(t)} steps in the window, Klipper {len(rt)}"
+        assert np.array_equal(d, rd), f"{name}: directions differ"
+        if len(t):
+            err = float(np.max(np.abs(t - rt)))
+            assert err < tol_s, f"{name}: worst step {err * 1e9:.1f} ns off"
+            worst = max(worst, err)
+    return worst

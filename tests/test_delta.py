@@ -16,7 +16,7 @@ import math
 import numpy as np
 import pytest
 
-from conftest import shared_path
+from conftest import compare_with_klipper_steps, shared_path
 from gcodeplan.errors import ConfigError, GcodeError
 from gcodeplan.kinematics import rails_for
 from gcodeplan.kinematics.delta import DeltaGeometry
@@ -71,22 +71,7 @@ def klipper_steps(src, machine):
 
 
 def compare(ours, ref, figures, truncated_at=None):
-    """Counts and net steps of the full run (times.json), then step for step in the npz window."""
-    worst = 0.0
-    for name, (t, d) in ours.items():
-        assert len(t) == figures[name]["n_steps"], f"{name}: {len(t)} steps, Klipper {figures[name]['n_steps']}"
-        assert int(d.sum(dtype=np.int64)) == figures[name]["net_steps"], name
-        if truncated_at is not None:
-            keep = t < truncated_at
-            t, d = t[keep], d[keep]
-        rt, rd = ref[name], ref[name + "_dir"]
-        assert len(t) == len(rt), f"{name}: {len(t)} steps in the window, Klipper {len(rt)}"
-        assert np.array_equal(d, rd), f"{name}: directions differ"
-        if len(t):
-            err = float(np.max(np.abs(t - rt)))
-            assert err < TOL_S, f"{name}: worst step {err * 1e9:.1f} ns off"
-            worst = max(worst, err)
-    return worst
+    return compare_with_klipper_steps(ours, ref, figures, TOL_S, truncated_at)
 
 
 def total(src, machine):
