@@ -74,7 +74,7 @@ class StepGenerator:
         self._buf_t = [np.empty(chunk_steps, np.float64) for _ in range(n)]
         self._buf_d = [np.empty(chunk_steps, np.int8) for _ in range(n)]
         self._fill = [0] * n
-        self._last_t = [-np.inf] * n      # s, the last step time handed out per stepper (kernel.monotone_times)
+        self._last_t = [-np.inf] * n      # s, the last step time handed out per stepper (kernel.monotone_stats)
         self.steps_generated = 0      # before the filter
         self.settings = None if settings is None else np.asarray(settings).reshape(-1)[:1]
         # which motors shaping and pressure advance act on (a delta tower moves with X and Y)
@@ -107,9 +107,10 @@ class StepGenerator:
             if idx.min() >= first_move and idx.max() < first_move + len(moves):
                 idx = idx - first_move
             idx = np.clip(idx, 0, len(moves) - 1)
-            mv = moves[idx]
-            lim = np.asarray(limits)[mv["limits"].astype(np.int64)]
-            can_pa = (((mv["x1"] != mv["x0"]) | (mv["y1"] != mv["y0"])) & (mv["e1"] > mv["e0"]))
+            # per move first, then per row: gathering whole MOVE / LIMITS records row by row costs more than
+            # the rest of the settings together
+            can_pa = (((moves["x1"] != moves["x0"]) | (moves["y1"] != moves["y0"])) & (moves["e1"] > moves["e0"]))[idx]
+            lim = _LimitColumns(np.asarray(limits), moves["limits"].astype(np.int64)[idx])
         else:
             if self.settings is None:
                 return None
@@ -252,11 +253,19 @@ class StepGenerator:
                                                                                   out.a, out.j)
                 self._run_delta(si, *cols, rs)
                 continue
+            reach = _reach(cur.stream, rail, si in self._e_rails)
+            if reach != (0.0, 0.0) and not isinstance(out, np.ndarray):
+                # shaped pieces straight into the search's coefficient rows (no per-column sums and copies)
+                coef = np.empty((len(out), kernel.POLY_NCOEF))
+                kernel.linear_poly(out.p, out.v, out.a, out.j, np.asarray(rail.weights, np.float64), coef)
+                its = self._enter_its(si, reach, float(out.t0[0]), flag)
+                its.add_coef(out.t0, out.dt, coef)
+                self._run_its(si, float(out.t0[-1] + out.dt[-1]) if horizon is None else horizon)
+                continue
             if isinstance(out, np.ndarray):
                 t0, dt, p, v, a, j = stepper_pieces(out, rail)
             else:
                 t0, dt, p, v, a, j = out.rail(rail.weights)
-            reach = _reach(cur.stream, rail, si in self._e_rails)
             if reach == (0.0, 0.0):
                 # not shaped: Klipper's search finds exactly the crossings of these monotone phases
                 self._leave_its(si)
@@ -464,8 +473,7 @@ class StepGenerator:
 
     def _emit(self, si: int, times: np.ndarray, dirs: np.ndarray) -> None:
         if len(times):
-            self._last_t[si] = kernel.monotone_times(times, self._last_t[si])
-            kernel.step_stats(times, dirs, self.stats[si])
+            self._last_t[si] = kernel.monotone_stats(times, dirs, self._last_t[si], self.stats[si])
             self.sink(si, times, dirs)
 
     def finish(self) -> None:
@@ -489,6 +497,21 @@ class StepGenerator:
             elif self.sds_filter_t is not None:
                 t, d = kernel.sds_flush(self._sds[si])
                 self._emit(si, t, d)
+
+
+class _LimitColumns:
+    """The LIMITS columns of rows ``limits[index]``, gathered column by column on first use."""
+
+    def __init__(self, limits: np.ndarray, index: np.ndarray):
+        self.limits = limits
+        self.index = index
+        self.cache: dict[str, np.ndarray] = {}
+
+    def __getitem__(self, name: str) -> np.ndarray:
+        col = self.cache.get(name)
+        if col is None:
+            col = self.cache[name] = self.limits[name][self.index]
+        return col
 
 
 class _StreamState:
@@ -515,12 +538,15 @@ def _row_bits(segments: np.ndarray, moves: np.ndarray | None, first_move: int) -
         idx = segments["move"].astype(np.int64)
         if idx.min() >= first_move and idx.max() < first_move + len(moves):
             idx = idx - first_move
-        mv = moves[np.clip(idx, 0, len(moves) - 1)]
-        d = [mv[ax + "1"] - mv[ax + "0"] for ax in "xyz"]
+        # the bits of each move, then of each row (cheaper than gathering whole MOVE records per row)
+        mb = np.zeros(len(moves), np.int64)
+        d = [moves[ax + "1"] - moves[ax + "0"] for ax in "xyz"]
         for b, di in zip((BIT_X, BIT_Y, BIT_Z), d):
-            bits |= np.where(di != 0, b, 0)
-        bits |= np.where(mv["e1"] != mv["e0"], BIT_E, 0)
+            mb |= np.where(di != 0, b, 0)
+        mb |= np.where(moves["e1"] != moves["e0"], BIT_E, 0)
         kin = np.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]) >= KLIPPER_KINEMATIC_MIN_MM
+        mb |= np.where(kin, BIT_KIN, 0)
+        return mb[np.clip(idx, 0, len(moves) - 1)]
     else:
         for b, ax in zip((BIT_X, BIT_Y, BIT_Z, BIT_E), "xyze"):
             moving = (segments["v" + ax] != 0) | (segments["a" + ax] != 0) | (segments["j" + ax] != 0)

@@ -410,6 +410,51 @@ def step_stats(times, dirs, st):
     st[7] = net
 
 
+@numba.njit(cache=True)
+def monotone_stats(times, dirs, last_t, st):
+    """:func:`monotone_times` then :func:`step_stats` in one pass over the chunk (the same results: each time is
+    raised to ``last_t`` (s) before the statistics read it); returns the new last time (s). One pass instead of
+    two keeps a chunk that no longer fits the cache from being read twice."""
+    count = st[0]
+    changes = st[1]
+    prev_t = st[2]
+    last_d = st[3]
+    min_dt = st[4]
+    min_same = st[5]
+    min_same_t = st[6]
+    net = st[7]
+    for k in range(times.shape[0]):
+        t = times[k]
+        if t < last_t:
+            t = last_t
+            times[k] = t
+        last_t = t
+        d = dirs[k]
+        if count > 0:
+            gap = t - prev_t
+            if gap < min_dt:
+                min_dt = gap
+            if d == last_d:
+                if gap < min_same:
+                    min_same = gap
+                    min_same_t = t
+            else:
+                changes += 1
+        count += 1
+        net += d
+        prev_t = t
+        last_d = d
+    st[0] = count
+    st[1] = changes
+    st[2] = prev_t
+    st[3] = last_d
+    st[4] = min_dt
+    st[5] = min_same
+    st[6] = min_same_t
+    st[7] = net
+    return last_t
+
+
 # ------------------------------------------------------------------ degree-5 pieces (pressure advance)
 
 POLY_NCOEF = 6
@@ -422,6 +467,38 @@ def _horner(c, k, deg, s):
     for i in range(deg - 1, -1, -1):
         out = out * s + c[k, i]
     return out
+
+
+@numba.njit(cache=True, inline="always")
+def _weighted(arr, i, weights):
+    """Σ weights[q]·arr[i, q] over the non-zero weights, a unit weight taken as is (Pieces.rail's sums exactly)."""
+    acc = 0.0
+    first = True
+    for q in range(weights.shape[0]):
+        w = weights[q]
+        if w == 0.0:
+            continue
+        term = arr[i, q] if w == 1.0 else w * arr[i, q]
+        if first:
+            acc = term
+            first = False
+        else:
+            acc = acc + term
+    return acc
+
+
+@numba.njit(cache=True)
+def linear_poly(p, v, a, j, weights, out):
+    """Power-basis coefficients (``out``, (n, POLY_NCOEF), mm, mm/s, mm/s², mm/s³) of the linear motor
+    Σ weights[q]·axis[q] over cubic pieces with (n, 4) x, y, z, e columns ``p v a j`` (mm, mm/s, mm/s², mm/s³):
+    p, v, a/2, j/6, 0, 0, in one pass instead of the per-column sums and copies."""
+    for i in range(p.shape[0]):
+        out[i, 0] = _weighted(p, i, weights)
+        out[i, 1] = _weighted(v, i, weights)
+        out[i, 2] = 0.5 * _weighted(a, i, weights)
+        out[i, 3] = _weighted(j, i, weights) * (1.0 / 6.0)
+        out[i, 4] = 0.0
+        out[i, 5] = 0.0
 
 
 @numba.njit(cache=True)

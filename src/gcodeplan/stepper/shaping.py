@@ -150,6 +150,7 @@ def shape_pieces(t0, dt, pc, vc, ac, jc, ch_axis, ch_w, ch_tau, u_from, u_to, re
     n_ch = ch_axis.shape[0]
     cap = out_t0.shape[0]
     ptr = np.empty(n_ch, np.int64)
+    bnd = np.empty(n_ch)          # where each channel's current piece ends (u), shared by both passes below
     end_t = t0[n - 1] + dt[n - 1]
     for c in range(n_ch):
         x = u_from + ch_tau[c]
@@ -171,6 +172,7 @@ def shape_pieces(t0, dt, pc, vc, ac, jc, ch_axis, ch_w, ch_tau, u_from, u_to, re
                 b = (t0[k] + dt[k] - ch_tau[c]) if (k < n - 1 or rest_after) else math.inf
             else:
                 b = math.inf
+            bnd[c] = b
             if b < nxt:
                 nxt = b
         if nxt > u:
@@ -213,15 +215,8 @@ def shape_pieces(t0, dt, pc, vc, ac, jc, ch_axis, ch_w, ch_tau, u_from, u_to, re
             m += 1
         # every channel whose piece ends here moves on to the next piece
         for c in range(n_ch):
-            k = ptr[c]
-            if k == -1:
-                b = t0[0] - ch_tau[c]
-            elif k < n:
-                b = (t0[k] + dt[k] - ch_tau[c]) if (k < n - 1 or rest_after) else math.inf
-            else:
-                b = math.inf
-            if b <= nxt:
-                ptr[c] = k + 1
+            if bnd[c] <= nxt:
+                ptr[c] = ptr[c] + 1
         u = nxt
     return m
 
