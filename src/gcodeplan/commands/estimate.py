@@ -52,6 +52,16 @@ def _estimate_job(job):
         return path, None, str(err)
 
 
+def _worker_signals() -> None:
+    """A --jobs worker dies of SIGINT / SIGTERM / SIGHUP as an ordinary process: its parent reports and cleans up."""
+    import signal
+
+    from ..signals import HANDLED
+
+    for sig in HANDLED:
+        signal.signal(sig, signal.SIG_DFL)
+
+
 def _write_per_line(path: str, est: Estimate) -> None:
     """line,end_time_s rows (Klipper's per-line CSV format), written atomically."""
     from ..report.output import atomic_write_text
@@ -81,11 +91,18 @@ def run(args) -> int:
             print_text(est)
         return 0
     jobs = [(f, args) for f in args.files]
+    results = None
     if args.jobs > 1:
         import multiprocessing as mp
 
-        with mp.get_context("fork").Pool(min(args.jobs, len(jobs))) as pool:
+        pool = mp.get_context("fork").Pool(min(args.jobs, len(jobs)), initializer=_worker_signals)
+        try:
             results = pool.map(_estimate_job, jobs, chunksize=1)
+            pool.close()         # workers leave on their own: no SIGTERM (Pool.terminate) into a worker
+        finally:                 # that may hold the task queue's lock
+            if results is None:  # interrupted or failed: stop the workers now
+                pool.terminate()
+            pool.join()
     else:
         results = [_estimate_job(j) for j in jobs]
     failed = 0
