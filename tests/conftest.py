@@ -84,7 +84,7 @@ def same_rows(a: np.ndarray, b: np.ndarray) -> bool:
 
 
 def klipper_machine(policy: str = "klipper", **kw) -> Machine:
-    """The machine of /work/shared/reference/klipper/cartesian_corpus.cfg, stated by hand
+    """The machine of the Klipper reference config (cartesian_corpus.cfg), stated by hand
     (Klipper's extruder defaults: ratio0 = 4·nozzle²/(π·(filament/2)²))."""
     ratio0 = 4.0 * 0.4 ** 2 / (math.pi * (1.75 * 0.5) ** 2)
     m = Machine(name="klipper-ref", flavor="klipper", max_velocity=300.0, max_accel=3000.0,
