@@ -3,6 +3,7 @@ gzip, binary and text file objects, iterables of lines; errors name ``<stdin>`` 
 from __future__ import annotations
 
 import gzip
+import zlib
 import io
 import json
 import os
@@ -124,7 +125,7 @@ def test_bytes_read_counts_the_plain_file(cube):
 
 
 def test_corrupt_and_truncated_gzip_are_one_clear_error(tmp_path):
-    data = gzip.compress(CUBE.read_bytes())
+    data = gzip.compress(CUBE.read_bytes(), mtime=0)
     p = tmp_path / "cut.gcode.gz"
     # a flipped byte decodes to garbage lines before the member's CRC fails: whatever byte is hit (gzip's
     # header holds the time, so each run flips other text), the error must be the container's
@@ -135,6 +136,11 @@ def test_corrupt_and_truncated_gzip_are_one_clear_error(tmp_path):
     for k in range(20):
         bad = bytearray(data)
         bad[(len(bad) // 3 + 997 * k) % (len(bad) - 20) + 10] ^= 0xFF
+        try:
+            gzip.decompress(bytes(bad))
+            continue                       # a flip gzip itself cannot see: nothing for us to report
+        except (OSError, EOFError, zlib.error):
+            pass
         p.write_bytes(bytes(bad))
         with pytest.raises(GcodeError, match="corrupt gzip data"):
             read_moves(p, machine())

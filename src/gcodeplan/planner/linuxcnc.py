@@ -263,6 +263,47 @@ def _emit_arc(out, n, moves, r0, r1, term, tol, feed, vmax, amax, amax_tool, cyc
 
 
 @numba.njit(cache=True)
+def _gauss_newton_step(J, res):
+    """(ok, step) solving (JᵀJ)·step = Jᵀ·res by Gaussian elimination with partial pivoting, in loops: numba's
+    matrix product and np.linalg need SciPy's BLAS/LAPACK, which gcodeplan does not depend on."""
+    n = J.shape[1]
+    A = np.zeros((n, n))
+    g = np.zeros(n)
+    for r in range(J.shape[0]):
+        for a in range(n):
+            g[a] += J[r, a] * res[r]
+            for b in range(n):
+                A[a, b] += J[r, a] * J[r, b]
+    step = np.zeros(n)
+    for d in range(n):
+        if not A[d, d] > 0.0:
+            return False, step
+    for col in range(n):
+        piv = col
+        for r in range(col + 1, n):
+            if abs(A[r, col]) > abs(A[piv, col]):
+                piv = r
+        if A[piv, col] == 0.0:
+            return False, step
+        if piv != col:
+            for c in range(n):
+                A[col, c], A[piv, c] = A[piv, c], A[col, c]
+            g[col], g[piv] = g[piv], g[col]
+        for r in range(col + 1, n):
+            f = A[r, col] / A[col, col]
+            if f != 0.0:
+                for c in range(col, n):
+                    A[r, c] -= f * A[col, c]
+                g[r] -= f * g[col]
+    for r in range(n - 1, -1, -1):
+        acc = g[r]
+        for c in range(r + 1, n):
+            acc -= A[r, c] * step[c]
+        step[r] = acc / A[r, r]
+    return True, step
+
+
+@numba.njit(cache=True)
 def _fit_spiral(pts, m, i, j, cx, cy, r0, sweep):
     """Least squares of p_k = c + (r0 + dr·k/m)·(cos, sin)(θ0 + sweep·k/m) over the chord ends (plane axes
     i, j). Returns (cx, cy, r0, dr, θ0, sweep)."""
@@ -292,15 +333,9 @@ def _fit_spiral(pts, m, i, j, cx, cy, r0, sweep):
             J[2 * k + 1, 3] = sa * f
             J[2 * k + 1, 4] = r * ca
             J[2 * k + 1, 5] = r * ca * f
-        A = J.T @ J
-        g = J.T @ res
-        ok = True
-        for d in range(6):
-            if not A[d, d] > 0.0:
-                ok = False
+        ok, step = _gauss_newton_step(J, res)
         if not ok:
             break
-        step = np.linalg.solve(A, g)
         for d in range(6):
             x[d] -= step[d]
         if np.max(np.abs(step)) < 1e-13 * max(1.0, abs(x[2])):
