@@ -118,48 +118,48 @@ class GcodeReader:
         the buffer (or reaches the end), so pipes, gzip and binary G-code give the chunks a file gives."""
         src = self.source
         fh = src.stream
-        with src:
-            store = bytearray(self.chunk_bytes)
-            filled = 0
+        # the source stays open until batches() closes it, after a last check_rest()
+        store = bytearray(self.chunk_bytes)
+        filled = 0
+        start = 0
+        first = True
+        while True:
+            if filled == len(store):
+                bigger = bytearray(2 * len(store))
+                bigger[:filled] = store
+                store = bigger
+            got = 0
+            try:
+                with memoryview(store) as mv:
+                    while filled + got < len(store):
+                        k = fh.readinto(mv[filled + got:])
+                        if not k:
+                            break
+                        got += k
+            except OSError as err:
+                raise GcodeError(f"cannot read: {err.strerror or err}", self.path) from None
+            self.bytes_read = src.bytes_in
+            if first:
+                first = False
+                if store.startswith(_BOM):
+                    start = 3
+                _check_text(self.path, bytes(store[start:min(got, start + 65536)]), src.first_line)
+                if store.startswith((b";LAYER_CHANGE", b";LAYER:", b"; layer "), start) or \
+                        any(store.find(m, start, got) >= 0 for m in _LAYER_MARKS):
+                    self.interp.ist[S.I_LAYER_BY_Z] = 0
+            filled += got
+            if got == 0:
+                if filled > start:
+                    yield store, start, filled
+                return
+            cut = store.rfind(b"\n", start, filled)
+            if cut < 0:
+                continue
+            yield store, start, cut + 1
+            rest = filled - (cut + 1)
+            store[0:rest] = store[cut + 1:filled]
+            filled = rest
             start = 0
-            first = True
-            while True:
-                if filled == len(store):
-                    bigger = bytearray(2 * len(store))
-                    bigger[:filled] = store
-                    store = bigger
-                got = 0
-                try:
-                    with memoryview(store) as mv:
-                        while filled + got < len(store):
-                            k = fh.readinto(mv[filled + got:])
-                            if not k:
-                                break
-                            got += k
-                except OSError as err:
-                    raise GcodeError(f"cannot read: {err.strerror or err}", self.path) from None
-                self.bytes_read = src.bytes_in
-                if first:
-                    first = False
-                    if store.startswith(_BOM):
-                        start = 3
-                    _check_text(self.path, bytes(store[start:min(got, start + 65536)]), src.first_line)
-                    if store.startswith((b";LAYER_CHANGE", b";LAYER:", b"; layer "), start) or \
-                            any(store.find(m, start, got) >= 0 for m in _LAYER_MARKS):
-                        self.interp.ist[S.I_LAYER_BY_Z] = 0
-                filled += got
-                if got == 0:
-                    if filled > start:
-                        yield store, start, filled
-                    return
-                cut = store.rfind(b"\n", start, filled)
-                if cut < 0:
-                    continue
-                yield store, start, cut + 1
-                rest = filled - (cut + 1)
-                store[0:rest] = store[cut + 1:filled]
-                filled = rest
-                start = 0
 
     def batches(self):
         """MOVE arrays in file order, each at most ``batch_moves`` rows."""
@@ -174,6 +174,8 @@ class GcodeReader:
         except GcodeError:
             self.source.check_rest()   # a corrupt gzip member explains a garbage line better than the line does
             raise
+        finally:
+            self.source.close()
         if self._n:
             yield self._finish(self._out, self._n)
         self._complete_summary()

@@ -111,7 +111,10 @@ class _GzipInput(io.RawIOBase):
         """Read the rest of the stream only to check it: a flipped byte inside deflate data decodes to
         garbage text first and fails the CRC check only at the end of the member."""
         buf = bytearray(1 << 16)
-        while self.readinto(buf):
+        try:
+            while self.readinto(buf):
+                pass
+        except (ValueError, OSError):   # closed or unreadable: nothing more to say than the first error
             pass
 
     def read(self, n: int = -1) -> bytes:
@@ -221,6 +224,7 @@ class Source:
         self.first_line = 0
         self.trailing_lines = 0
         self.slicer_estimate_s: float | None = None
+        self.container = None          # the compressed layer under the stream (gzip), if any
         self._closers = list(closers)
 
     @property
@@ -231,7 +235,7 @@ class Source:
     def check_rest(self) -> None:
         """Raise the container's own error (corrupt gzip data) if the rest of the input has one: called when
         a line failed, since corrupt compressed data decodes to garbage lines before its checksum fails."""
-        check = getattr(self.stream, "check_rest", None)
+        check = getattr(self.container, "check_rest", None)
         if check is not None:
             check()
 
@@ -303,7 +307,9 @@ def _binary(raw: _Input, name: str, size: int | None, closers: list) -> Source:
             bg = BgcodeStream(inner, name)
             src = Source(name, bg, raw, size, "bgcode", closers)
             return _with_bgcode(src, bg)
-        stream = inner
+        src = Source(name, inner, raw, size, kind, closers)
+        src.container = stream                # the gzip layer: check_rest() asks it about the rest
+        return src
     elif head[:4] == b"GCDE":
         from .bgcode import BgcodeStream
 
