@@ -436,12 +436,14 @@ def _limit_steps(win: Window, column: str):
 
 
 def plot_axes(win: Window, machine=None, title: str | None = None, size_in=FIGSIZE_IN, dpi: int = DPI) -> Figure:
-    """Per-axis position and velocity against time (and per-stepper for corexy), with limits.
+    """Per-axis position and velocity against time (and per motor for corexy, corexz and other linear
+    machines, asked of the kinematics), with limits.
 
     Velocity limits drawn: the per-axis limit in force (LIMITS axis_v_*, a step line since the
     G-code may change it), the extrude-only limit on E, and, when the machine has a finite
     ``max_step_rate``, the speed at which a stepper reaches it (max_step_rate / steps_per_mm).
-    Corexy steppers: a = x + y, b = x − y (docs/design.md §9). Lines carry gids ``pos_<axis>``/``vel_<axis>``.
+    Motors that combine axes (corexy a = x + y, b = x − y: docs/design.md §9) get rows of their own. Lines carry
+    gids ``pos_<axis or motor>``/``vel_<axis or motor>``.
 
     A delta, or a machine with input shaping, gets one row per motor that moves with X/Y: the position
     and velocity it is driven to (X/Y shaped first, then the kinematics: gids ``motor_<name>``,
@@ -457,14 +459,27 @@ def plot_axes(win: Window, machine=None, title: str | None = None, size_in=FIGSI
     shaped = machine is not None and (getattr(machine, "shaper_freq_x", 0.0) > 0
                                       or getattr(machine, "shaper_freq_y", 0.0) > 0)
     motors = {}
+    motor_labels: dict[str, str] = {}
+    motor_spm: dict[str, float] = {}
     if kin == "delta" or shaped:
         for name, cp, cv, mp, mv in motor_motion(win.segs, machine, s.t):
             motors[name] = (cp, cv, mp, mv)
             pos[name], vel[name] = mp, mv
-    elif kin == "corexy":
-        pos["a"], pos["b"] = pos["x"] + pos["y"], pos["x"] - pos["y"]
-        vel["a"], vel["b"] = vel["x"] + vel["y"], vel["x"] - vel["y"]
-        rows += ["a", "b"]
+    elif machine is not None and kin != "cartesian":
+        # a linear machine's motors (corexy, corexz, ...): asked of the kinematics, each a weighted sum of axes
+        from ..kinematics import rails_for
+
+        for rail in rails_for(machine):
+            w = rail.weights
+            if w is None or sum(1 for x in w if x != 0.0) < 2:
+                continue                   # a motor that is one axis is that axis's own row
+            pos[rail.name] = sum(wi * pos[a] for wi, a in zip(w, AXES) if wi != 0.0)
+            vel[rail.name] = sum(wi * vel[a] for wi, a in zip(w, AXES) if wi != 0.0)
+            terms = " ".join(f"{'+' if wi > 0 else '−'} {'' if abs(wi) == 1 else f'{abs(wi):g}·'}{a}"
+                             for wi, a in zip(w, AXES) if wi != 0.0)
+            motor_labels[rail.name] = f"{rail.name} = {terms.lstrip('+ ')}"
+            motor_spm[rail.name] = rail.steps_per_mm
+            rows.append(rail.name)
     rows += list(motors)
     fig, axs = new_figure(len(rows), 2, size_in, dpi, sharex=True)
     for r, name in enumerate(rows):
@@ -484,7 +499,7 @@ def plot_axes(win: Window, machine=None, title: str | None = None, size_in=FIGSI
                 ax.tick_params(labelsize=8)
             ax_v.legend(loc="upper left", bbox_to_anchor=(1.0, 1.0), fontsize=8)
             continue
-        label = f"{name} = x{'+' if name == 'a' else '−'}y" if name in ("a", "b") else name
+        label = motor_labels.get(name, name)
         plot_series(ax_p, s, pos[name], f"pos_{name}", color="tab:blue", lw=1.0)
         plot_series(ax_v, s, vel[name], f"vel_{name}", f"{name} velocity", color="tab:blue", lw=1.0)
         ax_p.set_ylabel(f"{label} (mm)", fontsize=9)
@@ -503,8 +518,7 @@ def plot_axes(win: Window, machine=None, title: str | None = None, size_in=FIGSI
                 ax_v.plot(st[0], st[1], color=color, ls="--", lw=0.9, label=lab, gid=f"limit_{col}")
                 ax_v.plot(st[0], -st[1], color=color, ls="--", lw=0.9, gid=f"limit_{col}_neg")
         if machine is not None and math.isfinite(getattr(machine, "max_step_rate", math.inf)):
-            axis_key = {"a": "x", "b": "y"}.get(name, name)
-            spm = machine.axes[axis_key].steps_per_mm
+            spm = motor_spm[name] if name in motor_spm else machine.axes[name].steps_per_mm
             if spm > 0:
                 vmax = machine.max_step_rate / spm
                 ax_v.axhline(vmax, color="tab:purple", ls=":", lw=0.9, label="step-rate limit", gid=f"steprate_{name}")
@@ -513,7 +527,8 @@ def plot_axes(win: Window, machine=None, title: str | None = None, size_in=FIGSI
             ax_v.legend(loc="upper left", bbox_to_anchor=(1.0, 1.0), fontsize=8)
     axs[-1, 0].set_xlabel("time (s)")
     axs[-1, 1].set_xlabel("time (s)")
-    axs[0, 0].set_title("position" + (" (steppers a, b: corexy motors)" if kin == "corexy" else ""), fontsize=10)
+    axs[0, 0].set_title("position" + (f" (motors {', '.join(motor_labels)}: {kin})" if motor_labels else ""),
+                        fontsize=10)
     axs[0, 1].set_title("velocity", fontsize=10)
     axs[0, 0].set_xlim(s.t[0], s.t[-1])
     fig.suptitle(title or _window_title(win, f"axes ({kin})"))
