@@ -137,7 +137,8 @@ class TimeSummary:
         fil = moves["e1"][pr] - moves["e0"][pr]
         duration = plan["duration"][pr]
         # filament speed at the move's cruise speed: E moves in proportion to the path (mm/s of filament)
-        peak = plan["cruise_v"][pr] * fil / moves["move_d"][pr]
+        move_d = moves["move_d"][pr]
+        peak = np.divide(plan["cruise_v"][pr] * fil, move_d, out=np.zeros(len(fil)), where=move_d > 0.0)
         for slot, fil_acc, t_acc, pk_acc in (
                 (np.maximum(moves["feature"][pr], -1).astype(np.intp) + 1, "fil_feature", "ptime_feature",
                  "peak_feature"),
