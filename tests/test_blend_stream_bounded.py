@@ -12,6 +12,8 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from gcodeplan import pipeline
+
 from conftest import klipper_machine, moves_from_points, shared_path
 from gcodeplan.planner import StreamPlanner, plan_with_segments
 from gcodeplan.planner import blend as B
@@ -145,23 +147,16 @@ def test_window_start_continues_the_blend_across_emissions():
 
 @pytest.mark.slow
 def test_vase_spiral_streams_bit_identically_in_a_small_window():
-    from gcodeplan.gcode import GcodeReader
-
     path = shared_path("gcode", "prusaslicer25_twisted_vase_spiral.gcode")
     m = blend_machine()
-    reader = GcodeReader(str(path), m, batch_moves=997)
-    sp = StreamPlanner(m, policy="blend")
-    batches, plans, segs, first, window = [], [], [], 0, 0
-    for b in reader.batches():
-        batches.append(b)
-        for mv, pl in sp.feed(b, reader.limits):
-            plans.append(pl)
-            segs.append(sp.segments_for(mv, pl, first))
-            first += len(mv)
-        window = max(window, sp.pending)
-    for mv, pl in sp.finish():
-        plans.append(pl)
-        segs.append(sp.segments_for(mv, pl, first))
+    run = pipeline.Run(str(path), m, policy="blend", batch_moves=997)
+    batches, plans, segs, window = [], [], [], 0
+    for piece in run:                  # the library's own driver: reader -> streaming planner
+        batches.append(piece.moves)
+        plans.append(piece.plan)
+        segs.append(piece.segments)
+        window = max(window, run.planner.pending)
+    reader = run.reader
     moves = np.concatenate(batches)
     want, want_segs = plan_with_segments(moves, reader.limits, m, "blend")
     same(np.concatenate(plans), want, "plan")
