@@ -5,6 +5,12 @@
     python tools/fuzz.py --seed 7 --seconds 60              # as many as fit in a minute
     python tools/fuzz.py --seed 7 --replay 1234             # run case 1234 of seed 7 again, verbosely
     python tools/fuzz.py --file fuzz_failures/7-1234.gcode  # run a written (minimised) case again
+    python tools/fuzz.py --seed 3 --cases 20000 --differential   # interpreted kernels == compiled ones
+
+``--differential`` checks the interpreted path of ``gcodeplan/_jit.py`` instead: every case is planned by
+compiled kernels here and by the kernels' Python source in a worker process that has never imported numba
+(restarted whenever a fallback imported it), and the MOVE, PLAN and SEGMENT rows, the per-line times and
+any error must be identical, field by field and bit for bit.
 
 Each case takes a window of consecutive lines from a real G-code file (``gcode_samples/`` and, when it is
 there, ``../shared/gcode/``), mutates some of them (digits, signs, exponents, absurd numbers, comments,
@@ -473,6 +479,106 @@ def run_case(case: Case, lines: list[bytes] | None = None, max_steps: int = 2_00
     return None
 
 
+# --------------------------------------------------------------------------- interpreted == compiled
+def plan_digest(case: Case) -> str:
+    """sha256 of what planning ``case`` gives: every field of the MOVE, PLAN and SEGMENT rows and the per-line
+    end times as bytes, or the GcodeplanError's text (padding bytes of the aligned dtypes are left out)."""
+    import hashlib
+
+    from gcodeplan.errors import GcodeplanError
+    from gcodeplan.pipeline import Collect, LineTimes, run
+
+    _small_reads()
+    h = hashlib.sha256()
+    try:
+        collect, times = Collect(segments=True), LineTimes()
+        run([ln + b"\n" for ln in case.lines], _machine(case), policy=case.policy, jerk=case.jerk,
+            sinks=[collect, times], batch_moves=512)
+        for arr in (*collect.arrays(), *times.arrays()):
+            names = arr.dtype.names or (None,)
+            for name in names:
+                col = arr if name is None else arr[name]
+                h.update(np.ascontiguousarray(col).tobytes())
+    except GcodeplanError as err:
+        h.update(b"error: " + str(err).encode())
+    return h.hexdigest()
+
+
+def interpreted_worker(seed: int) -> int:
+    """Read case numbers on stdin; answer ``<case> <digest> <numba imported 0/1>`` per line, planning each
+    case with the kernels interpreted (exits after a case that imported numba: the parent restarts it)."""
+    from gcodeplan import _jit
+
+    pool, cfgs = load_pool(seed), klipper_configs()
+    for line in sys.stdin:
+        i = int(line)
+        case = make_case(seed, i, pool, cfgs)
+        _jit._interpreted_s = 0.0           # each case gets the budget a fresh process would have
+        with _jit.interpreted():
+            try:
+                digest = plan_digest(case)
+            except Exception as err:  # noqa: BLE001 - reported as its own digest, the parent shows it
+                digest = f"exception:{type(err).__name__}"
+        sys.stdout.write(f"{i} {digest} {int(_jit.active())}\n")
+        sys.stdout.flush()
+        if _jit.active():
+            return 0
+    return 0
+
+
+def differential(seed: int, cases: int | None, seconds: float | None, start: int = 0, log=print) -> Stats:
+    """Cases ``start``… planned compiled here and interpreted in a worker; a differing digest is a failure
+    (``Stats.signatures``: 'interpreted != compiled' → first case). ``Stats.rejected`` counts the cases whose
+    interpreted run fell back to numba (they are compared all the same)."""
+    import subprocess
+
+    from gcodeplan import _jit
+
+    _jit.activate()
+    pool, cfgs = load_pool(seed), klipper_configs()
+    cmd = [sys.executable, str(Path(__file__).resolve()), "--seed", str(seed), "--interpreted-worker"]
+    worker = None
+    st = Stats()
+    t0 = time.monotonic()
+    i = start
+    try:
+        while (cases is None or st.cases < cases) and (seconds is None or time.monotonic() - t0 < seconds):
+            if worker is None:
+                worker = subprocess.Popen(cmd, stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+            worker.stdin.write(f"{i}\n")
+            worker.stdin.flush()
+            c0 = time.monotonic()
+            try:
+                compiled = plan_digest(make_case(seed, i, pool, cfgs))
+            except Exception as err:  # noqa: BLE001
+                compiled = f"exception:{type(err).__name__}"
+            answer = worker.stdout.readline().split()
+            if len(answer) != 3:
+                raise SystemExit(f"fuzz: the interpreted worker died at case {i}")
+            dt = time.monotonic() - c0
+            if dt > st.slowest[0]:
+                st.slowest = (dt, i)
+            st.cases += 1
+            if answer[2] == "1":
+                st.rejected += 1
+                worker.stdin.close()
+                worker.wait()
+                worker = None
+            if answer[1] != compiled:
+                st.failures += 1
+                sig = "interpreted != compiled"
+                st.counts[sig] = st.counts.get(sig, 0) + 1
+                st.signatures.setdefault(sig, (i, f"--seed {seed} --replay {i}"))
+                log(f"case {i}: interpreted {answer[1][:16]} != compiled {compiled[:16]}")
+            i += 1
+    finally:
+        if worker is not None:
+            worker.stdin.close()
+            worker.wait()
+    st.seconds = time.monotonic() - t0
+    return st
+
+
 # --------------------------------------------------------------------------- minimising
 def minimise(case: Case, signature: str, max_steps: int, budget_s: float = 60.0) -> list[bytes]:
     """Delta debugging (Zeller's ddmin) over the lines: a smallest-found subset with the same failure."""
@@ -597,7 +703,19 @@ def main(argv=None) -> int:
     ap.add_argument("--max-steps", type=int, default=2_000_000, help="skip stepping a case beyond this many steps")
     ap.add_argument("--replay", type=int, default=None, help="run this one case and print it")
     ap.add_argument("--file", type=Path, default=None, help="run a case written to --out again (minimised or edited)")
+    ap.add_argument("--differential", action="store_true",
+                    help="compare interpreted kernels with compiled ones instead (gcodeplan/_jit.py)")
+    ap.add_argument("--interpreted-worker", action="store_true", help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
+    if args.interpreted_worker:
+        return interpreted_worker(args.seed)
+    if args.differential:
+        if args.cases is None and args.seconds is None:
+            args.cases = 1000
+        st = differential(args.seed, args.cases, args.seconds, args.start)
+        print(f"seed {args.seed}, cases {args.start}..{args.start + st.cases - 1}: {st.cases} cases in "
+              f"{st.seconds:.0f} s, {st.rejected} fell back to numba in the interpreted run, {st.failures} differ")
+        return 1 if st.failures else 0
     if args.file is not None:
         case = read_case(args.file)
         res = run_case(case, max_steps=args.max_steps)

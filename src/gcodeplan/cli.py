@@ -52,25 +52,6 @@ def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
     return parser
 
 
-def _skip_blas_probe() -> None:
-    """Load numba's array maths with scipy.linalg hidden, so numba does not import SciPy to probe BLAS.
-
-    When SciPy is installed that probe costs 0.2–0.3 s of start-up, as much as planning a 50 MB
-    file. No gcodeplan kernel uses BLAS (np.dot/linalg inside njit code); in this process numba
-    then reports BLAS as unavailable. SciPy itself still imports normally afterwards.
-    """
-    if "scipy.linalg" in sys.modules or "numba.np.arraymath" in sys.modules:
-        return
-    sys.modules["scipy.linalg"] = None  # type: ignore[assignment]  # makes "import scipy.linalg" fail
-    try:
-        import numba.np.arraymath  # noqa: F401
-    except ImportError:
-        pass
-    finally:
-        if sys.modules.get("scipy.linalg", 0) is None:
-            del sys.modules["scipy.linalg"]
-
-
 def main(argv: list[str] | None = None) -> int:
     """Run one command; returns the exit status. SIGINT, SIGTERM and SIGHUP clean up (no temporary file
     stays) and give 128 + the signal number (gcodeplan/signals.py)."""
@@ -97,7 +78,9 @@ def _main(argv: list[str] | None = None) -> int:
         parser.print_help(sys.stderr)
         return 2
     if __name__ == "__main__" or _is_console_script():
-        _skip_blas_probe()
+        from . import _jit
+
+        _jit.command_process = True     # process-wide start-up shortcuts (gcodeplan/_jit.py)
     try:
         rc = int(args._run(args) or 0)
         # The process ends next: skip the collector's last traversal of millions of objects at exit.

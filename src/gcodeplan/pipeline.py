@@ -25,7 +25,49 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from . import _jit
 from .errors import located
+
+
+def small_input(source) -> bool:
+    """True when ``source`` is a plain-text file or a list of lines of at most ``_jit.SMALL_INPUT_BYTES``:
+    the run then executes its kernels as Python instead of paying numba's start-up (gcodeplan/_jit.py;
+    identical results). Compressed, binary, streamed and unknown-size sources are never small."""
+    import os
+
+    if isinstance(source, (list, tuple)):
+        total = 0
+        for line in source:
+            if not isinstance(line, (str, bytes)):
+                return False
+            total += len(line)
+            if total > _jit.SMALL_INPUT_BYTES:
+                return False
+        return True
+    if not isinstance(source, (str, os.PathLike)) or str(source) == "-":
+        return False
+    try:
+        if os.stat(source).st_size > _jit.SMALL_INPUT_BYTES:
+            return False
+        with open(source, "rb") as f:
+            head = f.read(4)
+    except (OSError, ValueError):
+        return False
+    return head[:2] != b"\x1f\x8b" and head != b"GCDE"     # gzip and binary G-code decode to more
+
+
+def open_reader(source, machine, *, strict: bool = False, batch_moves: int = 8192):
+    """(GcodeReader over ``source``, small): ``small`` when :func:`small_input` says the kernels should run as
+    Python (wrap the reading in ``gcodeplan._jit.interpreted(small)``); the reader then reads in short pieces,
+    since an interpreted kernel copies its arrays."""
+    from .gcode import GcodeReader
+
+    small = small_input(source)
+    extra = {}
+    if small:
+        batch_moves = min(batch_moves, 512)
+        extra["chunk_bytes"] = 2 * _jit.SMALL_INPUT_BYTES
+    return GcodeReader(source, machine, strict=strict, batch_moves=batch_moves, **extra), small
 
 
 class Piece:
@@ -71,7 +113,12 @@ class Sink:
 
     ``add`` may return True to say it needs nothing more: when every sink has said so, reading stops
     early (a plot of the first layers does not plan the rest of a 50 MB file).
+
+    ``interpretable``: False for a sink whose kernels do work per step or per sample rather than per move;
+    a run with such a sink never runs its kernels as Python, however small the input (gcodeplan/_jit.py).
     """
+
+    interpretable = True
 
     def add(self, piece: Piece) -> bool | None:  # pragma: no cover - interface
         raise NotImplementedError
@@ -112,12 +159,11 @@ class Run:
     def __init__(self, source, machine, *, policy: str | None = None, jerk: float | None = None,
                  strict: bool = False, progress: Callable[[int], None] | None = None, batch_moves: int = 8192,
                  exclude_objects: Sequence[str] = ()):
-        from .gcode import GcodeReader
         from .planner import StreamPlanner
 
         self.machine = machine
         self.policy = policy or machine.junction_policy
-        self.reader = GcodeReader(source, machine, strict=strict, batch_moves=batch_moves)
+        self.reader, self.small = open_reader(source, machine, strict=strict, batch_moves=batch_moves)
         if exclude_objects:   # objects cancelled as Klipper's exclude_object runs them (gcode/objects.py)
             self.reader.interp.exclude_objects(exclude_objects)
         self.planner = StreamPlanner(machine, policy=self.policy, jerk=jerk)
@@ -134,7 +180,7 @@ class Run:
 
     def __iter__(self):
         reader, planner = self.reader, self.planner
-        with located(reader.path):
+        with located(reader.path), _jit.interpreted(self.small):
             for moves in reader.batches():
                 yield from self._pieces(planner.feed(moves, reader.limits))
                 if self.progress is not None:
@@ -164,20 +210,22 @@ def run(source, machine, *, policy: str | None = None, jerk: float | None = None
     done = [False] * len(sinks)
     drive = Run(source, machine, policy=policy, jerk=jerk, strict=strict, progress=progress,
                 batch_moves=batch_moves, exclude_objects=exclude_objects)
+    drive.small = drive.small and all(getattr(s, "interpretable", True) for s in sinks)
     pieces = iter(drive)
-    try:
-        with located(drive.reader.path):     # a sink's error (e.g. an absurd total) names the file too
-            for piece in pieces:
-                for k, sink in enumerate(sinks):
-                    if not done[k] and sink.add(piece):
-                        done[k] = True
-                if sinks and all(done):
-                    break
-    finally:
-        pieces.close()
-    result = drive.result
-    for sink in sinks:
-        sink.close(result)
+    with _jit.interpreted(drive.small):
+        try:
+            with located(drive.reader.path):     # a sink's error (e.g. an absurd total) names the file too
+                for piece in pieces:
+                    for k, sink in enumerate(sinks):
+                        if not done[k] and sink.add(piece):
+                            done[k] = True
+                    if sinks and all(done):
+                        break
+        finally:
+            pieces.close()
+        result = drive.result
+        for sink in sinks:
+            sink.close(result)
     return result
 
 
@@ -240,4 +288,5 @@ class LineTimes(Sink):
         return line[last], end[last]
 
 
-__all__ = ["run", "Run", "Sink", "Piece", "RunResult", "FunctionSink", "Collect", "LineTimes"]
+__all__ = ["run", "Run", "Sink", "Piece", "RunResult", "FunctionSink", "Collect", "LineTimes", "open_reader",
+           "small_input"]

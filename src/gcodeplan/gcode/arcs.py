@@ -30,7 +30,7 @@ from __future__ import annotations
 
 import math
 
-import numba
+from .._jit import njit
 import numpy as np
 
 __all__ = [
@@ -99,7 +99,7 @@ SAME_POINT_REL = 1e-9
 TWO_PI = 2.0 * math.pi
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _plane_axes(plane: int) -> tuple[int, int, int]:
     """Axis indices (first, second, helical) of an arc plane code 0/1/2 (G17/G18/G19)."""
     if plane == 0:
@@ -109,7 +109,7 @@ def _plane_axes(plane: int) -> tuple[int, int, int]:
     return 1, 2, 0
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _pick(x: float, y: float, z: float, axis: int) -> float:
     if axis == 0:
         return x
@@ -118,14 +118,14 @@ def _pick(x: float, y: float, z: float, axis: int) -> float:
     return z
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def linuxcnc_end_tolerance(r_start: float, r_end: float, abs_tolerance: float) -> float:
     """Allowed |r_end − r_start| (mm), LinuxCNC 2.8: min(100·abs, max(abs, 0.001·max(r_start, r_end)))."""
     rel = END_RELATIVE_TOLERANCE * max(r_start, r_end)
     return min(END_TOLERANCE_CAP_FACTOR * abs_tolerance, max(abs_tolerance, rel))
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _arc_geometry(x0, y0, z0, x1, y1, z1, off_i, off_j, off_k, radius, use_r, plane, clockwise, turns,
                   tolerance, resolution, end_tolerance):
     """Centre, radii and swept angle of an arc.
@@ -217,14 +217,14 @@ def _arc_geometry(x0, y0, z0, x1, y1, z1, off_i, off_j, off_k, radius, use_r, pl
     return 0, centre_a, centre_b, r_start, r_end, angle_start, sweep, aux
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _sagitta(radius: float, sweep_abs: float, n: float) -> float:
     """Sagitta (mm) of one of n equal chords of an arc: r·(1 − cos(φ/2)) = 2r·sin²(φ/4), φ = sweep/n."""
     s = math.sin(sweep_abs / (4.0 * n))
     return 2.0 * radius * s * s
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _segment_count_float(r_start, r_end, sweep, helical_travel, tolerance, resolution) -> float:
     """Chord count as a float (may exceed MAX_ARC_SEGMENTS; the caller checks before converting).
 
@@ -254,7 +254,7 @@ def _segment_count_float(r_start, r_end, sweep, helical_travel, tolerance, resol
     return n
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def arc_segment_count_kernel(x0, y0, z0, x1, y1, z1, off_i, off_j, off_k, radius, use_r, plane, clockwise,
                              turns, tolerance, resolution, end_tolerance) -> int:
     """Number of chords (≥ 1) the arc will be cut into, or a negative ERR_* code.
@@ -274,7 +274,7 @@ def arc_segment_count_kernel(x0, y0, z0, x1, y1, z1, off_i, off_j, off_k, radius
     return int(n)
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def arc_chords_kernel(x0, y0, z0, x1, y1, z1, off_i, off_j, off_k, radius, use_r, plane, clockwise, turns,
                       tolerance, resolution, end_tolerance, out) -> int:
     """Write the chord end points of a G2/G3 arc into ``out`` and return their count n ≥ 1.

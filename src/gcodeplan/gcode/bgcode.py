@@ -28,7 +28,7 @@ import struct
 import zlib
 from dataclasses import dataclass, field
 
-import numba
+from .._jit import njit
 import numpy as np
 
 from ..errors import GcodeError
@@ -142,7 +142,7 @@ for _c in b"XYZEFIJRGPWHCA":
 _NL, _SP, _G = 10, 32, 71
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def meatpack_decode(src, out):
     """Decode MeatPack bytes ``src`` (uint8) into ``out`` (uint8, at least ``4·len(src) + 16`` long);
     returns the number of bytes written, or -1 if ``out`` was too small (cannot happen at that size:
@@ -237,7 +237,7 @@ def meatpack_decode(src, out):
     return n
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def drop_empty_lines(buf, n):
     """Compact ``buf[:n]`` in place, dropping the lines that are empty once spaces/tabs and a leading
     ';' are stripped (libbgcode's converter drops them from the G-code it writes), and end the last

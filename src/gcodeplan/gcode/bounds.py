@@ -24,7 +24,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 
-import numba
+from .._jit import njit
 import numpy as np
 
 from ..errors import GcodeError
@@ -68,7 +68,7 @@ def new_accumulator() -> np.ndarray:
     return acc
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _box_add(acc, base, x0, y0, z0, x1, y1, z1):
     acc[base] = min(acc[base], x0, x1)
     acc[base + 1] = min(acc[base + 1], y0, y1)
@@ -78,7 +78,7 @@ def _box_add(acc, base, x0, y0, z0, x1, y1, z1):
     acc[base + 5] = max(acc[base + 5], z0, z1)
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _speed_cap(L, dx, dy, dz, de, move_d, klipper):
     """mm/s: the highest path speed the limits row ``L`` allows for this move (the planner's
     prepare.py rules: toolhead, per axis v ≤ V_i·d/|d_i|, extruder limits for retractions and
@@ -100,7 +100,7 @@ def _speed_cap(L, dx, dy, dz, de, move_d, klipper):
     return cap
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def motion_kernel(moves, lo, hi, lim, klipper, acc):
     """One pass over MOVE rows: (OK, -1, -1), or (OUT_OF_RANGE, row, axis) / (TOO_LONG, row, -1) for
     the first refused row; updates ``acc`` (boxes mm, capped-move count and first line)."""

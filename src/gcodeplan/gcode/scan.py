@@ -15,7 +15,7 @@ line sent through Python gives arrays identical to the kernel's.
 """
 from __future__ import annotations
 
-import numba
+from .._jit import njit
 import numpy as np
 
 from ..schema import KIND_DWELL, KIND_EXTRUDE_ONLY, KIND_PRINT, KIND_TRAVEL, FLAG_RAPID, FLAG_RETRACT
@@ -75,14 +75,14 @@ FEAT_NAME_MAX = 48   # bytes per name; longer names always go through Python
 POW10 = np.array([10.0 ** k for k in range(23)])
 
 
-@numba.njit(cache=True, inline="always")
+@njit(cache=True, inline="always")
 def _is_sep(c):
     # what may follow a number: blank, end of line, comment, or the next word's letter
     return (c == 32 or c == 9 or c == 13 or c == 10 or c == 59
             or (65 <= c <= 90) or (97 <= c <= 122))
 
 
-@numba.njit(cache=True, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def parse_decimal(buf, p, end):
     """Parse ``[+-]digits[.digits]`` at ``buf[p:]``.
 
@@ -125,28 +125,28 @@ def parse_decimal(buf, p, end):
     return True, v, p
 
 
-@numba.njit(cache=True, inline="always")
+@njit(cache=True, inline="always")
 def _lower(c):
     if 65 <= c <= 90:
         return c + 32
     return c
 
 
-@numba.njit(cache=True, inline="always")
+@njit(cache=True, inline="always")
 def _skip_blank(buf, p, end):
     while p < end and (buf[p] == 32 or buf[p] == 9 or buf[p] == 13):
         p += 1
     return p
 
 
-@numba.njit(cache=True, inline="always")
+@njit(cache=True, inline="always")
 def _to_eol(buf, p, end):
     while p < end and buf[p] != 10:
         p += 1
     return p
 
 
-@numba.njit(cache=True, inline="always")
+@njit(cache=True, inline="always")
 def _starts(buf, p, end, pat):
     n = len(pat)
     if p + n > end:
@@ -175,7 +175,7 @@ PAT_OBJECT_STOP = _pat(" stop printing object")
 PAT_MESH = _pat("MESH:")                        # Cura's ;MESH:name / ;MESH:NONMESH
 
 
-@numba.njit(cache=True, inline="always")
+@njit(cache=True, inline="always")
 def _comment_needs_python(buf, p, eol, ist, feat_raw, feat_len, feat_idx):
     """p is just after the ';' of a whole-line comment. True when Python must read it;
     a ``;TYPE:`` line whose name is already in the table is applied here."""
@@ -212,7 +212,7 @@ def _comment_needs_python(buf, p, eol, ist, feat_raw, feat_len, feat_idx):
     return False
 
 
-@numba.njit(cache=True, inline="always")
+@njit(cache=True, inline="always")
 def _write_row(out, n, line, kind, flags, ist, st, x0, y0, z0, e0, x1, y1, z1, e1, move_d, feed_v, accel,
                dwell_t):
     r = out[n]
@@ -240,7 +240,7 @@ def _write_row(out, n, line, kind, flags, ist, st, x0, y0, z0, e0, x1, y1, z1, e
     r.blend_q = st[S_BLEND_Q]
 
 
-@numba.njit(cache=True, inline="always")
+@njit(cache=True, inline="always")
 def move_accel(dialect, has_xyz, de, acc_p, acc_t, acc_r):
     """Acceleration of a move: Marlin's choice (planner.cpp: E-only -> retract accel, XYZ with
     E -> print accel, XYZ alone -> travel accel); the other dialects keep the three equal."""
@@ -254,7 +254,7 @@ def move_accel(dialect, has_xyz, de, acc_p, acc_t, acc_r):
 # _nrt=False: the scanner allocates nothing, and without numba's reference counting the inlined helpers
 # that take arrays cost no atomic incref/decref per word (measured: 66 -> 52 ns per "G1 X Y E" line,
 # 24 -> 2 ns per comment line). error_model="numpy": no zero-division checks in the hot loop.
-@numba.njit(cache=True, error_model="numpy", _nrt=False)
+@njit(cache=True, error_model="numpy", _nrt=False)
 def scan_chunk(buf, pos, end, st, ist, out, n_out, feat_raw, feat_len, feat_idx):
     """Interpret lines of ``buf[pos:end]`` until the chunk ends, the output is full, or a line
     needs Python. Returns ``(status, pos, n_out)``; for ST_PYTHON/ST_FULL ``pos`` is the start
@@ -535,7 +535,7 @@ A_MIN_X, A_MIN_Y, A_MIN_Z, A_MAX_X, A_MAX_Y, A_MAX_Z = 14, 15, 16, 17, 18, 19
 N_ACC = 20
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def summarise_rows(moves, acc, rapid_v):
     """Add a batch of MOVE rows to the running totals in ``acc``.
 
@@ -576,7 +576,7 @@ def summarise_rows(moves, acc, rapid_v):
             acc[A_WAIT_T] += r.dwell_t
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def count_lines(buf, start, end):
     """Lines in buf[start:end] (a last line without a newline counts)."""
     n = 0
@@ -601,23 +601,3 @@ def warm_up() -> None:
                np.zeros(FEAT_MAX, np.int64), np.zeros(FEAT_MAX, np.int64))
     summarise_rows(out, np.zeros(N_ACC), 1.0)
 
-
-def quick_numba_start() -> None:
-    """Load the kernels for a process that runs only the parser (``gcodeplan parse``).
-
-    On its first use numba probes for BLAS by importing scipy.linalg, which costs 0.1–0.3 s of a
-    sub-second run; the parser needs no BLAS. When nothing has imported scipy or numba's array maths
-    yet, the probe is made to fail (scipy.linalg hidden for the duration of the first load), so np.dot inside
-    njit code would then be unavailable *in this process*: call this only from a parse-only command.
-    """
-    import sys
-
-    if "scipy.linalg" in sys.modules or "numba.np.arraymath" in sys.modules:
-        warm_up()
-        return
-    sys.modules["scipy.linalg"] = None  # type: ignore[assignment]  # "import scipy.linalg..." raises ImportError
-    try:
-        warm_up()
-    finally:
-        if "scipy.linalg" in sys.modules and sys.modules["scipy.linalg"] is None:
-            del sys.modules["scipy.linalg"]

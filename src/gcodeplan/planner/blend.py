@@ -55,7 +55,7 @@ from __future__ import annotations
 
 import math
 
-import numba
+from .._jit import njit
 import numpy as np
 
 from ..errors import ConfigError, GcodeError
@@ -81,7 +81,7 @@ SETTLE_RTOL = 1e-12
 
 
 # --------------------------------------------------------------------------- kernels
-@numba.njit(cache=True)
+@njit(cache=True)
 def blend_corners_kernel(move_d, axes_r, xyz, stop_after, max_cruise_v2, path_a, toolhead_a, axis_a, tolerance):
     """Corner constants and corner-speed caps for the n+1 junctions of n moves.
 
@@ -134,7 +134,7 @@ def blend_corners_kernel(move_d, axes_r, xyz, stop_after, max_cruise_v2, path_a,
     return corner_c, max_corner_v2
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def corner_loss(corner_v2, c, move_d, max_cruise_v2, path_a, i_in, i_out):
     """Time lost at a corner taken at v = √corner_v2, against running its neighbours at their speed V (s).
 
@@ -161,7 +161,7 @@ def corner_loss(corner_v2, c, move_d, max_cruise_v2, path_a, i_in, i_out):
     return loss
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def blend_passes_kernel(move_d, accel, corner_c, corner_v2, lo, hi, free_last):
     """Lower the corner speeds² of moves lo … hi−1 (in place) until every straight part can join its two corners.
 
@@ -203,7 +203,7 @@ def blend_passes_kernel(move_d, accel, corner_c, corner_v2, lo, hi, free_last):
     return corner_v2
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def blend_speeds_kernel(move_d, path_a, max_cruise_v2, corner_c, corner_v2, lo, hi, free_last):
     """Passes over moves lo … hi−1, then stop at corners the passes pushed into a losing blend (corner_loss);
     repeat. Corner ``hi`` is checked too when ``free_last`` (move hi must exist then).
@@ -232,7 +232,7 @@ def blend_speeds_kernel(move_d, path_a, max_cruise_v2, corner_c, corner_v2, lo, 
 SETTLED_MARGIN = 1e-9
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def blend_settled_kernel(move_d, path_a, corner_c, corner_v2, end_open):
     """Corners whose speed nothing after them can lower: the blend planner's look-ahead horizon.
 
@@ -290,7 +290,7 @@ def blend_settled_kernel(move_d, path_a, corner_c, corner_v2, end_open):
     return settled
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def blend_runs_kernel(move_d, path_a, max_cruise_v2, corner_c, corner_v2, settled, j_end):
     """:func:`blend_speeds_kernel` on each run of moves between two settled corners before corner ``j_end``
     (stops — the ends, reversals, dwell/wait rows, extrude-only neighbours, exact stops, losing corners — and
@@ -313,7 +313,7 @@ def blend_runs_kernel(move_d, path_a, max_cruise_v2, corner_c, corner_v2, settle
     return corner_v2
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def blend_timing_kernel(move_d, accel, max_cruise_v2, corner_c, corner_v2, dwell_t):
     """Per-move trapezoid on the straight part and the blend half-times around it.
 
@@ -356,7 +356,7 @@ def blend_timing_kernel(move_d, accel, max_cruise_v2, corner_c, corner_v2, dwell
     return out
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _put(rows, k, t0, dt, p, v, a, move, phase, moves_out, phases_out):
     rows[k, 0] = t0
     rows[k, 1] = dt
@@ -368,7 +368,7 @@ def _put(rows, k, t0, dt, p, v, a, move, phase, moves_out, phases_out):
     phases_out[k] = phase
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def blend_segments_kernel(p0, p1, move_d, axes_r, axes_before, accel, corner_c, timing, t_start, row_index,
                           first_move):
     """SEGMENT pieces (as a float table + move and phase columns) for the planned moves.

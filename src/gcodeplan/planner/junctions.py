@@ -11,13 +11,13 @@ from __future__ import annotations
 
 import math
 
-import numba
+from .._jit import njit
 
 # Klipper toolhead.py: the deviation that makes a 90° corner pass at exactly square_corner_velocity.
 SQRT2_MINUS_1 = math.sqrt(2.0) - 1.0
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def klipper_junction_deviation(scv_v: float, max_accel: float) -> float:
     """δ = scv²·(√2 − 1)/max_accel (mm): Klipper's ``_calc_junction_deviation``.
 
@@ -28,7 +28,7 @@ def klipper_junction_deviation(scv_v: float, max_accel: float) -> float:
     return scv_v2 * SQRT2_MINUS_1 / max_accel
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def half_angle_terms(junction_cos_theta: float) -> tuple[float, float]:
     """(sin(θ/2), cos(θ/2)) from cos θ by the half-angle identities, clamped at 0 against rounding."""
     sin_theta_d2 = math.sqrt(max(0.5 * (1.0 - junction_cos_theta), 0.0))
@@ -36,7 +36,7 @@ def half_angle_terms(junction_cos_theta: float) -> tuple[float, float]:
     return sin_theta_d2, cos_theta_d2
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def klipper_centripetal_v2(junction_cos_theta: float,
                            jd: float, accel: float, delta_v2: float,
                            prev_jd: float, prev_accel: float, prev_delta_v2: float) -> float:
@@ -62,7 +62,7 @@ def klipper_centripetal_v2(junction_cos_theta: float,
     return min(move_jd_v2, prev_jd_v2, move_centripetal_v2, prev_centripetal_v2)
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def klipper_extruder_corner_v2(icv_v: float, axes_r_e: float, prev_axes_r_e: float,
                                max_cruise_v2: float) -> float:
     """Klipper extruder.calc_junction: v² ≤ (icv/|r_e − r_e,prev|)², or no cap (max_cruise_v2)
@@ -74,7 +74,7 @@ def klipper_extruder_corner_v2(icv_v: float, axes_r_e: float, prev_axes_r_e: flo
     return max_cruise_v2
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def jd_junction_v2(junction_cos_theta: float, accel: float, junction_dev: float) -> float:
     """grbl / Marlin 2 junction deviation: v² = a·δ·sin(θ/2)/(1 − sin(θ/2)).
 
@@ -91,7 +91,7 @@ def jd_junction_v2(junction_cos_theta: float, accel: float, junction_dev: float)
     return accel * junction_dev * sin_theta_d2 / (1.0 - sin_theta_d2)
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def marlin_small_segment_v2(junction_cos_theta: float, move_d: float, accel: float) -> float:
     """Marlin 2 JD_HANDLE_SMALL_SEGMENTS: for a move shorter than 1 mm turning by less than 45°
     (cos θ < −√½), the moves are taken as chords of an arc: each chord of length d turns the
@@ -108,7 +108,7 @@ def marlin_small_segment_v2(junction_cos_theta: float, move_d: float, accel: flo
     return math.inf
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def marlin_safe_v(nominal_v: float,
                   vel_x: float, vel_y: float, vel_z: float, vel_e: float,
                   jerk_x: float, jerk_y: float, jerk_z: float, jerk_e: float) -> float:
@@ -131,7 +131,7 @@ def marlin_safe_v(nominal_v: float,
     return nominal_v * factor
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _axis_jump(v_exit: float, v_entry: float) -> float:
     """Marlin's per-axis jerk at a junction: the speed change when the axis keeps its direction
     (coasting); on a reversal only the larger of the two magnitudes counts, since the axis passes
@@ -145,7 +145,7 @@ def _axis_jump(v_exit: float, v_entry: float) -> float:
     return max(-v_exit, v_entry)
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def marlin_jerk_junction_v(prev_nominal_v: float, nominal_v: float,
                            prev_ux: float, prev_uy: float, prev_uz: float, prev_ue: float,
                            ux: float, uy: float, uz: float, ue: float,

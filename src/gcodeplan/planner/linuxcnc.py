@@ -34,7 +34,7 @@ from __future__ import annotations
 
 import math
 
-import numba
+from .._jit import njit
 import numpy as np
 
 from ..errors import ConfigError, GcodeError
@@ -76,7 +76,7 @@ def _axis_limits(machine, limits) -> tuple[np.ndarray, np.ndarray]:
 
 
 # --------------------------------------------------------------------------- building segments
-@numba.njit(cache=True)
+@njit(cache=True)
 def _mode(mv):
     if mv.exact_stop == 1:
         return TERM_STOP
@@ -85,7 +85,7 @@ def _mode(mv):
     return TERM_PARABOLIC
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _init_seg(sg, line, row0, row1, term, tol, feed, traverse):
     sg.line = line
     sg.row0 = row0
@@ -114,7 +114,7 @@ def _init_seg(sg, line, row0, row1, term, tol, feed, traverse):
         sg.h[a] = 0.0
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _emit_line(out, n, x0, y0, z0, x1, y1, z1, line, row0, row1, term, tol, feed, traverse, vmax, amax,
                vlimit_tool, amax_tool, cycle):
     """emccanon.cc STRAIGHT_FEED/TRAVERSE + tp.c tpAddLine: one line segment (dropped when zero-length)."""
@@ -148,7 +148,7 @@ def _emit_line(out, n, x0, y0, z0, x1, y1, z1, line, row0, row1, term, tol, feed
     return n + 1
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _emit_arc(out, n, moves, r0, r1, term, tol, feed, vmax, amax, amax_tool, cycle):
     """The chords r0..r1 of one arc as one circular segment; returns (n, ok)."""
     m = r1 - r0 + 1
@@ -262,7 +262,7 @@ def _emit_arc(out, n, moves, r0, r1, term, tol, feed, vmax, amax, amax_tool, cyc
     return n + 1, True
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _gauss_newton_step(J, res):
     """(ok, step) solving (JᵀJ)·step = Jᵀ·res by Gaussian elimination with partial pivoting, in loops: numba's
     matrix product and np.linalg need SciPy's BLAS/LAPACK, which gcodeplan does not depend on."""
@@ -303,7 +303,7 @@ def _gauss_newton_step(J, res):
     return True, step
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _fit_spiral(pts, m, i, j, cx, cy, r0, sweep):
     """Least squares of p_k = c + (r0 + dr·k/m)·(cos, sin)(θ0 + sweep·k/m) over the chord ends (plane axes
     i, j). Returns (cx, cy, r0, dr, θ0, sweep)."""
@@ -343,7 +343,7 @@ def _fit_spiral(pts, m, i, j, cx, cy, r0, sweep):
     return x[0], x[1], x[2], x[3], x[4], x[5]
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _point_dist_to_seg(px, py, pz, bx, by, bz, ex, ey, ez):
     mx, my, mz = ex - bx, ey - by, ez - bz
     mm = mx * mx + my * my + mz * mz
@@ -357,7 +357,7 @@ def _point_dist_to_seg(px, py, pz, bx, by, bz, ex, ey, ez):
     return math.sqrt(dx * dx + dy * dy + dz * dz)
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _naive_arc_points(moves, r0, r1):
     """emccanon.cc ARC_FEED/chord_deviation for the chords r0..r1 of one arc: (ok, deviation of the arc
     from its chord (mm), the arc's middle point). ``ok`` is False unless the arc lies in the XY plane —
@@ -404,7 +404,7 @@ def _naive_arc_points(moves, r0, r1):
     return True, dev, ux + rad * math.cos(mid), uy + rad * math.sin(mid), (sz + ez) / 2.0
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _linkable(pts, nc, bx, by, bz, px, py, pz, q_tol):
     """emccanon.cc linkable: the point P may extend the chain from B when every chained point stays within
     the naive-CAM tolerance of the segment B→P."""
@@ -416,7 +416,7 @@ def _linkable(pts, nc, bx, by, bz, px, py, pz, q_tol):
     return True
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def build_kernel(moves, vmax, amax, vlimit_tool, amax_tool, cycle, out):
     """MOVE rows → input TP segments in ``out``. Returns (n segments, dwell before the first segment).
 
@@ -543,7 +543,7 @@ def build_kernel(moves, vmax, amax, vlimit_tool, amax_tool, cycle, out):
 
 
 # --------------------------------------------------------------------------- results
-@numba.njit(cache=True)
+@njit(cache=True)
 def _segment_times(exec_seg, n_cycles, n_q, cycle):
     """End time of each queue segment: the end of the last cycle it was the executing segment (LinuxCNC's
     per-line rule), made non-decreasing in queue order."""
@@ -558,7 +558,7 @@ def _segment_times(exec_seg, n_cycles, n_q, cycle):
     return end
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _row_times(n_rows, q, n_q, seg_end, lead, move_d, t_start, dur, kind, dwell_t, cycle):
     """Spread each row-bearing segment's interval (from the previous row-bearing segment's end, so that a
     blend arc counts with the line after it) over its MOVE rows by length; other rows take 0 s."""
@@ -596,7 +596,7 @@ def _row_times(n_rows, q, n_q, seg_end, lead, move_d, t_start, dur, kind, dwell_
                 clock += dur[r]
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _pieces_kernel(pos, n_cycles, start_pos, cycle, exec_seg, seg_rows, t0_lead, count_only,
                    o_t0, o_dt, o_p, o_v, o_a, o_move, o_phase):
     """Constant-acceleration pieces through the cycle-end positions: a piece grows while the second
@@ -789,7 +789,7 @@ def plan_rows(run: LinuxcncRun, t_clock: float = 0.0) -> np.ndarray:
     return plan
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _interval_max(speed, k0, k1, default):
     out = default.copy()
     for r in range(k0.shape[0]):

@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import math
 
-import numba
+from .._jit import njit
 import numpy as np
 
 # terminal conditions (LinuxCNC's TC_TERM_COND_*)
@@ -68,7 +68,7 @@ SEG_DTYPE = np.dtype([
 
 
 # --------------------------------------------------------------------------- geometry
-@numba.njit(cache=True)
+@njit(cache=True)
 def seg_point(sg, s, out):
     """Position (mm) at path distance ``s`` along segment row ``sg`` into ``out`` (3)."""
     if sg.kind == SEG_LINE:
@@ -93,7 +93,7 @@ def seg_point(sg, s, out):
         out[a] = sg.c[a] + (sg.rt[a] * cp + sg.rp[a] * sp) * rf + sg.h[a] * frac
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def seg_tangent(sg, at_end, out):
     """Unit tangent at the start (``at_end`` False) or the end of a segment into ``out``."""
     if sg.kind == SEG_LINE or (sg.kind == SEG_BLEND and not at_end and sg.lline > 0.0):
@@ -119,12 +119,12 @@ def seg_tangent(sg, at_end, out):
             out[a] /= n
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _dot(a, b):
     return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def inscribed_limit(nrm, bx, by, bz):
     """blendmath.c calculateInscribedDiameter: the least axis bound on the plane with unit normal ``nrm``."""
     best = math.inf
@@ -141,7 +141,7 @@ def inscribed_limit(nrm, bx, by, bz):
 
 
 # --------------------------------------------------------------------------- per-segment limits
-@numba.njit(cache=True)
+@njit(cache=True)
 def overall_accel(sg):
     """tc.c tcGetOverallMaxAccel: kink reduction, and half for a parabolic blend at either end."""
     a_scale = 1.0 - max(sg.kink_red, sg.kink_red_prev)
@@ -150,7 +150,7 @@ def overall_accel(sg):
     return sg.maxaccel * a_scale
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def tangential_accel(sg):
     """tc.c tcGetTangentialMaxAccel: circles and blend arcs keep part of the acceleration for the normal one."""
     a = overall_accel(sg)
@@ -159,13 +159,13 @@ def tangential_accel(sg):
     return a
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def max_target_vel(sg, vlimit):
     """tp.c tpGetMaxTargetVel at feed override 1: requested, [TRAJ] and segment limits."""
     return min(sg.reqvel, vlimit, sg.maxvel)
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def circle_limits(sg, cycle):
     """blendmath.c pmCircleActualMaxVel: speed within 0.866 of the overall accel as normal acceleration on the
     effective radius (a helix's is (r² + (h/θ)²)/r), and the tangential share that remains."""
@@ -186,7 +186,7 @@ def circle_limits(sg, cycle):
         sg.acc_ratio_tan = math.sqrt(max(0.0, 1.0 - (a_n_vmax / a_max) ** 2))
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def finalize(sg, cycle):
     """tc.c tcFinalizeLength: no faster than one segment per servo cycle; the circle's limits."""
     if sg.finalized != 0:
@@ -196,7 +196,7 @@ def finalize(sg, cycle):
     sg.finalized = 1
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def set_term(q, i_prev, i_cur, term):
     """tc.c tcSetTermCond: the previous segment's end, and whether the next one starts in a parabolic blend."""
     if i_prev >= 0:
@@ -205,14 +205,14 @@ def set_term(q, i_prev, i_cur, term):
         q[i_cur].blend_prev = 1 if term == TERM_PARABOLIC else 0
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def set_kink(q, i_prev, i_cur, kink_vel, reduce):
     q[i_prev].kink_vel = kink_vel
     q[i_prev].kink_red = max(reduce, q[i_prev].kink_red)
     q[i_cur].kink_red_prev = max(reduce, q[i_cur].kink_red_prev)
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def remove_kink(q, i_prev, i_cur):
     q[i_prev].kink_vel = -1.0
     q[i_prev].kink_red = 0.0
@@ -220,12 +220,12 @@ def remove_kink(q, i_prev, i_cur):
 
 
 # --------------------------------------------------------------------------- blend choices
-@numba.njit(cache=True)
+@njit(cache=True)
 def find_vpeak(acc, dist):
     return math.sqrt(max(acc * dist, 0.0))
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def blend_velocity(q, i, j, v_target_this, v_target_next, tan1, tan2):
     """tp.c tpComputeBlendVelocity: parabolic blend speeds of segment i into j, and their net speed."""
     acc_this = tangential_accel(q[i])
@@ -254,7 +254,7 @@ def blend_velocity(q, i, j, v_target_this, v_target_next, tan1, tan2):
     return v_this, v_next, v_net
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def choose_best_blend(q, i_prev, i_cur, perf_arc, vlimit, tan1, tan2):
     """tp.c tpChooseBestBlend: parabolic (at half its net speed), tangent-with-kink or the blend arc,
     whichever is fastest; 0 parabolic, 1 tangent, 2 arc, 3 none."""
@@ -278,7 +278,7 @@ def choose_best_blend(q, i_prev, i_cur, perf_arc, vlimit, tan1, tan2):
     return best
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def setup_tangent(q, i_prev, i_cur, acc_bound, cycle, kink_ratio, opt_depth, tan1, tan2):
     """tp.c tpSetupTangent: -1 no blending at all, 0 joined as tangent, 1 not tangent (blend next)."""
     if opt_depth < 2:
@@ -309,7 +309,7 @@ def setup_tangent(q, i_prev, i_cur, acc_bound, cycle, kink_ratio, opt_depth, tan
     return 1
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def blend_tolerance(q, i_prev, i_cur):
     """tc.c tcFindBlendTolerance: a zero tolerance means a quarter of each segment's nominal length."""
     t1 = q[i_prev].tolerance
@@ -322,7 +322,7 @@ def blend_tolerance(q, i_prev, i_cur):
     return min(min(nominal, q[i_prev].nominal * TOLERANCE_RATIO), q[i_cur].nominal * TOLERANCE_RATIO)
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _coplanar(sg, binormal):
     """blendmath.c pmUnitCartsColinear: the blend's plane is the circle's plane."""
     nrm = np.empty(3)
@@ -335,7 +335,7 @@ def _coplanar(sg, binormal):
     return abs(abs(_dot(nrm, binormal)) / nn - 1.0) < 1e-9
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def trim_end(sg, d):
     """Shorten a segment by ``d`` mm at its end."""
     if sg.kind == SEG_LINE:
@@ -352,7 +352,7 @@ def trim_end(sg, d):
     seg_point(sg, sg.target, sg.p1)
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def trim_start(sg, d):
     """Shorten a segment by ``d`` mm at its start."""
     if sg.kind == SEG_LINE:
@@ -379,7 +379,7 @@ def trim_start(sg, d):
     seg_point(sg, 0.0, sg.p0)
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _circle_point_at(sg, phi, out):
     """posemath pmCirclePoint: the point of circle segment ``sg`` at angle ``phi`` (rad) from its start."""
     frac = phi / sg.angle if sg.angle > 0.0 else 0.0
@@ -390,7 +390,7 @@ def _circle_point_at(sg, phi, out):
         out[a] = sg.c[a] + (sg.rt[a] * cp + sg.rp[a] * sp) * rf + sg.h[a] * frac
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _circle_tangent_at(sg, phi, out):
     """tc.c pmCircleTangentVector: unit tangent of circle segment ``sg`` at angle ``phi``, with the spiral's
     radial and the helix' axial components."""
@@ -414,7 +414,7 @@ def _circle_tangent_at(sg, phi, out):
             out[a] /= n
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _unit_eq(v):
     n = math.sqrt(_dot(v, v))
     if not n > 0.0:
@@ -424,14 +424,14 @@ def _unit_eq(v):
     return True
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _cross(a, b, out):
     out[0] = a[1] * b[2] - a[2] * b[1]
     out[1] = a[2] * b[0] - a[0] * b[2]
     out[2] = a[0] * b[1] - a[1] * b[0]
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _colinear(u, v):
     """blendmath.c pmUnitCartsColinear: unit vectors parallel or anti-parallel within TP_ANGLE_EPSILON."""
     dm = 0.0
@@ -442,13 +442,13 @@ def _colinear(u, v):
     return dm < TP_ANGLE_EPSILON_SQ or dp < TP_ANGLE_EPSILON_SQ
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _circle_normal(sg, out):
     _cross(sg.rt, sg.rp, out)
     return _unit_eq(out)
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _trim_angle(P, arc_center, center):
     """blendmath.c findTrimAngle: the angle at ``center`` between the corner ``P`` and the blend's centre."""
     u = np.empty(3)
@@ -461,7 +461,7 @@ def _trim_angle(P, arc_center, center):
     return math.acos(max(-1.0, min(1.0, _dot(u, w))))
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _line_circle_center(P, c_circ, d_c, R, u, binormal, sgn):
     """blendmath.c blendLineArcPostProcess / blendArcLinePostProcess: the centre of the blend circle of
     radius ``R`` tangent to the line through ``P`` along ``u`` (``sgn`` −1: the line before P, +1: after)
@@ -488,7 +488,7 @@ def _line_circle_center(P, c_circ, d_c, R, u, binormal, sgn):
     return True, d_l, out
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def blend_arc(q, i_prev, i_cur, i_blend, acc_bound, vel_bound, cycle, gap_cycles, vlimit, tan1, tan2):
     """tp.c tpCreateLineLineBlend / tpCreateLineArcBlend / tpCreateArcLineBlend / tpCreateArcArcBlend with
     blendmath.c's geometry: a circular arc tangent to both segments within the tolerance, as fast as the
@@ -815,7 +815,7 @@ def blend_arc(q, i_prev, i_cur, i_blend, acc_bound, vel_bound, cycle, gap_cycles
 
 
 # --------------------------------------------------------------------------- optimisation
-@numba.njit(cache=True)
+@njit(cache=True)
 def optimize(q, n, depth, vlimit, cycle):
     """tp.c tpRunOptimization: backward pass from the newest segment (which may still be cut, so it is
     assumed to stop halfway), through tangent joins only, at most ``depth`` segments or a few peaks."""
@@ -859,7 +859,7 @@ def optimize(q, n, depth, vlimit, cycle):
 
 
 # --------------------------------------------------------------------------- the queue
-@numba.njit(cache=True)
+@njit(cache=True)
 def queue_kernel(segs, n_in, q, acc_bound, vel_bound, vlimit, cycle, kink_ratio, opt_depth, gap_cycles,
                  arc_blend):
     """Add the ``n_in`` input segments of ``segs`` to the queue ``q`` (capacity ≥ 2·n_in) the way
@@ -910,14 +910,14 @@ def queue_kernel(segs, n_in, q, acc_bound, vel_bound, vlimit, cycle, kink_ratio,
 
 
 # --------------------------------------------------------------------------- execution
-@numba.njit(cache=True)
+@njit(cache=True)
 def _real_target(q, i, vlimit):
     if i < 0:
         return 0.0
     return min(q[i].reqvel, max_target_vel(q[i], vlimit))
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _real_final(q, i, nx, vlimit):
     """tp.c tpGetRealFinalVel: zero unless the join is tangent."""
     if q[i].term != TERM_TANGENT:
@@ -926,7 +926,7 @@ def _real_final(q, i, nx, vlimit):
     return min(q[i].finalvel, min(_real_target(q, i, vlimit), v_next))
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def trapezoidal_desired_vel(a_max, dx, v_final, v_cur, cycle_time):
     """blendmath.c findTrapezoidalDesiredVel: the speed from which braking at a_max ends at v_final."""
     dt = max(cycle_time, TP_TIME_EPSILON)
@@ -941,7 +941,7 @@ def trapezoidal_desired_vel(a_max, dx, v_final, v_cur, cycle_time):
     return v
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def end_condition(cycle, dtg, v_cur, v_f, a_max):
     """blendmath.c checkEndCondition: (time to the end, speed there) if the segment ends within reach."""
     big = TP_BIG_NUM * cycle
@@ -970,7 +970,7 @@ def end_condition(cycle, dtg, v_cur, v_f, a_max):
     return dt, v_f
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _update_cycle(q, i, nx, st, flags, vlimit, cycle):
     """tp.c tpUpdateCycle on segment i (``nx`` its successor or -1); returns the distance moved."""
     PROG, VEL, CT, TV, VBS = 0, 1, 2, 3, 4
@@ -1031,14 +1031,14 @@ def _update_cycle(q, i, nx, st, flags, vlimit, cycle):
     return st[i, PROG] - before
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _next_of(q, i, n):
     if i + 1 < n and q[i].sync_after == 0:
         return i + 1
     return -1
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def execute_kernel(q, n, vlimit, cycle, ramp_freq, max_cycles, out_seg, out_pos, out_dist):
     """Run the queue servo cycle by servo cycle. Per cycle k: ``out_seg[k]`` the executing segment,
     ``out_pos[k]`` the commanded position at its end, ``out_dist[k]`` the path distance covered.

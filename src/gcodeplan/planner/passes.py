@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import math
 
-import numba
+from .._jit import njit
 import numpy as np
 
 from ..schema import (KIND_DWELL, KIND_WAIT, LIMIT_ACCEL, LIMIT_JUNCTION, LIMIT_MCR, LIMIT_NONE,
@@ -23,7 +23,7 @@ from ..schema import (KIND_DWELL, KIND_WAIT, LIMIT_ACCEL, LIMIT_JUNCTION, LIMIT_
 from .prepare import POLICY_KLIPPER
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def set_junction(start_v2: float, cruise_v2: float, end_v2: float, accel: float,
                  move_d: float) -> tuple[float, float, float]:
     """Phase times (accel_t, cruise_t, decel_t) of a trapezoid, Klipper's Move.set_junction.
@@ -47,7 +47,7 @@ def set_junction(start_v2: float, cruise_v2: float, end_v2: float, accel: float,
     return accel_t, cruise_t, decel_t
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def klipper_flush(prep, rows, lo, hi, lazy, out_start_v2, out_cruise_v2, out_end_v2, out_limit):
     """Klipper LookAheadQueue.flush over the moves ``prep[rows[lo:hi]]``, stopping after the last.
 
@@ -117,7 +117,7 @@ def klipper_flush(prep, rows, lo, hi, lazy, out_start_v2, out_cruise_v2, out_end
     return flush_end
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def standard_flush(prep, rows, lo, hi, lazy, out_start_v2, out_cruise_v2, out_end_v2, out_limit):
     """Plain look-ahead over the moves ``prep[rows[lo:hi]]``: backward pass
     start_v2[i] = min(max_start_v2[i], start_v2[i+1] + Δv²[i]), cruise at the trapezoid peak
@@ -156,7 +156,7 @@ def standard_flush(prep, rows, lo, hi, lazy, out_start_v2, out_cruise_v2, out_en
     return flush_end
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def plan_runs(policy, prep, rows, lo, hi, out_start_v2, out_cruise_v2, out_end_v2, out_limit):
     """Full flushes over the runs of moves rows[lo:hi] between full stops (``stop_before``);
     a run also starts at lo."""
@@ -172,7 +172,7 @@ def plan_runs(policy, prep, rows, lo, hi, out_start_v2, out_cruise_v2, out_end_v
         start = end
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def lay_out(kind, dwell_t, prep, n_rows, start_v2, cruise_v2, end_v2, limit, t_clock, plan):
     """Phase times and the clock for rows [0, n_rows): moves back to back from ``t_clock`` (Klipper
     adds the phase times one by one: t += accel_t; t += cruise_t; t += decel_t), dwell/wait rows add
@@ -203,7 +203,7 @@ def lay_out(kind, dwell_t, prep, n_rows, start_v2, cruise_v2, end_v2, limit, t_c
     return t_clock
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def fill_idle_row(out, kind, dwell_t) -> float:
     """A PLAN row that is not a move (dwell, wait, or a dropped zero-length row): no motion; returns the
     time it takes (dwell_t for dwell/wait rows, else 0)."""

@@ -10,7 +10,7 @@ then applies what every policy shares: both moves' cruise caps and the forward r
     import numba, gcodeplan as gp
     from gcodeplan.planner.policies import U_X, U_Y, U_Z, ACCEL, KINEMATIC
 
-    @numba.njit
+    @njit
     def stop_on_sharp_corners(prev, cur, lim):
         cos_turn = prev[U_X] * cur[U_X] + prev[U_Y] * cur[U_Y] + prev[U_Z] * cur[U_Z]
         if prev[KINEMATIC] == 0.0 or cur[KINEMATIC] == 0.0 or cos_turn < 0.5:
@@ -29,7 +29,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-import numba
+from .. import _jit
+from .._jit import njit
 import numpy as np
 
 from ..errors import ConfigError
@@ -56,7 +57,7 @@ _L_JERK0 = LIMIT_INDEX["jerk_x"]
 
 
 # ---------------------------------------------------------------- the built-in rules as cap functions
-@numba.njit(cache=True)
+@njit(cache=True)
 def klipper_cap_v2(prev, cur, lim):
     """Klipper's toolhead.Move.calc_junction (without the shared caps): extruder corner speed, the
     junction-deviation circle of each move and the centripetal half-move rule (docs/design.md)."""
@@ -69,7 +70,7 @@ def klipper_cap_v2(prev, cur, lim):
                                           prev[JUNCTION_DEV], prev[ACCEL], prev[DELTA_V2]))
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def junction_deviation_cap_v2(prev, cur, lim):
     """grbl / Marlin 2 junction deviation with Marlin's small-segment rule (docs/design.md)."""
     if prev[KINEMATIC] == 0.0 or cur[KINEMATIC] == 0.0:
@@ -79,7 +80,7 @@ def junction_deviation_cap_v2(prev, cur, lim):
     return min(v2, marlin_small_segment_v2(cos_theta, cur[MOVE_D], cur[ACCEL]))
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def classic_jerk_cap_v2(prev, cur, lim):
     """Marlin's classic jerk: per-axis speed jumps (E included), also next to extrude-only moves."""
     jv = marlin_jerk_junction_v(math.sqrt(prev[MAX_CRUISE_V2]), math.sqrt(cur[MAX_CRUISE_V2]),
@@ -90,7 +91,7 @@ def classic_jerk_cap_v2(prev, cur, lim):
     return jv * jv
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def exact_stop_cap_v2(prev, cur, lim):
     """G61 / G61.1: every corner at rest."""
     return 0.0
@@ -153,7 +154,8 @@ def register_policy(name: str, cap_v2, *, moves_like: str = "junction-deviation"
                           f"got {moves_like!r}")
     if not callable(cap_v2):
         raise ConfigError("register_policy: cap_v2 must be a function (prev, cur, lim) -> v² (mm²/s²)")
-    if not isinstance(cap_v2, numba.core.registry.CPUDispatcher):
+    numba = _jit.numba_module()             # a plug-in is numba code: compile it now
+    if not _jit.is_kernel(cap_v2):
         cap_v2 = numba.njit(cap_v2)
     pol = Policy(name, cap_v2, moves_like, None)
     _REGISTRY[name] = pol
@@ -186,7 +188,7 @@ def is_known(name: str) -> bool:
 
 
 # ---------------------------------------------------------------- the generic junction pass
-@numba.njit(cache=False)
+@njit(cache=False)
 def _move_vector(pr, out):
     out[U_X] = pr.axes_r_x
     out[U_Y] = pr.axes_r_y
@@ -201,7 +203,7 @@ def _move_vector(pr, out):
     out[KINEMATIC] = 1.0 if pr.kinematic else 0.0
 
 
-@numba.njit(cache=False)
+@njit(cache=False)
 def cap_junction_kernel(moves, lim, cap_v2, stop_every, i_start, prev, stop_pending, prep):
     """The junction pass of :mod:`gcodeplan.planner.prepare` with the cap taken from ``cap_v2``.
 

@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import math
 
-import numba
+from .._jit import njit
 import numpy as np
 
 from ..errors import ConfigError, GcodeError
@@ -98,7 +98,7 @@ def custom_cap(policy: str):
 
 
 # --------------------------------------------------------------------------- per-move kernel
-@numba.njit(cache=True)
+@njit(cache=True)
 def _limit_speed(speed_v: float, accel: float, code: int, move_d: float,
                  max_cruise_v2: float, cur_accel: float, mcr_delta_v2: float, limit: int):
     """Klipper Move.limit_speed: v² cap (strictly lower wins), accel = min, Δv² recomputed,
@@ -113,7 +113,7 @@ def _limit_speed(speed_v: float, accel: float, code: int, move_d: float,
     return max_cruise_v2, cur_accel, delta_v2, mcr_delta_v2, limit
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _move_limits_kernel(moves, lim, policy, prep):
     """Per-move limits (Klipper Move.__init__, kinematics and extruder check_move) into ``prep``.
     Returns (error code, row) of the first row the planner cannot use, (ERR_NONE, -1) if none."""
@@ -252,7 +252,7 @@ def _move_limits_kernel(moves, lim, policy, prep):
 
 
 # --------------------------------------------------------------------------- junction kernel
-@numba.njit(cache=True)
+@njit(cache=True)
 def _junction_kernel(moves, lim, policy, i_start, prev, stop_pending, prep):
     """Sequential junction caps for rows i_start.. of ``prep``; ``prev`` = row of the previous
     move (-1: none), ``stop_pending`` = a full stop happened since it. Returns (prev, stop_pending)."""

@@ -6,7 +6,7 @@ that is not followed by another (the end, or a gap) it rests where that piece en
 """
 from __future__ import annotations
 
-import numba
+from .._jit import njit
 import numpy as np
 
 from ..profiles.core import piece_acceleration, piece_position, piece_velocity
@@ -15,7 +15,7 @@ from ..profiles.core import piece_acceleration, piece_position, piece_velocity
 _END_SLACK_T = 1e-9
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _sample_kernel(t0, dt, p, v, a, j, times, o_pos, o_vel, o_acc, o_jerk):
     n = t0.shape[0]
     k = 0

@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import math
 
-import numba
+from .._jit import njit
 import numpy as np
 
 from ..errors import ConfigError
@@ -40,7 +40,7 @@ from .passes import fill_idle_row
 from .segments import segments_from_table
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def least_reach_start_v(move_d: float, accel: float, jerk: float) -> float:
     """mm/s, the end speed x* at which the backward reach R(x) of a move (the highest start speed that
     can brake to x over move_d) is least.
@@ -59,7 +59,7 @@ def least_reach_start_v(move_d: float, accel: float, jerk: float) -> float:
     return 0.5 * c
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def longest_brake_end_v(v_max: float, accel: float, jerk: float) -> float:
     """mm/s, the end speed x in [0, V] whose ramp down from V is the longest in distance.
 
@@ -79,7 +79,7 @@ def longest_brake_end_v(v_max: float, accel: float, jerk: float) -> float:
 SETTLED_RTOL = 1e-9
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def scurve_window_speeds_kernel(move_d, max_cruise_v, accel, jerk, start_cap_v, start_v, lazy):
     """Junction speeds of a window of n moves whose first start speed ``start_v`` is final.
 
@@ -140,7 +140,7 @@ def scurve_window_speeds_kernel(move_d, max_cruise_v, accel, jerk, start_cap_v, 
     return k, v[:k + 1].copy()
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def scurve_phases_all_kernel(move_d, max_cruise_v, accel, jerk, speeds):
     """(n, 7) phase durations and (n,) peak speeds; NaN rows where a profile does not exist."""
     n = move_d.shape[0]
@@ -154,7 +154,7 @@ def scurve_phases_all_kernel(move_d, max_cruise_v, accel, jerk, speeds):
     return durations, peak_v
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def scurve_segments_kernel(p0, axes_r, durations, start_v, jerk, t_start, is_motion, dwell_t, row_index,
                            first_move):
     """Cubic pieces (table t0, dt, p(4), v(4), a(4), j(4)) + move and phase columns.
@@ -216,7 +216,7 @@ def scurve_segments_kernel(p0, axes_r, durations, start_v, jerk, t_start, is_mot
     return rows, moves_out, phases_out
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def scurve_layout_kernel(kind, dwell_t, prep, speeds, durations, peak_v, jerk, t_clock, plan):
     """PLAN rows for every row of ``prep`` (speeds and phase times in compact order: k-th real move), moves
     back to back from ``t_clock``; dwell/wait rows add dwell_t, dropped rows take no time. Returns the clock

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import math
 
-import numba
+from .._jit import njit
 import numpy as np
 
 from ..schema import KIND_DWELL, KIND_WAIT, PHASE_ACCEL, PHASE_CRUISE, PHASE_DECEL, PHASE_DWELL, SEGMENT_DTYPE
@@ -18,7 +18,7 @@ from ..schema import KIND_DWELL, KIND_WAIT, PHASE_ACCEL, PHASE_CRUISE, PHASE_DEC
 _MIN_MOVE_D = 1e-9  # Klipper: below this XYZ length the move is extrude-only
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _segments_kernel(kind, start, end, t_start, start_v, cruise_v, accel, decel, accel_t, cruise_t, decel_t,
                      duration, first_index, count_only, o_t0, o_dt, o_p, o_v, o_a, o_move, o_phase):
     n = kind.shape[0]

@@ -11,7 +11,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
-import numba
+from .._jit import njit
 import numpy as np
 
 PIECE_DTYPE = np.dtype([("t0", "f8"), ("dt", "f8"), ("p0", "f8"), ("v0", "f8"), ("a0", "f8"), ("j", "f8")])
@@ -109,26 +109,26 @@ def batch_arrays(**named) -> tuple[tuple[int, ...], list[np.ndarray]]:
 # --------------------------------------------------------------------------- the one piece evaluator
 # Every polynomial piece in the package (Profile pieces, SEGMENT rows, stepper pieces) is evaluated by these
 # three functions; callable from numba kernels on floats and from Python on NumPy arrays (broadcasting).
-@numba.njit(cache=True)
+@njit(cache=True)
 def piece_position(p, v, a, j, tau):
     """Position p + v·τ + a·τ²/2 + j·τ³/6 (mm), Horner form; τ in s from the piece's start."""
     return p + tau * (v + tau * (0.5 * a + tau * (j * (1.0 / 6.0))))
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def piece_velocity(v, a, j, tau):
     """Velocity v + a·τ + j·τ²/2 (mm/s)."""
     return v + tau * (a + 0.5 * j * tau)
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def piece_acceleration(a, j, tau):
     """Acceleration a + j·τ (mm/s²); the jerk is j itself."""
     return a + j * tau
 
 
 # --------------------------------------------------------------------------- sampling
-@numba.njit(cache=True)
+@njit(cache=True)
 def _sample_pieces(t, t0, dt, p0, v0, a0, jerk, pos, vel, acc, jrk):
     n = t0.shape[0]
     t_end = t0[n - 1] + dt[n - 1]

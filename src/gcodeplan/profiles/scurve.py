@@ -65,7 +65,7 @@ from __future__ import annotations
 
 import math
 
-import numba
+from .._jit import njit
 import numpy as np
 
 # Slack when comparing a distance with the least distance a profile needs, so that an end speed computed by
@@ -81,7 +81,7 @@ _NEWTON_MAX_ITER = 100
 # arguments with NaN before dividing.
 
 
-@numba.njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy")
 def ramp_times_kernel(dv: float, a_max: float, j_max: float) -> tuple[float, float]:
     """(tj, ta): jerk-phase and constant-acceleration-phase times of the fastest change of speed by dv >= 0,
     acceleration zero at both ends. tj = A/J, ta = dv/A - A/J if dv >= A²/J, else tj = sqrt(dv/J), ta = 0."""
@@ -90,20 +90,20 @@ def ramp_times_kernel(dv: float, a_max: float, j_max: float) -> tuple[float, flo
     return math.sqrt(dv / j_max), 0.0
 
 
-@numba.njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy")
 def ramp_time_kernel(dv: float, a_max: float, j_max: float) -> float:
     """s, time of the fastest change of speed by dv >= 0 with a = 0 at both ends: 2·tj + ta."""
     tj, ta = ramp_times_kernel(dv, a_max, j_max)
     return 2.0 * tj + ta
 
 
-@numba.njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy")
 def ramp_distance_kernel(v_from: float, v_to: float, a_max: float, j_max: float) -> float:
     """mm covered by the fastest change of speed from v_from to v_to (either direction): (v_from + v_to)/2 · T."""
     return 0.5 * (v_from + v_to) * ramp_time_kernel(abs(v_to - v_from), a_max, j_max)
 
 
-@numba.njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy")
 def _ramp_time_s(dv: float, s: float, a_max: float, sqrt_j: float) -> tuple[float, float]:
     """T(dv + s²) and dT/ds, for the Newton iteration on s."""
     x = dv + s * s
@@ -115,7 +115,7 @@ def _ramp_time_s(dv: float, s: float, a_max: float, sqrt_j: float) -> tuple[floa
     return 0.0, 2.0 / sqrt_j
 
 
-@numba.njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy")
 def _ramp_fit_distance(v_from: float, dv: float, up: bool, h: float, a_max: float, j_max: float):
     """(tj, ta) of one ramp starting at v_from whose speed change is dv up to rounding, re-fitted so that its
     distance is exactly h. Used when h is short of the ramp distance by the feasibility slack only: the ramp
@@ -137,7 +137,7 @@ def _ramp_fit_distance(v_from: float, dv: float, up: bool, h: float, a_max: floa
     return s / sqrt_j, 0.0
 
 
-@numba.njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy")
 def _cubic_root(p: float, q: float) -> float:
     """The real root s >= 0 of s³ + p·s = q for p >= 0, q >= 0 (Cardano, written without cancellation:
     s = u - v with u·v = p/3, u³ - v³ = q, hence s = q / (u² + u·v + v²))."""
@@ -148,7 +148,7 @@ def _cubic_root(p: float, q: float) -> float:
     return q / (u * u + u * v + v * v)
 
 
-@numba.njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy")
 def _valid(distance, v_max, a_max, j_max, v_start, v_end) -> bool:
     # NaN fails every comparison, so NaN inputs are invalid too
     if not (distance >= 0.0 and v_max > 0.0 and a_max > 0.0 and j_max > 0.0):
@@ -165,7 +165,7 @@ _NEWTON_QUARTIC = 1     # vl part reaches A: polynomial in s
 _NEWTON_PURE_S = 2      # vl part pure S: one square root per step
 
 
-@numba.njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy")
 def _quartic_step(s: float, q: float, b2: float, b1: float, k: float, _unused: float) -> tuple[float, bool]:
     """One Newton step on 2A·(D(s) - h) = s⁴ + q·s³ + b2·s² + b1·s - k from s right of the root.
     Returns (next s, whether to go on). Branch-free, so that the batch can run many of them in lockstep."""
@@ -174,7 +174,7 @@ def _quartic_step(s: float, q: float, b2: float, b1: float, k: float, _unused: f
     return _newton_update(s, f, df)
 
 
-@numba.njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy")
 def _pure_s_step(s: float, dv: float, sigma: float, r0: float, two_vh: float, gain: float) -> tuple[float, bool]:
     """One Newton step on (D(s) - D(0))·sqrt(J) - gain = s²·(sigma/(r + r0) + r) + (2·vh + s²)·s - gain,
     r = sqrt(dv + s²), from s right of the root. Returns (next s, whether to go on)."""
@@ -186,7 +186,7 @@ def _pure_s_step(s: float, dv: float, sigma: float, r0: float, two_vh: float, ga
     return _newton_update(s, f, df)
 
 
-@numba.njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy")
 def _newton_update(s: float, f: float, df: float) -> tuple[float, bool]:
     # f <= 0: at the root to rounding (the iterates approach it from the right)
     moving = (f > 0.0) & (df > 0.0)
@@ -197,7 +197,7 @@ def _newton_update(s: float, f: float, df: float) -> tuple[float, bool]:
     return (s_next if moving else s), moving & (step > 1e-8 * s_next)
 
 
-@numba.njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy")
 def _newton_setup(extra: float, vl: float, vh: float, dv: float, a_max: float, j_max: float, s_cap: float):
     """(what, s, p1..p5) for the no-cruise peak s = sqrt(vp - vh) when the vh part is a pure S; extra = h - D(0)
     > 0 (mm), s_cap an upper bound of the root (min(A/sqrt(J), sqrt(V - vh))). what = _DONE: s is the root
@@ -229,7 +229,7 @@ def _newton_setup(extra: float, vl: float, vh: float, dv: float, a_max: float, j
     return _NEWTON_PURE_S, s, dv, sigma, r0, 2.0 * vh, gain
 
 
-@numba.njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy")
 def _newton_solve(what: int, s: float, p1: float, p2: float, p3: float, p4: float, p5: float) -> float:
     """Run _newton_setup's iteration to its end (the scalar path; the batch runs the same steps in lockstep)."""
     if what == _NEWTON_QUARTIC:
@@ -245,7 +245,7 @@ def _newton_solve(what: int, s: float, p1: float, p2: float, p3: float, p4: floa
     return s
 
 
-@numba.njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy")
 def _no_cruise_phases(s: float, h: float, v0: float, v1: float, a_max: float, j_max: float, refit: bool):
     """(durations, peak_v) of the profile without cruise peaking at vh + s² (v0, v1 already capped by V);
     refit: h is short of D(0) by the feasibility slack, fit the one ramp to h exactly."""
@@ -269,7 +269,7 @@ def _no_cruise_phases(s: float, h: float, v0: float, v1: float, a_max: float, j_
     return (tj1, ta1, tj1, 0.0, tj2, ta2, tj2), vp
 
 
-@numba.njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy")
 def _solve_head(distance: float, v_max: float, a_max: float, j_max: float, v_start: float, v_end: float):
     """Everything but the Newton iteration: (durations, peak_v, what, s, p1..p5). what = _DONE: durations and
     peak_v are the answer (NaN if infeasible or invalid); otherwise run _newton_setup's iteration from s with
@@ -333,7 +333,7 @@ def _solve_head(distance: float, v_max: float, a_max: float, j_max: float, v_sta
     return t, vp, _DONE, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
 
 
-@numba.njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy")
 def scurve_phases_kernel(distance: float, v_max: float, a_max: float, j_max: float,
                          v_start: float, v_end: float):
     """Time-optimal forward-only double-S profile.
@@ -350,13 +350,13 @@ def scurve_phases_kernel(distance: float, v_max: float, a_max: float, j_max: flo
     return t, jerks, vp
 
 
-@numba.njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy")
 def _total(t) -> float:
     """s, the sum of seven phase durations, in phase order (the batch and the scalar kernel must agree to the bit)."""
     return t[0] + t[1] + t[2] + t[3] + t[4] + t[5] + t[6]
 
 
-@numba.njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy")
 def scurve_duration_kernel(distance: float, v_max: float, a_max: float, j_max: float,
                            v_start: float, v_end: float) -> float:
     """s, duration of the time-optimal forward-only double-S profile; NaN if none exists (or bad arguments)."""
@@ -364,7 +364,7 @@ def scurve_duration_kernel(distance: float, v_max: float, a_max: float, j_max: f
     return _total(t)
 
 
-@numba.njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy")
 def scurve_max_end_speed_kernel(distance: float, v_max: float, a_max: float, j_max: float,
                                 v_start: float) -> float:
     """mm/s, the highest end speed reachable over `distance` from v_start moving forward, a = 0 at both ends,
@@ -394,7 +394,7 @@ def scurve_max_end_speed_kernel(distance: float, v_max: float, a_max: float, j_m
     return min(v0 + x, v_max)
 
 
-@numba.njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy")
 def scurve_max_start_speed_kernel(distance: float, v_max: float, a_max: float, j_max: float,
                                   v_end: float) -> float:
     """mm/s, the highest start speed from which v_end can be reached over `distance` (backward pass). By time
@@ -402,13 +402,13 @@ def scurve_max_start_speed_kernel(distance: float, v_max: float, a_max: float, j
     return scurve_max_end_speed_kernel(distance, v_max, a_max, j_max, v_end)
 
 
-@numba.njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy")
 def scurve_min_distance_kernel(v_max: float, a_max: float, j_max: float, v_start: float, v_end: float) -> float:
     """mm, the least distance of a forward-only profile from v_start to v_end (one monotone ramp)."""
     return ramp_distance_kernel(min(v_start, v_max), min(v_end, v_max), a_max, j_max)
 
 
-@numba.njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy")
 def scurve_state_kernel(t: float, durations, jerks, v_start: float):
     """(position mm, velocity mm/s, acceleration mm/s², jerk mm/s³) at time t of a piecewise-constant-jerk
     profile starting at position 0, speed v_start, acceleration 0 (e.g. the output of scurve_phases_kernel).
@@ -433,7 +433,7 @@ def scurve_state_kernel(t: float, durations, jerks, v_start: float):
     return p, v, a, 0.0
 
 
-@numba.njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy")
 def scurve_position_kernel(t: float, distance: float, v_max: float, a_max: float, j_max: float,
                            v_start: float, v_end: float) -> float:
     """mm, position at time t of the time-optimal double-S profile (solves the profile each call)."""
@@ -442,7 +442,7 @@ def scurve_position_kernel(t: float, distance: float, v_max: float, a_max: float
     return p
 
 
-@numba.njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy")
 def _scurve_durations_loop(distance, v_max, a_max, j_max, v_start, v_end, out):
     for i in range(out.shape[0]):
         out[i] = scurve_duration_kernel(distance[i], v_max[i], a_max[i], j_max[i], v_start[i], v_end[i])
@@ -454,7 +454,7 @@ def _scurve_durations_loop(distance, v_max, a_max, j_max, v_start, v_end, out):
 _BATCH_BLOCK = 256
 
 
-@numba.njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy")
 def _lockstep_newton(what: int, s, params, m: int) -> None:
     """Run the iteration `what` (_NEWTON_QUARTIC or _NEWTON_PURE_S) on s[:m], with p1..p5 in the rows of
     params[:, :m], until every one has stopped, each exactly as _newton_solve would: the same steps in the same
@@ -484,7 +484,7 @@ def _lockstep_newton(what: int, s, params, m: int) -> None:
             break
 
 
-@numba.njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy")
 def _scurve_durations_checked(distance, v_max, a_max, j_max, v_start, v_end, out) -> int:
     """scurve_duration_kernel over arrays with scurve_durations' argument checks fused in (one pass). Returns -1,
     or the index of the first element with an invalid argument (out is then incomplete).
@@ -542,7 +542,7 @@ def _scurve_durations_checked(distance, v_max, a_max, j_max, v_start, v_end, out
     return -1
 
 
-@numba.njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy")
 def _scurve_max_end_loop(distance, v_max, a_max, j_max, v_start, out):
     for i in range(out.shape[0]):
         out[i] = scurve_max_end_speed_kernel(distance[i], v_max[i], a_max[i], j_max[i], v_start[i])

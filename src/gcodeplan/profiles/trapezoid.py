@@ -15,12 +15,12 @@ from __future__ import annotations
 
 import math
 
-import numba
+from .._jit import njit
 
 from .scurve import EPS, FEASIBILITY_RTOL, SPEED_ULPS
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _valid(distance, v_max, accel, decel, v_start, v_end) -> bool:
     if not (distance >= 0.0 and v_max > 0.0 and accel > 0.0 and decel > 0.0):
         return False
@@ -30,7 +30,7 @@ def _valid(distance, v_max, accel, decel, v_start, v_end) -> bool:
     return v_start <= lim and v_end <= lim
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def trapezoid_phases_kernel(distance: float, v_max: float, a_max: float, v_start: float, v_end: float,
                             decel: float):
     """(accel_t s, cruise_t s, decel_t s, peak_v mm/s) of the time-optimal trapezoid; all NaN if infeasible
@@ -66,7 +66,7 @@ def trapezoid_phases_kernel(distance: float, v_max: float, a_max: float, v_start
     return accel_t, cruise_t, decel_t, vp
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def trapezoid_duration_kernel(distance: float, v_max: float, a_max: float, v_start: float, v_end: float,
                               decel: float) -> float:
     """s, duration of the time-optimal trapezoid; NaN if infeasible or an argument is invalid."""
@@ -74,7 +74,7 @@ def trapezoid_duration_kernel(distance: float, v_max: float, a_max: float, v_sta
     return ta + tc + td
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def trapezoid_max_end_speed_kernel(distance: float, v_max: float, a_max: float, v_start: float) -> float:
     """mm/s, min(V, sqrt(v0² + 2·A·h)): the highest end speed reachable over `distance` from v_start."""
     if not _valid(distance, v_max, a_max, a_max, v_start, 0.0):
@@ -82,7 +82,7 @@ def trapezoid_max_end_speed_kernel(distance: float, v_max: float, a_max: float, 
     return min(v_max, math.sqrt(v_start * v_start + 2.0 * a_max * distance))
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def trapezoid_state_kernel(t: float, accel_t: float, cruise_t: float, decel_t: float, v_start: float,
                            a_max: float, decel: float):
     """(position mm, velocity mm/s, acceleration mm/s²) at time t of a trapezoid starting at 0 with v_start;
@@ -101,7 +101,7 @@ def trapezoid_state_kernel(t: float, accel_t: float, cruise_t: float, decel_t: f
     return p + vp * t - decel * t * t / 2.0, vp - decel * t, -decel
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _trapezoid_durations_loop(distance, v_max, a_max, v_start, v_end, decel, out):
     for i in range(out.shape[0]):
         out[i] = trapezoid_duration_kernel(distance[i], v_max[i], a_max[i], v_start[i], v_end[i], decel[i])

@@ -32,7 +32,7 @@ from __future__ import annotations
 
 import math
 
-import numba
+from .._jit import njit
 import numpy as np
 
 from . import DEFAULT_CLOCK_HZ, DEFAULT_MAX_ERROR_S  # noqa: F401  (re-exported)
@@ -51,20 +51,20 @@ RUN_DTYPE = np.dtype([("interval", "i8"), ("count", "i4"), ("add", "i8"), ("dir"
 SUB_CHUNK = 1 << 17                  # steps queued and compressed at a time: their clocks stay in the L2 cache
 
 
-@numba.njit(cache=True, inline="always", error_model="numpy")
+@njit(cache=True, inline="always", error_model="numpy")
 def _floor_div(x, d):
     """floor(x/d) for |x|, |d| < 2^53 with one float division: exact (the quotient is correctly rounded and a
     non-integer quotient lies ≥ 1/|d| from any integer), and cheaper than a 64-bit integer division."""
     return np.int64(math.floor(np.float64(x) / np.float64(d)))
 
 
-@numba.njit(cache=True, inline="always", error_model="numpy")
+@njit(cache=True, inline="always", error_model="numpy")
 def _ceil_div(x, d):
     """ceil(x/d), exact as :func:`_floor_div`."""
     return np.int64(math.ceil(np.float64(x) / np.float64(d)))
 
 
-@numba.njit(cache=True, inline="always", error_model="numpy")
+@njit(cache=True, inline="always", error_model="numpy")
 def _longest_run(clocks, pos, qlast, last, max_err, add, lo_i, hi_i):
     """Longest run from ``pos`` with this ``add`` whose integer interval stays in [lo_i, hi_i] and fits every window.
 
@@ -100,7 +100,7 @@ def _longest_run(clocks, pos, qlast, last, max_err, add, lo_i, hi_i):
         interval = hi_i
 
 
-@numba.njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy")
 def bisect_add(clocks, pos, qend, last, max_err, max_count):
     """One run for the queued step clocks ``clocks[pos:qend]`` (ticks, one direction, non-decreasing) after ``last``.
 
@@ -165,7 +165,7 @@ def bisect_add(clocks, pos, qend, last, max_err, max_count):
     return best_interval, best_count, best_add, False
 
 
-@numba.njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy")
 def _flush_queue(clocks, pos, qend, last, max_err, max_count, move_clock, only_final, direction,
                  o_interval, o_count, o_add, o_dir, nout):
     """Runs for ``clocks[pos:qend]`` while ``last < move_clock`` (Klipper's ``queue_flush``).
@@ -187,7 +187,7 @@ def _flush_queue(clocks, pos, qend, last, max_err, max_count, move_clock, only_f
     return pos, last, nout
 
 
-@numba.njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy")
 def _first_bad_step(times, dirs, clock_hz, prev_clock):
     """Index of the first step whose time is not finite or goes backwards, or whose direction is not ±1; else −1."""
     prev = prev_clock
@@ -203,7 +203,7 @@ def _first_bad_step(times, dirs, clock_hz, prev_clock):
     return -1
 
 
-@numba.njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy")
 def queue_clocks(times, dirs, clock_hz, prev_clock, direction, clocks, changes):
     """Step clocks floor(t·f + ½) of ``times`` (s) into ``clocks``, and where the direction changes.
 
@@ -253,7 +253,7 @@ def queue_clocks(times, dirs, clock_hz, prev_clock, direction, clocks, changes):
     return nch, -1
 
 
-@numba.njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy")
 def compress_queue(clocks, dirs, changes, new_from, last, direction, max_err, max_count, final,
                    o_interval, o_count, o_add, o_dir):
     """Compress the queue ``clocks[:new_from]`` (pending, one direction) with the steps ``clocks[new_from:]`` appended.
@@ -436,7 +436,7 @@ def compress_steps(times: np.ndarray, dirs: np.ndarray, clock_hz: float = DEFAUL
     return Compressor(clock_hz, max_error_s, start_clock=start_clock).feed(times, dirs)
 
 
-@numba.njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy")
 def _expand(interval, count, add, start_clock, out):
     last = start_clock
     m = 0

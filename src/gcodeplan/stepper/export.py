@@ -35,7 +35,7 @@ import zipfile
 import zlib
 from pathlib import Path
 
-import numba
+from .._jit import njit
 import numpy as np
 
 from ..errors import GcodeplanError
@@ -245,7 +245,7 @@ class CsvStepWriter:
 
 # ---------------------------------------------------------------------------- compact form
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def pack_time_planes(bits, last):
     """Differences of the int64 bit patterns ``bits`` (the first from ``last``), zigzag-coded (0, -1, 1,
     -2 … → 0, 1, 2, 3 …: small magnitudes stay small) → (k, planes): the k low byte planes that hold
@@ -273,7 +273,7 @@ def pack_time_planes(bits, last):
     return k, planes
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def unpack_time_planes(planes, k, n, last, out):
     """Inverse of :func:`pack_time_planes`: bit patterns into ``out`` (int64, n); returns the last one."""
     prev = last

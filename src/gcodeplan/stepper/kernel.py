@@ -35,7 +35,7 @@ from __future__ import annotations
 
 import math
 
-import numba
+from .._jit import njit
 import numpy as np
 
 from ..profiles.core import piece_position, piece_velocity
@@ -68,7 +68,7 @@ _pos = piece_position
 _vel = piece_velocity
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def velocity_roots(v, a, j, dt, roots):
     """Roots of v + a·τ + j·τ²/2 strictly inside (0, dt), sorted, written to ``roots``; returns their count.
 
@@ -102,7 +102,7 @@ def velocity_roots(v, a, j, dt, roots):
     return count
 
 
-@numba.njit(cache=True, inline="always")
+@njit(cache=True, inline="always")
 def quadratic_crossing(p, v, a, target, sigma, span):
     """τ in [0, span] where p + v·τ + a·τ²/2 = target, travelling in direction sigma (±1).
 
@@ -125,7 +125,7 @@ def quadratic_crossing(p, v, a, target, sigma, span):
     return tau
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def cubic_crossing(p, v, a, j, target, lo, hi):
     """τ in [lo, hi] where s(τ) = target, s monotone on the bracket: bracketed Newton.
 
@@ -162,21 +162,21 @@ def cubic_crossing(p, v, a, j, target, lo, hi):
     return tau
 
 
-@numba.njit(cache=True, inline="always")
+@njit(cache=True, inline="always")
 def _forward_count(n, u_end):
     """Forward steps while u rises to u_end from commanded step n: thresholds n+½, n+1½, … ≤ u_end."""
     x = u_end - n - 0.5
     return int(math.floor(x)) + 1 if x >= 0.0 else 0
 
 
-@numba.njit(cache=True, inline="always")
+@njit(cache=True, inline="always")
 def _backward_count(n, u_end):
     """Backward steps while u falls to u_end from commanded step n: thresholds n−½, n−1½, … > u_end."""
     x = n - 0.5 - u_end
     return int(math.ceil(x)) if x > 0.0 else 0
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def gen_steps(t0, dt, pc, vc, ac, jc, reset, step_dist, state, start, out_t, out_dir, out_n):
     """Append the step times of pieces ``start..`` to ``out_t``/``out_dir`` from index ``out_n``.
 
@@ -302,7 +302,7 @@ def gen_steps(t0, dt, pc, vc, ac, jc, reset, step_dist, state, start, out_t, out
 SDS_STATE_LEN = 3
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def monotone_times(times, last_t):
     """Make step times non-decreasing in place, continuing from ``last_t`` (s); returns the new last time.
 
@@ -317,7 +317,7 @@ def monotone_times(times, last_t):
     return last_t
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def sds_filter(times, dirs, window_t, state, out_t, out_dir):
     """Klipper's step+dir+step filter, streaming.
 
@@ -371,7 +371,7 @@ def new_stats() -> np.ndarray:
     return st
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def step_stats(times, dirs, st):
     """Accumulate count, direction changes, shortest interval, shortest same-direction
     interval (→ peak step rate) and its time, and net steps over a chunk of steps."""
@@ -410,7 +410,7 @@ def step_stats(times, dirs, st):
     st[7] = net
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def monotone_stats(times, dirs, last_t, st):
     """:func:`monotone_times` then :func:`step_stats` in one pass over the chunk (the same results: each time is
     raised to ``last_t`` (s) before the statistics read it); returns the new last time (s). One pass instead of
@@ -460,7 +460,7 @@ def monotone_stats(times, dirs, last_t, st):
 POLY_NCOEF = 6
 
 
-@numba.njit(cache=True, inline="always")
+@njit(cache=True, inline="always")
 def _horner(c, k, deg, s):
     """Σ c[k, i]·s^i for i ≤ deg."""
     out = c[k, deg]
@@ -469,7 +469,7 @@ def _horner(c, k, deg, s):
     return out
 
 
-@numba.njit(cache=True, inline="always")
+@njit(cache=True, inline="always")
 def _weighted(arr, i, weights):
     """Σ weights[q]·arr[i, q] over the non-zero weights, a unit weight taken as is (Pieces.rail's sums exactly)."""
     acc = 0.0
@@ -487,7 +487,7 @@ def _weighted(arr, i, weights):
     return acc
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def linear_poly(p, v, a, j, weights, out):
     """Power-basis coefficients (``out``, (n, POLY_NCOEF), mm, mm/s, mm/s², mm/s³) of the linear motor
     Σ weights[q]·axis[q] over cubic pieces with (n, 4) x, y, z, e columns ``p v a j`` (mm, mm/s, mm/s², mm/s³):
@@ -501,7 +501,7 @@ def linear_poly(p, v, a, j, weights, out):
         out[i, 5] = 0.0
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _poly_root(c, k, deg, lo, hi, f_lo, f_hi):
     """The root of the monotone polynomial Σ c[k,i]·s^i (i ≤ deg) in [lo, hi], f changing sign: bracketed
     secant/bisection (Illinois-free: a bisection every other step keeps it linear-time safe)."""
@@ -526,7 +526,7 @@ def _poly_root(c, k, deg, lo, hi, f_lo, f_hi):
     return lo if abs(f_lo) < abs(f_hi) else hi
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def critical_points(c, k, span, deriv, out):
     """Roots in (0, span) of the derivative of piece k (degree ≤ 5), sorted, into ``out``; returns the count.
 
@@ -570,7 +570,7 @@ def critical_points(c, k, span, deriv, out):
     return n_pts
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def gen_steps_poly(t0, dt, coef, reset, step_dist, state, start, out_t, out_dir, out_n):
     """:func:`gen_steps` for pieces of degree ≤ 5: s(τ) = Σ coef[i, d]·τ^d, τ in [0, dt[i]].
 
@@ -677,7 +677,7 @@ def gen_steps_poly(t0, dt, coef, reset, step_dist, state, start, out_t, out_dir,
     return i, out_n, need
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _poly_newton(c, k, deg, target, lo, hi, f_lo, f_hi):
     """τ in [lo, hi] where piece k equals ``target`` (monotone there, sign change given): bracketed Newton."""
     rising = f_hi > 0.0
@@ -711,7 +711,7 @@ DELTA_NCOEF = 11
 NEWTON_DONE_S = 1e-10
 
 
-@numba.njit(cache=True, inline="always")
+@njit(cache=True, inline="always")
 def _carriage(arm2, tx, ty, px, py, pz, vx, vy, vz, ax, ay, az, jx, jy, jz, s):
     """Carriage height (mm) at τ = s: z + √(arm² − (t_x − x)² − (t_y − y)²), Klipper's kin_delta.c."""
     x = px + s * (vx + s * (0.5 * ax + s * jx / 6.0))
@@ -722,7 +722,7 @@ def _carriage(arm2, tx, ty, px, py, pz, vx, vy, vz, ax, ay, az, jx, jy, jz, s):
     return math.sqrt(arm2 - dx * dx - dy * dy) + z
 
 
-@numba.njit(cache=True, inline="always")
+@njit(cache=True, inline="always")
 def _carriage_and_velocity(arm2, tx, ty, px, py, pz, vx, vy, vz, ax, ay, az, jx, jy, jz, s):
     """(carriage height mm, its velocity mm/s) at τ = s, sharing the work of :func:`_carriage` and
     :func:`_carriage_velocity`."""
@@ -738,7 +738,7 @@ def _carriage_and_velocity(arm2, tx, ty, px, py, pz, vx, vy, vz, ax, ay, az, jx,
     return root + z, zd + (dx * xd + dy * yd) / root
 
 
-@numba.njit(cache=True, inline="always")
+@njit(cache=True, inline="always")
 def _carriage_velocity(arm2, tx, ty, px, py, vx, vy, vz, ax, ay, az, jx, jy, jz, s):
     """d(carriage height)/dτ (mm/s) at τ = s: z' + ((t_x − x)·x' + (t_y − y)·y') / √R."""
     x = px + s * (vx + s * (0.5 * ax + s * jx / 6.0))
@@ -751,7 +751,7 @@ def _carriage_velocity(arm2, tx, ty, px, py, vx, vy, vz, ax, ay, az, jx, jy, jz,
     return zd + (dx * xd + dy * yd) / math.sqrt(arm2 - dx * dx - dy * dy)
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _poly_mul(a, na, b, nb, out):
     """out = a·b (coefficients by power, degrees na and nb); returns the product's degree."""
     for k in range(na + nb + 1):
@@ -764,7 +764,7 @@ def _poly_mul(a, na, b, nb, out):
     return na + nb
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _trim(c, deg):
     """The degree of c once its exactly-zero leading coefficients are dropped (0 for the zero polynomial)."""
     while deg > 0 and c[deg] == 0.0:
@@ -772,7 +772,7 @@ def _trim(c, deg):
     return deg
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def poly_roots_and_extrema(c, deg, span, table, roots, crit):
     """Roots in (0, span) of the polynomial Σ c[i]·τ^i (degree ``deg``) and of its derivative, sorted.
 
@@ -820,7 +820,7 @@ def poly_roots_and_extrema(c, deg, span, table, roots, crit):
     return n_pts, n_crit
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def delta_turning_points(arm2, tx, ty, px, py, vx, vy, vz, ax, ay, az, jx, jy, jz, span, out):
     """Times τ in (0, span) that cut a piece into stretches on which the carriage height is monotone,
     sorted, into ``out`` (room for 2·DELTA_NCOEF); returns their count.
@@ -902,7 +902,7 @@ def delta_turning_points(arm2, tx, ty, px, py, vx, vy, vz, ax, ay, az, jx, jy, j
     return m
 
 
-@numba.njit(cache=True, inline="always")
+@njit(cache=True, inline="always")
 def _delta_crossing(arm2, tx, ty, px, py, pz, vx, vy, vz, ax, ay, az, jx, jy, jz, target, lo, hi, f_lo, f_hi,
                     guess):
     """(τ, carriage velocity there) with τ in [lo, hi] where the carriage height equals ``target``: bracketed
@@ -934,7 +934,7 @@ def _delta_crossing(arm2, tx, ty, px, py, pz, vx, vy, vz, ax, ay, az, jx, jy, jz
     return tau, d
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def gen_steps_delta(t0, dt, pc, vc, ac, jc, reset, arm2, tx, ty, step_dist, state, start, out_t, out_dir, out_n):
     """:func:`gen_steps` for a delta tower: the stepper position is the carriage height
     z + √(arm2 − (tx − x)² − (ty − y)²) of the pieces' x, y, z (columns 0, 1, 2 of the (n, ≥3) arrays
@@ -1124,7 +1124,7 @@ def new_itersolve_state() -> np.ndarray:
     return st
 
 
-@numba.njit(cache=True, inline="always")
+@njit(cache=True, inline="always")
 def _its_position(pt0, pdt, coef, k, t):
     """(position mm, piece index) at absolute time t: Σ coef[k, i]·s^i, s = t − pt0[k] clamped to the piece (at rest
     before the first piece and after the last); ``k`` is the search's starting guess."""
@@ -1141,7 +1141,7 @@ def _its_position(pt0, pdt, coef, k, t):
     return coef[k, 0] + s * (coef[k, 1] + s * (coef[k, 2] + s * (coef[k, 3] + s * (coef[k, 4] + s * coef[k, 5])))), k
 
 
-@numba.njit(cache=True, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def _its_range(m_start, m_len, abs_start, abs_end, pt0, pdt, coef, half, sds_t, st, out_t, out_dir, out_n):
     """One itersolve_gen_steps_range call: the steps of trapq move [m_start, m_start + m_len] inside
     [abs_start, abs_end]. Updates the state ``st``; returns the new out_n, or −1 when ``out_t`` is full."""
@@ -1371,7 +1371,7 @@ def _its_range(m_start, m_len, abs_start, abs_end, pt0, pdt, coef, half, sds_t, 
     return out_n
 
 
-@numba.njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy")
 def itersolve_steps(flush_t, m_start, m_len, m_active, pre_t, post_t, pt0, pdt, coef, step_dist, sds_t, state,
                     out_t, out_dir, out_n):
     """Klipper's steps for the step-generation windows ending at ``flush_t`` (s, increasing), itersolve_generate_steps

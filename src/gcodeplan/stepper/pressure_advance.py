@@ -21,14 +21,14 @@ from __future__ import annotations
 
 import math
 
-import numba
+from .._jit import njit
 import numpy as np
 
 DEGREE = 5            # of the smoothed pieces
 NCOEF = DEGREE + 1
 
 
-@numba.njit(cache=True, inline="always")
+@njit(cache=True, inline="always")
 def _taylor_shift(c, n, d, out):
     """Coefficients (power basis in s) of Σ c[m]·(d + s)^m, m < n, into out[:n] (repeated synthetic division)."""
     for m in range(n):
@@ -38,7 +38,7 @@ def _taylor_shift(c, n, d, out):
             out[m] += d * out[m + 1]
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def smooth_pieces(t0, dt, pa, h, u_from, u_to, out_t0, out_dt, out_c):
     """Smoothed extruder pieces for u in [u_from, u_to); returns how many were written.
 
@@ -119,7 +119,7 @@ def smooth_pieces(t0, dt, pa, h, u_from, u_to, out_t0, out_dt, out_c):
     return m
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def advanced_coefficients(pe, ve, ae, je, k_pa, out):
     """pa = e + K·ė per piece in power basis: c0 = p + K·v, c1 = v + K·a, c2 = a/2 + K·j/2, c3 = j/6.
 

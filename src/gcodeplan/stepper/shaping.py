@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import math
 
-import numba
+from .._jit import njit
 import numpy as np
 
 from ..errors import ConfigError
@@ -133,7 +133,7 @@ def check_shaper(name: str, freq_hz: float, damping: float, where: str) -> None:
 
 # ------------------------------------------------------------------------ the shaped path (numba)
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def shape_pieces(t0, dt, pc, vc, ac, jc, ch_axis, ch_w, ch_tau, u_from, u_to, rest_before, rest_after,
                  out_t0, out_dt, out_p, out_v, out_a, out_j, out_move, moves):
     """Shaped pieces of the path for u in [u_from, u_to): returns how many were written.

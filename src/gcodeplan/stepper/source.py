@@ -72,6 +72,8 @@ class StepSink(Sink):
     steps in order, per stepper, in bounded buffers (see :class:`gcodeplan.stepper.generate.StepGenerator`).
     The grid re-anchors after G28 / SET_KINEMATIC_POSITION (:func:`homing_resets`)."""
 
+    interpretable = False   # its kernels run once per step: never worth interpreting (gcodeplan/_jit.py)
+
     def __init__(self, rails, sink_fn, *, sds_filter_t: float | None = None, machine=None):
         """``machine``: its input shaper / pressure advance apply (``machine.limits_row()``); mid-file
         SET_INPUT_SHAPER / SET_PRESSURE_ADVANCE / M900 / M572 come with each piece's LIMITS table."""

@@ -1,0 +1,422 @@
+"""Kernels that numba compiles on first use, or that Python runs as written for tiny inputs.
+
+Every hot loop of gcodeplan is a ``@njit(cache=True)`` kernel (this module's :func:`njit`, same options as
+``numba.njit``). Importing numba and setting up its compiler costs 0.35–0.45 s of CPU even when every kernel
+comes from numba's cache (``python tools/bench.py startup`` prints that floor) — longer than planning a
+whole 5 MB file. So nothing imports numba at import time:
+
+* By default the first kernel call imports numba (:func:`activate`), makes every kernel a numba dispatcher
+  and rebinds the kernels in gcodeplan's modules, so later calls go straight to compiled code.
+* Inside :func:`interpreted` (the pipeline uses it for inputs of at most :data:`SMALL_INPUT_BYTES`), a
+  kernel runs its own Python source (``py_func``) on the same arrays: the same statements in the same order,
+  so the same IEEE results (``tests/test_jit.py`` compares both on every sample and on fuzzed programs).
+  Structured arrays are viewed so that ``row.field`` works as in numba, integers narrower than 64 bits are
+  widened as numba widens them, and the scalars a kernel returns are made Python scalars, as numba returns
+  them.
+
+Where Python and numba differ — Python raises on ``1.0 / 0.0``, ``math.sqrt(-1.0)`` or ``int(nan)`` where
+numba returns inf/nan/garbage, a kernel may use something only numba offers — the outermost interpreted
+kernel call restores its array arguments from a copy taken before the call and runs the compiled kernel
+instead; so does a run that has interpreted for :data:`INTERPRET_BUDGET_S` (checked at every kernel call).
+A wrong answer cannot come from the interpreted path, only a slower start.
+"""
+from __future__ import annotations
+
+import sys
+from contextlib import contextmanager
+from time import perf_counter
+
+import numpy as np
+
+#: inputs up to this many bytes run interpreted (the pipeline decides; about 300 G1 lines). Interpreting
+#: costs about 1 ms per line here; compiled kernels cost the 0.35–0.45 s numba start-up once.
+SMALL_INPUT_BYTES = 8192
+
+_KERNELS: list["Kernel"] = []
+_numba = None               # the numba module once :func:`activate` ran
+_interpret_depth = 0        # > 0 inside :func:`interpreted`
+_inside_kernel = 0          # > 0 while an interpreted kernel runs (nested calls skip the copy)
+#: (kernel, reason) of the first interpreted calls that fell back to numba in this process (diagnostics, tests)
+fallbacks: list[tuple[str, str]] = []
+#: s of interpreting after which kernels go compiled: a small input can still ask for much work (a huge arc
+#: in tiny chords); past this budget numba's start-up is the cheaper way on
+INTERPRET_BUDGET_S = 0.25
+_interpreted_s = 0.0        # s spent in outermost interpreted calls so far
+_call_t0 = 0.0              # perf_counter() at the start of the running outermost interpreted call
+#: set by the ``gcodeplan`` command for its own process (never by the library, whose caller may run numba
+#: code with BLAS and owns its garbage collector): numba's first-use BLAS probe is made to fail and numba's
+#: objects go to the permanent GC generation (see :func:`activate`)
+command_process = False
+
+
+class Kernel:
+    """A function numba compiles on first use (see the module docstring). Call it like the function.
+
+    ``py_func`` is the Python function; ``dispatcher`` the numba dispatcher once numba is active.
+    """
+
+
+    def __init__(self, py_func, options: dict):
+        self.py_func = py_func
+        self.options = options
+        self.dispatcher = None
+        self.__name__ = py_func.__name__
+        self.__qualname__ = py_func.__qualname__
+        self.__module__ = py_func.__module__
+        self.__doc__ = py_func.__doc__
+        self.__wrapped__ = py_func
+
+    def __repr__(self) -> str:
+        return f"<gcodeplan kernel {self.__module__}.{self.__qualname__}>"
+
+    def __call__(self, *args):
+        d = self.dispatcher
+        if d is not None:
+            return d(*args)
+        if _interpret_depth and _numba is None and _interpreted_s <= INTERPRET_BUDGET_S:
+            return self._interpret(args)
+        activate()
+        return self.dispatcher(*args)
+
+    def _interpret(self, args):
+        global _inside_kernel
+        global _interpreted_s, _call_t0
+        if _inside_kernel:                       # the outermost call restores and falls back for us
+            if _interpreted_s + (perf_counter() - _call_t0) > INTERPRET_BUDGET_S:
+                raise _Diverges("interpreting took too long")
+            return _run_python(self.py_func, args)
+        saved = [(a, a.copy()) for a in args if isinstance(a, np.ndarray)]
+        _inside_kernel += 1
+        _call_t0 = perf_counter()
+        try:
+            with np.errstate(all="ignore"):
+                out = _run_python(self.py_func, args)
+        except Exception as err:                 # a Python/numba difference: run the compiled kernel instead
+            if len(fallbacks) < 100:
+                fallbacks.append((self.__qualname__, repr(err)[:200]))
+            for a, copy in saved:
+                if a.flags.writeable:
+                    a[...] = copy
+            activate()
+            return self.dispatcher(*args)
+        finally:
+            _inside_kernel -= 1
+            _interpreted_s += perf_counter() - _call_t0
+        return _as_numba_returns(out)
+
+
+class _Diverges(Exception):
+    """Python would not compute what numba computes here (aliased widened arrays, a view of one returned)."""
+
+
+_WIDE: dict = {}
+
+
+def _wide_dtype(dt: np.dtype):
+    """The dtype with every integer narrower than 64 bits made int64 (None when there is none).
+
+    numba computes with such integers as int64 (``buf[i] - 48`` on uint8 is -48..207), NumPy's scalars stay
+    narrow and wrap: the interpreted kernel sees widened copies, written back afterwards with numba's
+    truncating stores."""
+    try:
+        return _WIDE[dt]
+    except KeyError:
+        pass
+    wide = None
+    if dt.names is None:
+        if dt.kind in "iu" and dt.itemsize < 8:
+            wide = np.dtype(np.int64)
+    else:
+        fields = []
+        for name in dt.names:
+            ft = dt.fields[name][0]
+            if ft.kind in "iu" and ft.itemsize < 8 and ft.shape == ():
+                fields.append((name, np.int64))
+                wide = True
+            else:
+                fields.append((name, ft))
+        wide = np.dtype(fields) if wide else None
+    _WIDE[dt] = wide
+    return wide
+
+
+class _Row:
+    """One row of a structured array as numba shows it: ``row.field`` reads and writes the array (NumPy's
+    own record type would answer ``row.flags`` with its array flags, not the MOVE field)."""
+
+    __slots__ = ("_v",)
+
+    def __init__(self, v):
+        object.__setattr__(self, "_v", v)
+
+    def __getattr__(self, name):
+        try:
+            return self._v[name]
+        except (ValueError, KeyError, IndexError):
+            raise AttributeError(name) from None
+
+    def __setattr__(self, name, value):
+        self._v[name] = value
+
+    def __getitem__(self, name):
+        return self._v[name]
+
+    def __setitem__(self, name, value):
+        self._v[name] = value
+
+
+class _Rows(np.ndarray):
+    """A structured array whose rows are :class:`_Row` (numba's record semantics, for interpreted kernels)."""
+
+    def __getitem__(self, idx):
+        out = super().__getitem__(idx)
+        if isinstance(out, np.void):
+            return _Row(out)
+        return out
+
+    def __setitem__(self, idx, value):
+        if isinstance(value, _Row):
+            value = value._v
+        super().__setitem__(idx, value)
+
+    def __iter__(self):
+        for i in range(len(self)):
+            yield self[i]
+
+
+class _LibmMath:
+    """``math`` as numba computes it: numba calls the C library's ``hypot``, CPython's math.hypot has its
+    own algorithm (they differ in the last bit of about 1 result in 160)."""
+
+    def __init__(self):
+        import ctypes
+        import math
+
+        self.__dict__.update({k: getattr(math, k) for k in dir(math) if not k.startswith("__")})
+        libm = ctypes.CDLL(ctypes.util.find_library("m") or None) if hasattr(ctypes, "util") else ctypes.CDLL(None)
+        hypot = libm.hypot
+        hypot.restype = ctypes.c_double
+        hypot.argtypes = (ctypes.c_double, ctypes.c_double)
+        self.hypot = hypot
+
+
+class _LibmNumpy:
+    """``numpy`` as numba computes its scalar maths: numba's np.cbrt is the C library's cbrt, NumPy's own
+    (vectorised) cbrt differs in the last bit of about 1 result in 2."""
+
+    def __init__(self):
+        import math
+
+        self._cbrt = math.cbrt
+
+    def __getattr__(self, name):
+        return getattr(np, name)
+
+    def cbrt(self, x):
+        if isinstance(x, np.ndarray):
+            raise _Diverges("np.cbrt of an array")
+        return self._cbrt(x)
+
+
+_PYTHON_FUNCS: dict = {}
+
+
+def _as_numba_computes(py_func):
+    """``py_func`` with ``math`` and ``np`` in its globals replaced by :class:`_LibmMath` / :class:`_LibmNumpy`
+    (a copy of its module's globals, made once per kernel)."""
+    try:
+        return _PYTHON_FUNCS[py_func]
+    except KeyError:
+        pass
+    import types
+
+    if "libm" not in _PYTHON_FUNCS:
+        import ctypes.util  # noqa: F401  # find_library
+
+        _PYTHON_FUNCS["libm"] = (_LibmMath(), _LibmNumpy())
+    libm_math, libm_np = _PYTHON_FUNCS["libm"]
+    g = dict(py_func.__globals__)
+    for name, val in list(g.items()):
+        if val is np:
+            g[name] = libm_np
+        elif getattr(val, "__name__", None) == "math" and isinstance(val, types.ModuleType):
+            g[name] = libm_math
+    fn = types.FunctionType(py_func.__code__, g, py_func.__name__, py_func.__defaults__, py_func.__closure__)
+    fn.__kwdefaults__ = py_func.__kwdefaults__
+    _PYTHON_FUNCS[py_func] = fn
+    return fn
+
+
+def _run_python(py_func, args):
+    """``py_func(*args)`` with numba's view of the arrays: narrow integers widened (copied in and out) and
+    structured arrays whose rows read and write fields as attributes (``row.field`` as in numba)."""
+    pargs = []
+    back = []
+    for a in args:
+        if isinstance(a, np.ndarray):
+            a = a.view(np.ndarray)
+            wide = _wide_dtype(a.dtype)
+            if wide is not None:
+                w = np.empty(a.shape, wide)
+                if a.dtype.names is None:
+                    w[...] = a
+                else:
+                    for name in a.dtype.names:
+                        w[name] = a[name]
+                back.append((a, w))
+                a = w
+            if a.dtype.names is not None:
+                a = a.view(_Rows)
+        pargs.append(a)
+    if back:
+        arrays = [a for a in args if isinstance(a, np.ndarray)]
+        for a, _ in back:
+            if sum(1 for b in arrays if np.may_share_memory(a, b)) > 1:
+                raise _Diverges("widened array aliased by another argument")
+    out = _as_numba_computes(py_func)(*pargs)
+    for a, w in back:
+        if a.flags.writeable:
+            if a.dtype.names is None:
+                a[...] = w
+            else:
+                for name in a.dtype.names:
+                    a[name] = w[name]
+        for o in (out if isinstance(out, tuple) else (out,)):
+            if isinstance(o, np.ndarray) and np.may_share_memory(o, w):
+                raise _Diverges("returns a view of a widened array")
+    return out
+
+
+def _as_numba_returns(out):
+    """What numba would hand back: Python scalars for NumPy scalars, plain arrays, tuples element-wise."""
+    if isinstance(out, tuple):
+        return tuple(_as_numba_returns(x) for x in out)
+    if isinstance(out, np.ndarray):
+        return out.view(np.ndarray) if type(out) is not np.ndarray else out
+    if isinstance(out, _Row):
+        return out._v
+    if isinstance(out, np.generic):
+        return out.item()
+    return out
+
+
+def njit(*args, **options):
+    """``numba.njit`` for gcodeplan's kernels, compiled on first use (module docstring).
+
+    ``@njit(cache=True, ...)`` or ``@njit``; options go to ``numba.njit`` unchanged.
+    """
+    def wrap(fn):
+        if _numba is not None:
+            return _numba.njit(**options)(fn)
+        k = Kernel(fn, options)
+        _KERNELS.append(k)
+        return k
+
+    if args and callable(args[0]) and len(args) == 1 and not options:
+        return wrap(args[0])
+    return wrap
+
+
+def is_kernel(fn) -> bool:
+    """True for a gcodeplan kernel or a numba dispatcher (anything a kernel can take as a function)."""
+    if isinstance(fn, Kernel):
+        return True
+    return _numba is not None and isinstance(fn, _numba.core.registry.CPUDispatcher)
+
+
+def compiled(fn):
+    """The numba dispatcher of ``fn`` (a :class:`Kernel` or a dispatcher), importing numba if needed."""
+    if isinstance(fn, Kernel):
+        activate()
+        return fn.dispatcher
+    return fn
+
+
+def numba_module():
+    """The numba module (imported and set up on the first call, see :func:`activate`)."""
+    activate()
+    return _numba
+
+
+def activate() -> None:
+    """Import numba and make every kernel a compiled numba dispatcher (idempotent).
+
+    numba probes for BLAS on its first use by importing scipy.linalg (0.2–0.3 s when SciPy is installed).
+    No gcodeplan kernel uses BLAS: when :data:`command_process` is set (the ``gcodeplan`` command sets it
+    for its own process) and nothing has imported SciPy's linalg yet, the probe is made to fail, so np.dot
+    inside njit code is unavailable in this process. SciPy itself imports normally afterwards. In that
+    process numba's large object graph, alive until exit anyway, then goes to the permanent GC generation,
+    which spares later collections and the final one from walking it (1.37 s -> 0.86 s with the BLAS
+    shortcut on ``gcodeplan parse`` of the 1.85 M-line file when it was measured).
+    """
+    global _numba
+    if _numba is not None:
+        return
+    hide = command_process and "scipy.linalg" not in sys.modules and "numba.np.arraymath" not in sys.modules
+    if hide:
+        sys.modules["scipy.linalg"] = None  # type: ignore[assignment]  # "import scipy.linalg" raises ImportError
+    try:
+        import numba
+        try:
+            import numba.np.arraymath  # noqa: F401
+        except ImportError:
+            pass
+    finally:
+        if hide and sys.modules.get("scipy.linalg", 0) is None:
+            del sys.modules["scipy.linalg"]
+    from numba.extending import typeof_impl
+
+    @typeof_impl.register(Kernel)
+    def _typeof_kernel(val, c):             # a Kernel passed into compiled code is its dispatcher
+        return numba.typeof(val.dispatcher, c.purpose)
+
+    for k in _KERNELS:
+        k.dispatcher = numba.njit(**k.options)(k.py_func)
+    _numba = numba
+    rebind()
+    if command_process:
+        import gc
+
+        gc.freeze()
+
+
+def rebind() -> None:
+    """Replace every :class:`Kernel` in gcodeplan's module globals by its dispatcher (numba resolves a
+    kernel's callees through these globals when it compiles, and calls skip the wrapper)."""
+    if _numba is None:
+        return
+    for name, mod in list(sys.modules.items()):
+        if mod is None or not (name == "gcodeplan" or name.startswith("gcodeplan.")):
+            continue
+        d = getattr(mod, "__dict__", None)
+        if not d:
+            continue
+        for attr, val in list(d.items()):
+            if type(val) is Kernel and val.dispatcher is not None:
+                d[attr] = val.dispatcher
+
+
+def active() -> bool:
+    """True once numba is imported and the kernels are compiled dispatchers."""
+    return _numba is not None
+
+
+@contextmanager
+def interpreted(enabled: bool = True):
+    """Run kernels as Python inside the block while numba is not yet imported (tiny inputs; module docstring).
+
+    Once numba is active this does nothing: compiled kernels are then the cheaper choice.
+    """
+    global _interpret_depth
+    if not enabled:
+        yield
+        return
+    _interpret_depth += 1
+    try:
+        yield
+    finally:
+        _interpret_depth -= 1
+
+
+__all__ = ["njit", "Kernel", "activate", "active", "interpreted", "is_kernel", "compiled", "numba_module",
+           "SMALL_INPUT_BYTES"]
