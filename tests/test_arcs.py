@@ -218,6 +218,12 @@ def test_bad_input_is_an_arc_error():
         arc_chords((1000, 0, 0), (1000, 0, 0), ijk=(-1000, 0, 0), tolerance=1e-11)
     with pytest.raises(ArcError, match="arc would need"):
         arc_chords((1000, 0, 0), (1000, 0, 0), ijk=(-1000, 0, 0), resolution=1e-6)
+    # a count past int64: 2π·1e20 mm at 1 mm chords (numba's math.floor overflowed it into one chord: a 250 mm
+    # line for a 6e20 mm arc; tools/fuzz.py --differential found it)
+    with pytest.raises(ArcError, match=r"arc would need 6\.283e\+20 segments"):
+        arc_chords((0, 0, 0), (9, 249.70716, 0), ijk=(1e20, 1.0, 0), resolution=1.0)
+    with pytest.raises(ArcError, match=r"arc would need"):
+        arc_chords((0, 0, 0), (9, 249.70716, 0), ijk=(1e20, 1.0, 0), tolerance=0.002)
     with pytest.raises(ArcError, match="turn count"):
         arc_chords((1, 0, 0), (1, 0, 0), ijk=(-1, 0, 0), turns=0)
     with pytest.raises(ArcError, match="turn count"):

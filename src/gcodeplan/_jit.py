@@ -23,6 +23,7 @@ A wrong answer cannot come from the interpreted path, only a slower start.
 from __future__ import annotations
 
 import sys
+import threading
 from contextlib import contextmanager
 from time import perf_counter
 
@@ -35,14 +36,14 @@ SMALL_INPUT_BYTES = 8192
 _KERNELS: list["Kernel"] = []
 _numba = None               # the numba module once :func:`activate` ran
 _interpret_depth = 0        # > 0 inside :func:`interpreted`
-_inside_kernel = 0          # > 0 while an interpreted kernel runs (nested calls skip the copy)
+_this_thread = threading.local()   # .inside: an interpreted kernel runs in this thread (nested calls skip the
+                                   # copy); .t0: perf_counter() at the start of that outermost call
 #: (kernel, reason) of the first interpreted calls that fell back to numba in this process (diagnostics, tests)
 fallbacks: list[tuple[str, str]] = []
 #: s of interpreting after which kernels go compiled: a small input can still ask for much work (a huge arc
 #: in tiny chords); past this budget numba's start-up is the cheaper way on
 INTERPRET_BUDGET_S = 0.25
-_interpreted_s = 0.0        # s spent in outermost interpreted calls so far
-_call_t0 = 0.0              # perf_counter() at the start of the running outermost interpreted call
+_interpreted_s = 0.0        # s spent in outermost interpreted calls so far (all threads)
 #: set by the ``gcodeplan`` command for its own process (never by the library, whose caller may run numba
 #: code with BLAS and owns its garbage collector): numba's first-use BLAS probe is made to fail and numba's
 #: objects go to the permanent GC generation (see :func:`activate`)
@@ -79,15 +80,15 @@ class Kernel:
         return self.dispatcher(*args)
 
     def _interpret(self, args):
-        global _inside_kernel
-        global _interpreted_s, _call_t0
-        if _inside_kernel:                       # the outermost call restores and falls back for us
-            if _interpreted_s + (perf_counter() - _call_t0) > INTERPRET_BUDGET_S:
+        global _interpreted_s
+        here = _this_thread
+        if getattr(here, "inside", False):       # the outermost call restores and falls back for us
+            if _interpreted_s + (perf_counter() - here.t0) > INTERPRET_BUDGET_S:
                 raise _Diverges("interpreting took too long")
             return _run_python(self.py_func, args)
         saved = [(a, a.copy()) for a in args if isinstance(a, np.ndarray)]
-        _inside_kernel += 1
-        _call_t0 = perf_counter()
+        here.inside = True
+        here.t0 = perf_counter()
         try:
             with np.errstate(all="ignore"):
                 out = _run_python(self.py_func, args)
@@ -100,8 +101,8 @@ class Kernel:
             activate()
             return self.dispatcher(*args)
         finally:
-            _inside_kernel -= 1
-            _interpreted_s += perf_counter() - _call_t0
+            here.inside = False
+            _interpreted_s += perf_counter() - here.t0
         return _as_numba_returns(out)
 
 

@@ -232,18 +232,21 @@ def _segment_count_float(r_start, r_end, sweep, helical_travel, tolerance, resol
     Tolerance mode: the smallest n with 2·r·sin²(|sweep|/(4n)) ≤ tolerance, r = max(r_start, r_end), and at
     least ceil(|sweep|/MAX_CHORD_ANGLE).
     """
+    # np.floor / np.ceil, not math's: numba's math.floor returns an int64, which a 1e20 mm arc overflows into a
+    # negative count (planned as one chord; found by tools/fuzz.py --differential, where Python's exact int
+    # gave the right "too many segments" error)
     sweep_abs = abs(sweep)
     if resolution > 0.0:
         travel = math.hypot(r_start * sweep, helical_travel)
-        return max(1.0, math.floor(travel / resolution))
+        return max(1.0, np.floor(travel / resolution))
     radius = max(r_start, r_end)
-    n_angle = max(1.0, math.ceil(sweep_abs / MAX_CHORD_ANGLE - 1e-12))
+    n_angle = max(1.0, np.ceil(sweep_abs / MAX_CHORD_ANGLE - 1e-12))
     ratio = tolerance / (2.0 * radius)
     if ratio >= 1.0:
         return n_angle
     # sin(|sweep|/(4n)) ≤ √(tol/2r)  ⇔  n ≥ |sweep| / (4·asin(√(tol/2r))),
     # valid while |sweep|/(4n) ≤ π/2, which n ≥ n_angle guarantees.
-    n = max(n_angle, math.ceil(sweep_abs / (4.0 * math.asin(math.sqrt(ratio)))))
+    n = max(n_angle, np.ceil(sweep_abs / (4.0 * math.asin(math.sqrt(ratio)))))
     if n > MAX_ARC_SEGMENTS:
         return n
     # The closed form can be off by one through rounding: settle on the exact minimal count.

@@ -571,7 +571,7 @@ def _row_times(n_rows, q, n_q, seg_end, lead, move_d, t_start, dur, kind, dwell_
         t0 = prev_end
         t1 = seg_end[j]
         if sg.dwell_after > 0.0:      # the dwell's cycles at rest belong to the dwell row
-            t1 -= math.ceil(sg.dwell_after / cycle - 1e-9) * cycle
+            t1 -= np.ceil(sg.dwell_after / cycle - 1e-9) * cycle   # float: no int64 overflow
         tot = 0.0
         for r in range(sg.row0, sg.row1 + 1):
             tot += move_d[r]
@@ -592,7 +592,7 @@ def _row_times(n_rows, q, n_q, seg_end, lead, move_d, t_start, dur, kind, dwell_
             t_start[r] = clock
             dur[r] = 0.0
             if kind[r] == KIND_DWELL:
-                dur[r] = math.ceil(dwell_t[r] / cycle - 1e-9) * cycle
+                dur[r] = np.ceil(dwell_t[r] / cycle - 1e-9) * cycle
                 clock += dur[r]
 
 
