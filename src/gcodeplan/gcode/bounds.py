@@ -100,7 +100,9 @@ def _speed_cap(L, dx, dy, dz, de, move_d, klipper):
     return cap
 
 
-@njit(cache=True)
+# _nrt=False: the kernel allocates nothing, and without numba's reference counting the limits row taken per
+# move and the accumulator handed to _box_add cost no atomic incref/decref (36 -> 9 ns per move)
+@njit(cache=True, _nrt=False)
 def motion_kernel(moves, lo, hi, lim, klipper, acc):
     """One pass over MOVE rows: (OK, -1, -1), or (OUT_OF_RANGE, row, axis) / (TOO_LONG, row, -1) for
     the first refused row; updates ``acc`` (boxes mm, capped-move count and first line)."""

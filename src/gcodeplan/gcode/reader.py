@@ -293,10 +293,15 @@ class GcodeReader:
         if not np.isfinite(ratio_max) or batch.size == 0:
             return
         de = batch["e1"] - batch["e0"]
-        xy = (batch["x1"] != batch["x0"]) | (batch["y1"] != batch["y0"])
-        bad = xy & (de > ratio_max * batch["move_d"]) & (de > self.machine.nozzle_diameter * ratio_max)
+        # the rare rows above the tiny amount first: the other tests run on those alone (this runs per batch)
+        rows = np.flatnonzero(de > self.machine.nozzle_diameter * ratio_max)
+        if rows.size == 0:
+            return
+        cand = batch[rows]
+        xy = (cand["x1"] != cand["x0"]) | (cand["y1"] != cand["y0"])
+        bad = xy & (de[rows] > ratio_max * cand["move_d"])
         if np.any(bad):
-            i = int(np.argmax(bad))
+            i = int(rows[np.argmax(bad)])
             area = de[i] / batch["move_d"][i] * np.pi * (self.machine.filament_diameter / 2) ** 2
             limit = ratio_max * np.pi * (self.machine.filament_diameter / 2) ** 2
             raise GcodeError(f"move exceeds maximum extrusion ({area:.3f} mm² vs {limit:.3f} mm²): Klipper stops "

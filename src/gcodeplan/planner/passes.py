@@ -31,6 +31,15 @@ def set_junction(start_v2: float, cruise_v2: float, end_v2: float, accel: float,
     Distances from v² = v0² + 2·a·x: accel_d = (v_c² − v_s²)/(2a), decel_d = (v_c² − v_e²)/(2a),
     cruise_d = d − accel_d − decel_d; each time = distance / mean speed of the phase.
     """
+    return trapezoid_phase_times(start_v2, cruise_v2, end_v2, math.sqrt(start_v2), math.sqrt(cruise_v2),
+                                 math.sqrt(end_v2), accel, move_d)
+
+
+@njit(cache=True)
+def trapezoid_phase_times(start_v2: float, cruise_v2: float, end_v2: float, start_v: float, cruise_v: float,
+                          end_v: float, accel: float, move_d: float) -> tuple[float, float, float]:
+    """:func:`set_junction` (s) given the speeds (mm/s) as well as their squares: lay_out stores the speeds
+    too, and three square roots per move are a quarter of its time."""
     half_inv_accel = 0.5 / accel
     # Klipper's formulas. Where a phase is absent its distance is rounding noise that can fall below 0 (a cruise
     # or decel time of −5e-19 s, found by tools/fuzz.py; a peak speed equal to the end speed computed as a
@@ -38,9 +47,6 @@ def set_junction(start_v2: float, cruise_v2: float, end_v2: float, accel: float,
     accel_d = max((cruise_v2 - start_v2) * half_inv_accel, 0.0)
     decel_d = max((cruise_v2 - end_v2) * half_inv_accel, 0.0)
     cruise_d = max(move_d - accel_d - decel_d, 0.0)
-    start_v = math.sqrt(start_v2)
-    cruise_v = math.sqrt(cruise_v2)
-    end_v = math.sqrt(end_v2)
     accel_t = accel_d / ((start_v + cruise_v) * 0.5)
     cruise_t = cruise_d / cruise_v
     decel_t = decel_d / ((end_v + cruise_v) * 0.5)
@@ -173,10 +179,10 @@ def plan_runs(policy, prep, rows, lo, hi, out_start_v2, out_cruise_v2, out_end_v
 
 
 @njit(cache=True)
-def lay_out(kind, dwell_t, prep, n_rows, start_v2, cruise_v2, end_v2, limit, t_clock, plan):
-    """Phase times and the clock for rows [0, n_rows): moves back to back from ``t_clock`` (Klipper
-    adds the phase times one by one: t += accel_t; t += cruise_t; t += decel_t), dwell/wait rows add
-    dwell_t, dropped rows take no time. Speeds come in compact order (k-th real move).
+def lay_out(moves, prep, n_rows, start_v2, cruise_v2, end_v2, limit, t_clock, plan):
+    """Phase times and the clock for rows [0, n_rows) of ``moves`` (MOVE rows): moves back to back from
+    ``t_clock`` (Klipper adds the phase times one by one: t += accel_t; t += cruise_t; t += decel_t),
+    dwell/wait rows add dwell_t, dropped rows take no time. Speeds come in compact order (k-th real move).
     Returns the final clock."""
     k = 0
     for i in range(n_rows):
@@ -185,10 +191,14 @@ def lay_out(kind, dwell_t, prep, n_rows, start_v2, cruise_v2, end_v2, limit, t_c
         out.jerk = 0.0
         m = prep[i]
         if m.is_move:
-            a_t, c_t, d_t = set_junction(start_v2[k], cruise_v2[k], end_v2[k], m.accel, m.move_d)
-            out.start_v = math.sqrt(start_v2[k])
-            out.cruise_v = math.sqrt(cruise_v2[k])
-            out.end_v = math.sqrt(end_v2[k])
+            start_v = math.sqrt(start_v2[k])
+            cruise_v = math.sqrt(cruise_v2[k])
+            end_v = math.sqrt(end_v2[k])
+            a_t, c_t, d_t = trapezoid_phase_times(start_v2[k], cruise_v2[k], end_v2[k], start_v, cruise_v, end_v,
+                                                  m.accel, m.move_d)
+            out.start_v = start_v
+            out.cruise_v = cruise_v
+            out.end_v = end_v
             out.accel = m.accel
             out.decel = m.accel
             out.accel_t = a_t
@@ -199,7 +209,7 @@ def lay_out(kind, dwell_t, prep, n_rows, start_v2, cruise_v2, end_v2, limit, t_c
             t_clock = t_clock + a_t + c_t + d_t
             k += 1
         else:
-            t_clock = t_clock + fill_idle_row(out, kind[i], dwell_t[i])
+            t_clock = t_clock + fill_idle_row(out, moves[i].kind, moves[i].dwell_t)
     return t_clock
 
 
@@ -234,8 +244,8 @@ def layout_rows(moves: np.ndarray, prep: np.ndarray, n_rows: int, start_v2, crui
                 t_clock: float) -> tuple[np.ndarray, float]:
     """PLAN rows for the first n_rows rows (speeds in compact order): (plan, clock at the end)."""
     plan = np.empty(n_rows, dtype=PLAN_DTYPE)
-    t_end = lay_out(np.ascontiguousarray(moves["kind"][:n_rows]), np.ascontiguousarray(moves["dwell_t"][:n_rows]),
-                    prep, n_rows, start_v2, cruise_v2, end_v2, limit, float(t_clock), plan)
+    t_end = lay_out(np.ascontiguousarray(moves[:n_rows]), prep, n_rows, start_v2, cruise_v2, end_v2, limit,
+                    float(t_clock), plan)
     return plan, float(t_end)
 
 

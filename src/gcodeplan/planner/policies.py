@@ -207,7 +207,7 @@ def _move_vector(pr, out):
 def cap_junction_kernel(moves, lim, cap_v2, stop_every, i_start, prev, stop_pending, prep):
     """The junction pass of :mod:`gcodeplan.planner.prepare` with the cap taken from ``cap_v2``.
 
-    Same contract as the built-in ``_junction_kernel``: rows i_start.. of ``prep`` get their junction
+    Like the built-in ``_junction_kernel``: rows i_start.. of ``prep`` get their junction
     cap (``max_start_v2``, ``max_mcr_start_v2``, ``stop_before``); ``prev`` is the row of the previous
     move (-1: none), ``stop_pending`` a full stop since it. Returns (prev, stop_pending).
     """

@@ -30,6 +30,11 @@ from .junctions import (jd_junction_v2, klipper_centripetal_v2, klipper_extruder
 
 # _move_limits_kernel error codes
 ERR_NONE, ERR_LIMITS_ROW, ERR_FEED, ERR_ACCEL, ERR_COORD, ERR_DWELL, ERR_NO_ACCEL, ERR_NO_SPEED = range(8)
+ERR_TINY_ACCEL = 8     # reported only when no other error: the kernel goes on past such a row
+# mm/s²: every planner divides by the acceleration and squares speeds: below ~1e-150 mm/s² (M204 /
+# SET_VELOCITY_LIMIT ACCEL=1e-320, found by tools/fuzz.py) that gives inf, NaN or 0 s instead of the
+# astronomically long time it means (S-curves planned a 123 mm move in 0 s)
+MIN_PLAN_ACCEL = 1e-150
 _ERR_TEXT = {ERR_LIMITS_ROW: "move refers to a LIMITS row that does not exist",
              ERR_FEED: "feed rate must be > 0 (F0 or no F given?)",
              ERR_ACCEL: "acceleration must be finite and > 0",
@@ -113,13 +118,17 @@ def _limit_speed(speed_v: float, accel: float, code: int, move_d: float,
     return max_cruise_v2, cur_accel, delta_v2, mcr_delta_v2, limit
 
 
-@njit(cache=True)
-def _move_limits_kernel(moves, lim, policy, prep):
-    """Per-move limits (Klipper Move.__init__, kinematics and extruder check_move) into ``prep``.
-    Returns (error code, row) of the first row the planner cannot use, (ERR_NONE, -1) if none."""
+# _nrt=False: the kernel allocates nothing (``d`` is the caller's scratch), and without numba's reference
+# counting the limits row taken per move costs no atomic incref/decref (25 -> 14 ns per move)
+@njit(cache=True, _nrt=False)
+def _move_limits_kernel(moves, lim, policy, prep, d):
+    """Per-move limits (Klipper Move.__init__, kinematics and extruder check_move) into ``prep``; ``d`` is a
+    scratch float array of 4 (the move's x, y, z, e lengths, mm).
+    Returns (error code, row) of the first row the planner cannot use, (ERR_NONE, -1) if none; a move whose
+    acceleration is below MIN_PLAN_ACCEL is (ERR_TINY_ACCEL, its row) when no row has another error."""
     n = moves.shape[0]
     n_lim = lim.shape[0]
-    d = np.empty(4)
+    tiny_row = -1
     for i in range(n):
         mv = moves[i]
         out = prep[i]
@@ -235,6 +244,8 @@ def _move_limits_kernel(moves, lim, policy, prep):
         out.axes_r_e = axes_r_e
         out.max_cruise_v2 = max_cruise_v2
         out.accel = accel
+        if tiny_row < 0 and not accel >= MIN_PLAN_ACCEL:
+            tiny_row = i
         out.delta_v2 = delta_v2
         out.mcr_delta_v2 = mcr_delta_v2
         out.limit = limit
@@ -248,16 +259,22 @@ def _move_limits_kernel(moves, lim, policy, prep):
                                    out.axes_r_z * cruise_v, axes_r_e * cruise_v,
                                    L[L_JERK0], L[L_JERK0 + 1], L[L_JERK0 + 2], L[L_JERK0 + 3])
             out.stop_v2 = safe_v * safe_v
+    if tiny_row >= 0:
+        return ERR_TINY_ACCEL, tiny_row
     return ERR_NONE, -1
 
 
 # --------------------------------------------------------------------------- junction kernel
 @njit(cache=True)
-def _junction_kernel(moves, lim, policy, i_start, prev, stop_pending, prep):
-    """Sequential junction caps for rows i_start.. of ``prep``; ``prev`` = row of the previous
-    move (-1: none), ``stop_pending`` = a full stop happened since it. Returns (prev, stop_pending)."""
+def _junction_kernel(moves, lim, policy, prev_prep, stop_pending, prep):
+    """Sequential junction caps for the rows of ``prep``; ``prev_prep`` = the PREP row of the move before
+    them (one row, or none: a chunk's predecessor is passed alone, so that a chunk is never copied to
+    sit behind it), ``stop_pending`` = a full stop happened since it. Returns (prev, stop_pending), prev =
+    the row of the last move in ``prep`` (-1: none)."""
     n = moves.shape[0]
-    for i in range(i_start, n):
+    prev = -1
+    has_prev = prev_prep.shape[0] > 0
+    for i in range(n):
         cur = prep[i]
         k = moves[i].kind
         if k == KIND_DWELL or k == KIND_WAIT:
@@ -266,13 +283,13 @@ def _junction_kernel(moves, lim, policy, i_start, prev, stop_pending, prep):
             continue
         if not cur.is_move:
             continue
-        if prev < 0 or stop_pending or policy == POLICY_EXACT_STOP:
+        if (prev < 0 and not has_prev) or stop_pending or policy == POLICY_EXACT_STOP:
             cur.stop_before = True
             cur.max_start_v2 = cur.stop_v2
             cur.max_mcr_start_v2 = 0.0
         else:
             cur.stop_before = False
-            pm = prep[prev]
+            pm = prep[prev] if prev >= 0 else prev_prep[0]
             v2 = 0.0
             reach_v2 = pm.max_start_v2 + pm.delta_v2
             if cur.kinematic and pm.kinematic:
@@ -308,11 +325,18 @@ def _junction_kernel(moves, lim, policy, i_start, prev, stop_pending, prep):
 
 
 # --------------------------------------------------------------------------- Python layer
+# every LIMITS field is a float64 at offset 8·k: a row's bytes are already the table's row
+_LIM_PACKED = LIMITS_DTYPE.itemsize == 8 * len(_LIM_FIELDS) and all(
+    LIMITS_DTYPE.fields[name][:2] == (np.dtype(np.float64), 8 * k) for k, name in enumerate(_LIM_FIELDS))
+
+
 def limits_table(limits: np.ndarray) -> np.ndarray:
     """LIMITS rows → contiguous (n, n_fields) float array in LIMITS_DTYPE field order."""
     limits = np.asarray(limits)
     if limits.dtype != LIMITS_DTYPE:
         raise ConfigError("limits: table does not have LIMITS_DTYPE")
+    if _LIM_PACKED:   # one copy instead of one per field (this runs for every chunk of a file)
+        return np.ascontiguousarray(limits).view(np.float64).reshape(len(limits), len(_LIM_FIELDS)).copy()
     out = np.empty((len(limits), len(_LIM_FIELDS)), dtype=np.float64)
     for k, name in enumerate(_LIM_FIELDS):
         out[:, k] = limits[name]
@@ -361,27 +385,31 @@ def validate(moves: np.ndarray, limits: np.ndarray, policy: int) -> None:
 
 def prepare_with_context(moves: np.ndarray, limits: np.ndarray, policy: int,
                          prev_moves: np.ndarray | None = None, prev_prep: np.ndarray | None = None,
-                         stop_pending: bool = True, cap_v2=None) -> tuple[np.ndarray, bool]:
+                         stop_pending: bool = True, cap_v2=None, out: np.ndarray | None = None
+                         ) -> tuple[np.ndarray, bool]:
     """PREP rows for ``moves``, continuing from one previous move (the streaming case).
 
     ``prev_moves``/``prev_prep``: the last real move already prepared (one row each) or None;
     ``stop_pending``: a full stop happened after it; ``cap_v2``: a registered policy's cap function
-    (:mod:`gcodeplan.planner.policies`), None for the built-in kernel of ``policy``.
+    (:mod:`gcodeplan.planner.policies`), None for the built-in kernel of ``policy``; ``out``: zeroed
+    contiguous PREP rows, one per move, to fill (the tail of the streaming planner's window, so that the
+    chunk is not copied there afterwards), None = new ones.
     Returns (prep, stop_pending after the chunk).
     """
     moves = np.ascontiguousarray(moves)
     lim = limits_table(limits)
-    prep = np.zeros(len(moves), dtype=PREP_DTYPE)
-    err, row = _move_limits_kernel(moves, lim, policy, prep)
+    prep = np.zeros(len(moves), dtype=PREP_DTYPE) if out is None else out
+    err, row = _move_limits_kernel(moves, lim, policy, prep, np.empty(4))
+    if err == ERR_TINY_ACCEL:
+        raise _line_error(moves, row, f"acceleration {float(prep['accel'][row])!r} mm/s² is too small to plan with")
     if err != ERR_NONE:
         raise _line_error(moves, row, _ERR_TEXT[err])
-    # Every planner divides by the acceleration and squares speeds: below ~1e-150 mm/s² (M204 /
-    # SET_VELOCITY_LIMIT ACCEL=1e-320, found by tools/fuzz.py) that gives inf, NaN or 0 s instead of the
-    # astronomically long time it means (S-curves planned a 123 mm move in 0 s)
-    tiny = np.flatnonzero(prep["is_move"] & ~(prep["accel"] >= 1e-150))
-    if tiny.size:
-        raise _line_error(moves, int(tiny[0]), f"acceleration {float(prep['accel'][tiny[0]])!r} mm/s² is too small "
-                                                "to plan with")
+    if cap_v2 is None:
+        before = np.zeros(0, PREP_DTYPE) if prev_prep is None else np.ascontiguousarray(prev_prep)
+        _, stop_pending = _junction_kernel(moves, lim, policy, before, bool(stop_pending), prep)
+        return prep, bool(stop_pending)
+    from .policies import cap_junction_kernel
+
     if prev_prep is not None:
         ctx = concat_rows(prev_prep, prep)
         ctx_moves = concat_rows(prev_moves, moves)
@@ -389,15 +417,10 @@ def prepare_with_context(moves: np.ndarray, limits: np.ndarray, policy: int,
     else:
         ctx, ctx_moves = prep, moves
         i_start, prev = 0, -1
-    if cap_v2 is None:
-        _, stop_pending = _junction_kernel(ctx_moves, lim, policy, i_start, prev, bool(stop_pending), ctx)
-    else:
-        from .policies import cap_junction_kernel
-
-        _, stop_pending = cap_junction_kernel(ctx_moves, lim, cap_v2, policy == POLICY_EXACT_STOP, i_start, prev,
-                                              bool(stop_pending), ctx)
+    _, stop_pending = cap_junction_kernel(ctx_moves, lim, cap_v2, policy == POLICY_EXACT_STOP, i_start, prev,
+                                          bool(stop_pending), ctx)
     if prev_prep is not None:
-        prep = ctx[1:]
+        prep[...] = ctx[1:]      # into ``out`` when given
     return prep, bool(stop_pending)
 
 

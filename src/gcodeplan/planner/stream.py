@@ -47,11 +47,34 @@ class _Mode:
 
     def prepare(self, moves_chunk: np.ndarray, limits: np.ndarray) -> np.ndarray:
         """PREP rows of a chunk, continuing from what came before."""
+        return self._prepare(moves_chunk, limits, None)
+
+    def window_prep(self, moves_chunk: np.ndarray, limits: np.ndarray) -> np.ndarray:
+        """The new window's PREP rows: the pending ones, then the chunk's (:meth:`prepare`)."""
+        pending = self.sp._prep
+        prep = self.prepare(moves_chunk, limits)
+        return concat_rows(pending, prep) if len(pending) else prep
+
+    def _window_prep_in_place(self, moves_chunk: np.ndarray, limits: np.ndarray) -> np.ndarray:
+        """:meth:`window_prep` for the modes that use :meth:`prepare` as it is: the chunk's rows are made in
+        place behind the pending ones, so the chunk is not copied into the window afterwards."""
+        pending = self.sp._prep
+        window = np.zeros(len(pending) + len(moves_chunk), dtype=PREP_DTYPE)
+        window[:len(pending)] = pending
+        self._prepare(moves_chunk, limits, window[len(pending):])
+        return window
+
+    def _prepare(self, moves_chunk: np.ndarray, limits: np.ndarray, out: np.ndarray | None) -> np.ndarray:
+        """PREP rows of a chunk into ``out`` (zeroed rows, None = new ones)."""
         sp = self.sp
         pcode = POLICY_JD if sp._pcode == POLICY_BLEND else sp._pcode   # S-curves with blend: refused earlier
-        validate(moves_chunk, limits, pcode)
+        # the same LIMITS table passes the same checks: checked again only when it has changed
+        key = (pcode, limits.tobytes())
+        if moves_chunk.dtype != MOVE_DTYPE or key != sp._limits_checked:
+            validate(moves_chunk, limits, pcode)
+            sp._limits_checked = key
         prep, sp._stop_pending = prepare_with_context(moves_chunk, limits, pcode, sp._last_move, sp._last_prep,
-                                                      sp._stop_pending, cap_v2=sp._cap_v2)
+                                                      sp._stop_pending, cap_v2=sp._cap_v2, out=out)
         real = np.flatnonzero(prep["is_move"])
         if real.size:
             sp._last_move = moves_chunk[real[-1]:real[-1] + 1].copy()
@@ -76,6 +99,9 @@ class _TrapezoidMode(_Mode):
     """Trapezoids: Klipper's lazy flush for 'klipper', the pinned-start rule for the other policies."""
 
     name = MODE_TRAPEZOID
+
+    def window_prep(self, moves_chunk, limits):
+        return self._window_prep_in_place(moves_chunk, limits)
 
     def plan(self, final: bool):
         sp = self.sp
@@ -115,6 +141,10 @@ class _SCurveMode(_Mode):
     def prepare(self, moves_chunk, limits):
         self.sp._check_same_jerk(moves_chunk, limits)
         return super().prepare(moves_chunk, limits)
+
+    def window_prep(self, moves_chunk, limits):
+        self.sp._check_same_jerk(moves_chunk, limits)
+        return self._window_prep_in_place(moves_chunk, limits)
 
     def plan(self, final: bool):
         from .scurve import scurve_plan_window
@@ -190,6 +220,7 @@ class StreamPlanner:
         self._prep = np.zeros(0, dtype=PREP_DTYPE)
         self._last_move: np.ndarray | None = None         # the last real move prepared (1 row)
         self._last_prep: np.ndarray | None = None
+        self._limits_checked: tuple | None = None         # (policy code, LIMITS bytes) that passed validate()
         self._stop_pending = True                         # a full stop precedes the next move
         self._clock = 0.0
         self._emitted: list[tuple[np.ndarray, np.ndarray, np.ndarray, object]] = []  # last call's pieces
@@ -214,9 +245,8 @@ class StreamPlanner:
             return []
         if self._mode is None:
             self._mode = self._choose_mode(moves_chunk, limits)
-        prep = self._mode.prepare(moves_chunk, limits)
+        self._prep = self._mode.window_prep(moves_chunk, limits)
         self._moves = concat_rows(self._moves, moves_chunk)
-        self._prep = concat_rows(self._prep, prep) if len(self._prep) else prep
         return self._emit(final=False)
 
     def finish(self) -> list[tuple[np.ndarray, np.ndarray]]:
