@@ -74,7 +74,7 @@ def _interpreted(cases):
 
 @pytest.fixture(scope="module")
 def small_samples(tmp_path_factory):
-    """The first ≤ 8 KB (whole lines) of every text sample: each a tiny program of its own kind."""
+    """The first ≤ 16 KB (whole lines) of every text sample: each a tiny program of its own kind."""
     d = tmp_path_factory.mktemp("small")
     out = []
     for p in sorted(SAMPLES.iterdir()):

@@ -29,9 +29,10 @@ from time import perf_counter
 
 import numpy as np
 
-#: inputs up to this many bytes run interpreted (the pipeline decides; about 300 G1 lines). Interpreting
-#: costs about 1 ms per line here; compiled kernels cost the 0.35–0.45 s numba start-up once.
-SMALL_INPUT_BYTES = 8192
+#: inputs up to this many bytes run interpreted (the pipeline decides; about 500 G1 lines). Interpreting costs
+#: 8–14 µs per byte of G-code here (0.1–0.2 s for 16 KB), compiled kernels the 0.35–0.45 s numba start-up once:
+#: break-even is near 32 KB, and past :data:`INTERPRET_BUDGET_S` a run switches to compiled kernels anyway.
+SMALL_INPUT_BYTES = 16384
 
 _KERNELS: list["Kernel"] = []
 _numba = None               # the numba module once :func:`activate` ran
