@@ -19,6 +19,8 @@ import gcodeplan as gp
 from gcodeplan import _jit
 from gcodeplan.pipeline import small_input
 
+from conftest import SHARED
+
 REPO = Path(__file__).resolve().parents[1]
 SAMPLES = REPO / "gcode_samples"
 
@@ -30,9 +32,13 @@ import gcodeplan as gp
 from gcodeplan import _jit
 out = {}
 _jit.INTERPRET_BUDGET_S = 1e9                 # interpret everything, however long it takes
+def machine(spec):
+    kind, _, where = spec.partition(":")
+    return {"cfg": lambda: gp.load_machine(klipper_config=where), "ini": lambda: gp.load_machine(linuxcnc_ini=where),
+            }.get(kind, lambda: gp.load_machine(spec))()
 for case in json.loads(sys.argv[1]):
     path, preset, policy, jerk = case
-    m = gp.load_machine(preset)
+    m = machine(preset)
     with _jit.interpreted():
         try:
             e = gp.estimate(path, m, policy=policy, jerk=jerk)
@@ -48,11 +54,20 @@ print(json.dumps({"results": out, "numba": "numba" in sys.modules, "fallbacks": 
 """
 
 
+def _machine(spec):
+    kind, _, where = spec.partition(":")
+    if kind == "cfg":
+        return gp.load_machine(klipper_config=where)
+    if kind == "ini":
+        return gp.load_machine(linuxcnc_ini=where)
+    return gp.load_machine(spec)
+
+
 def _compiled(case):
     import hashlib
 
     path, preset, policy, jerk = case
-    m = gp.load_machine(preset)
+    m = _machine(preset)
     try:
         e = gp.estimate(path, m, policy=policy, jerk=jerk)
         p = gp.plan(path, m, policy=policy, jerk=jerk)
@@ -109,14 +124,36 @@ def test_interpreted_kernels_plan_every_sample_bit_for_bit(small_samples):
     assert len(errors) <= len(small_samples) + 1, errors
 
 
+def test_interpreted_kernels_on_klipper_configs_and_linuxcnc(small_samples, tmp_path):
+    """Klipper printer.cfg machines (cartesian, corexy, delta, input shaper, pressure advance: the vendored
+    configs) and LinuxCNC's planner with its mill .ini (when ../shared is there): identical, numba-free."""
+    _jit.activate()
+    ref = REPO / "tests" / "data" / "reference" / "klipper"
+    cfgs = [ref / "cartesian_corpus.cfg", ref / "corexy_corpus.cfg", ref / "extensions" / "delta.cfg",
+            ref / "extensions" / "shaper_corexy.cfg", ref / "extensions" / "pa_cartesian.cfg"]
+    printer = [p for p in small_samples if p.endswith(".gcode")]
+    cases = [[p, f"cfg:{c}", None, None] for c in cfgs for p in printer[:3]]
+    ini = SHARED / "reference" / "linuxcnc" / "config" / "mill.ini"
+    if ini.exists():       # interpreting LinuxCNC's servo-cycle simulation is slow: the first 60 lines of each
+        for p in small_samples:
+            if p.endswith(".ngc"):
+                short = tmp_path / Path(p).name
+                short.write_text("".join(Path(p).read_text().splitlines(keepends=True)[:60]) + "M2\n")
+                cases.append([str(short), f"ini:{ini}", "linuxcnc", None])
+    got = _interpreted(cases)
+    assert got["numba"] is False and got["fallbacks"] == []
+    assert [c for c in cases if got["results"][json.dumps(c)] != _compiled(c)] == []
+    assert sum(1 for v in got["results"].values() if v[0] != "error") >= len(cases) // 2
+
+
 def test_differential_fuzz_round():
     """tools/fuzz.py --differential: mutated corpus programs planned interpreted (fresh worker without numba)
     and compiled give identical rows; the long round's figure is in the README."""
     sys.path.insert(0, str(REPO / "tools"))
     import fuzz
 
-    st = fuzz.differential(5, 150, None, log=lambda *a: None)
-    assert st.cases == 150
+    st = fuzz.differential(5, 1000, None, log=lambda *a: None)
+    assert st.cases == 1000
     assert st.failures == 0, st.signatures
 
 

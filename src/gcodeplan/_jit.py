@@ -249,6 +249,17 @@ def _as_numba_computes(py_func):
     return fn
 
 
+def _overlap(a: np.ndarray, b: np.ndarray) -> bool:
+    """True when ``a`` and ``b`` share a byte (two fields of one structured array do not); True when that is
+    too hard to tell."""
+    if not np.may_share_memory(a, b):
+        return False
+    try:
+        return bool(np.shares_memory(a, b, max_work=10_000))
+    except np.exceptions.TooHardError:
+        return True
+
+
 def _run_python(py_func, args):
     """``py_func(*args)`` with numba's view of the arrays: narrow integers widened (copied in and out) and
     structured arrays whose rows read and write fields as attributes (``row.field`` as in numba)."""
@@ -273,7 +284,7 @@ def _run_python(py_func, args):
     if back:
         arrays = [a for a in args if isinstance(a, np.ndarray)]
         for a, _ in back:
-            if sum(1 for b in arrays if np.may_share_memory(a, b)) > 1:
+            if sum(1 for b in arrays if _overlap(a, b)) > 1:
                 raise _Diverges("widened array aliased by another argument")
     out = _as_numba_computes(py_func)(*pargs)
     for a, w in back:
