@@ -176,6 +176,25 @@ def test_tiny_estimate_never_imports_numba(tmp_path):
     assert est["total_time_s"] == pytest.approx(1.0 + 10.0 / 3000.0, rel=1e-12)
 
 
+def test_a_run_past_the_interpreting_budget_goes_compiled_with_the_same_result(tmp_path):
+    """Past INTERPRET_BUDGET_S the outermost kernel call restores its arrays and numba takes over mid-run:
+    the estimate is the compiled one, bit for bit."""
+    f = tmp_path / "arcs.gcode"
+    f.write_text("G21 G90\nG1 X10 Y0 F3000\n" + "G2 X10 Y0 I-10 J0\nG3 X10 Y0 I-10 J0\n" * 20 + "G1 X0 Y0\n")
+    code = ("import sys, json; import gcodeplan as gp; from gcodeplan import _jit\n"
+            "_jit.INTERPRET_BUDGET_S = 0.002\n"
+            "e = gp.estimate(sys.argv[1])\n"
+            "print(json.dumps({'est': e.to_json(), 'numba': 'numba' in sys.modules, 'fallbacks': _jit.fallbacks}))")
+    r = subprocess.run([sys.executable, "-c", code, str(f)], capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    got = json.loads(r.stdout)
+    assert got["numba"] is True
+    assert any("too long" in why for _, why in got["fallbacks"])
+    _jit.activate()
+    assert json.dumps(got["est"], sort_keys=True) == json.dumps(
+        json.loads(json.dumps(gp.estimate(str(f)).to_json())), sort_keys=True)
+
+
 def test_what_counts_as_small(tmp_path):
     small = tmp_path / "s.gcode"
     small.write_text("G1 X1\n" * 100)

@@ -42,8 +42,9 @@ _this_thread = threading.local()   # .inside: an interpreted kernel runs in this
 #: (kernel, reason) of the first interpreted calls that fell back to numba in this process (diagnostics, tests)
 fallbacks: list[tuple[str, str]] = []
 #: s of interpreting after which kernels go compiled: a small input can still ask for much work (a huge arc
-#: in tiny chords); past this budget numba's start-up is the cheaper way on
-INTERPRET_BUDGET_S = 0.25
+#: in tiny chords). About numba's own start-up here, the rent-or-buy choice: a run never takes more than
+#: about twice what the better of the two ways would have taken
+INTERPRET_BUDGET_S = 0.4
 _interpreted_s = 0.0        # s spent in outermost interpreted calls so far (all threads)
 #: set by the ``gcodeplan`` command for its own process (never by the library, whose caller may run numba
 #: code with BLAS and owns its garbage collector): numba's first-use BLAS probe is made to fail and numba's
@@ -94,6 +95,8 @@ class Kernel:
             with np.errstate(all="ignore"):
                 out = _run_python(self.py_func, args)
         except Exception as err:                 # a Python/numba difference: run the compiled kernel instead
+            here.inside = False
+            _interpreted_s += perf_counter() - here.t0
             if len(fallbacks) < 100:
                 fallbacks.append((self.__qualname__, repr(err)[:200]))
             for a, copy in saved:
@@ -101,9 +104,11 @@ class Kernel:
                     a[...] = copy
             activate()
             return self.dispatcher(*args)
-        finally:
+        except BaseException:                    # KeyboardInterrupt / SystemExit: no fallback, just leave
             here.inside = False
-            _interpreted_s += perf_counter() - here.t0
+            raise
+        here.inside = False
+        _interpreted_s += perf_counter() - here.t0
         return _as_numba_returns(out)
 
 
