@@ -306,3 +306,15 @@ def test_libm_functions_match_numba():
     # the test can fail: the plain Python versions do differ somewhere on these inputs
     assert any(math.hypot(x, y) != k.dispatcher(x, y)[0] or np.cbrt(x * y) != k.dispatcher(x, y)[1]
                for x, y in zip(xs, ys))
+
+
+def test_kernels_pickle_by_name():
+    """A kernel pickles as a function does (by module and name), before and after numba is active."""
+    import pickle
+
+    from gcodeplan.profiles import core
+
+    k = _jit.Kernel(core.piece_position.py_func, {"cache": True})   # as the decorator makes it
+    back = pickle.loads(pickle.dumps(k))
+    assert back is core.piece_position                 # the module's own kernel (or dispatcher)
+    assert back(0.0, 1.0, 2.0, 0.0, 3.0) == 12.0        # 0 + 1·3 + 2·9/2

@@ -72,6 +72,10 @@ class Kernel:
     def __repr__(self) -> str:
         return f"<gcodeplan kernel {self.__module__}.{self.__qualname__}>"
 
+    def __reduce__(self):
+        # pickled by name, as a function is: the receiving process finds its own kernel (or dispatcher)
+        return (_kernel_named, (self.__module__, self.__qualname__))
+
     def __call__(self, *args):
         d = self.dispatcher
         if d is not None:
@@ -303,6 +307,16 @@ def _run_python(py_func, args):
             if isinstance(o, np.ndarray) and np.may_share_memory(o, w):
                 raise _Diverges("returns a view of a widened array")
     return out
+
+
+def _kernel_named(module: str, qualname: str):
+    """The kernel ``module.qualname`` in this process (a :class:`Kernel`, or its dispatcher once numba is active)."""
+    import importlib
+
+    obj = importlib.import_module(module)
+    for part in qualname.split("."):
+        obj = getattr(obj, part)
+    return obj
 
 
 def _as_numba_returns(out):
