@@ -86,6 +86,15 @@ def test_peck_depth_not_a_multiple_of_q():
     assert rows[rows[:, 3] == F][:, 2] == pytest.approx([-0.1, -0.2, -0.3], abs=1e-12)
 
 
+def test_a_peck_count_at_the_resolution_of_r_is_refused_at_once():
+    # R1e20 Z4 Q1e-6: 1e26 pecks, and r - k·q does not change with k at that magnitude (resolution 16384 mm):
+    # the settling loop spun for ever before (tools/fuzz.py --seed 20261206 --replay 75283)
+    with pytest.raises(CycleError, match="G83 would make 3e\\+26 moves"):
+        expand_cycle(83, {"Z": 4, "R": 1e20, "Q": 1e-6}, CycleState.enter(0, 0, 0, retract_mode=99))
+    with pytest.raises(CycleError, match="Q 4.94066e-324 mm is too small for a 5 mm hole"):  # subnormal Q
+        expand_cycle(73, {"Z": -5, "R": 0, "Q": 5e-324}, CycleState.enter(0, 0, 0, retract_mode=99))
+
+
 def test_g85_feeds_out_to_r_then_rapids_to_clear():
     rows, _ = expand_cycle(85, {"X": 10, "Z": -10, "R": 2}, START)
     check(rows, rows_of((10, 0, 5, R), (10, 0, 2, R), (10, 0, -10, F), (10, 0, 2, F), (10, 0, 5, R)))

@@ -107,11 +107,22 @@ def _peck_depths(r_abs: float, bottom: float, q: float) -> int:
     span = r_abs - bottom
     if span <= DEPTH_EPS_MM:
         return 0
-    k = math.ceil(span / q) - 1
-    # Settle rounding at the boundary: r − k·q must stay above the bottom, r − (k+1)·q must not.
-    while k > 0 and r_abs - k * q <= bottom + DEPTH_EPS_MM:
+    count = span / q
+    if not count <= MAX_CYCLE_ROWS:     # the caller refuses it (too many moves): no settling at that size, where
+        # k·q can sit below the resolution of r and the loops below would not move (tools/fuzz.py: R1e16 Q0.001)
+        if not math.isfinite(count):
+            raise CycleError(f"peck depth Q {q:g} mm is too small for a {span:g} mm hole: check Q")
+        return int(count)
+    k = math.ceil(count) - 1
+    # Settle rounding at the boundary: r − k·q must stay above the bottom, r − (k+1)·q must not. The closed
+    # form is off by a step at most; a few steps bound the loops where r's resolution hides q.
+    for _ in range(4):
+        if not (k > 0 and r_abs - k * q <= bottom + DEPTH_EPS_MM):
+            break
         k -= 1
-    while r_abs - (k + 1) * q > bottom + DEPTH_EPS_MM:
+    for _ in range(4):
+        if not (r_abs - (k + 1) * q > bottom + DEPTH_EPS_MM):
+            break
         k += 1
     return k
 
