@@ -46,6 +46,9 @@ fallbacks: list[tuple[str, str]] = []
 #: about twice what the better of the two ways would have taken
 INTERPRET_BUDGET_S = 0.4
 _interpreted_s = 0.0        # s spent in outermost interpreted calls so far (all threads)
+#: a kernel given an array longer than this runs compiled: its loop is over that array (chords, steps,
+#: samples), and one interpreted call cannot be stopped at the budget halfway (a tiny file's huge arc)
+MAX_INTERPRETED_ELEMENTS = 65_536
 #: set by the ``gcodeplan`` command for its own process (never by the library, whose caller may run numba
 #: code with BLAS and owns its garbage collector): numba's first-use BLAS probe is made to fail and numba's
 #: objects go to the permanent GC generation (see :func:`activate`)
@@ -88,10 +91,18 @@ class Kernel:
     def _interpret(self, args):
         global _interpreted_s
         here = _this_thread
+        big = any(isinstance(a, np.ndarray) and a.size > MAX_INTERPRETED_ELEMENTS for a in args)
         if getattr(here, "inside", False):       # the outermost call restores and falls back for us
+            if big:
+                raise _Diverges("an array too long to interpret")
             if _interpreted_s + (perf_counter() - here.t0) > INTERPRET_BUDGET_S:
                 raise _Diverges("interpreting took too long")
             return _run_python(self.py_func, args)
+        if big:
+            if len(fallbacks) < 100:
+                fallbacks.append((self.__qualname__, "an array too long to interpret"))
+            activate()
+            return self.dispatcher(*args)
         saved = [(a, a.copy()) for a in args if isinstance(a, np.ndarray)]
         here.inside = True
         here.t0 = perf_counter()

@@ -64,7 +64,10 @@ ERR_TOLERANCE = -9
 ERR_BUFFER = -10
 
 # Above this an arc is a typo (a radius in microns, a tolerance of 1e-9), not a part: refuse, don't allocate.
-MAX_ARC_SEGMENTS = 10_000_000
+# A 10 m radius full circle at 0.002 mm is 2,500 chords; each chord is a ~200-byte MOVE row, so a million is
+# 200 MB and about a second (10 million took 2 GB and 12 s before the arc was refused as out of range;
+# tools/fuzz.py --seed 20261206 --replay 348621).
+MAX_ARC_SEGMENTS = 1_000_000
 
 # End-radius check. LinuxCNC's interpreter (interp_internal.hh) has CENTER_ARC_RADIUS_TOLERANCE
 # = 2·0.01·√2 mm in G21 and 2·0.001·√2 inch in G20, and SPIRAL_RELATIVE_TOLERANCE = 0.001. Its 2.7/2.8
