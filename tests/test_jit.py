@@ -24,32 +24,15 @@ from conftest import SHARED
 REPO = Path(__file__).resolve().parents[1]
 SAMPLES = REPO / "gcode_samples"
 
-# what the interpreted process computes: estimate JSON + every field of the plan, per case
+# the interpreted side: this module's _result() for every case, in a process that has never imported numba
 _CHILD = r"""
-import sys, json, hashlib
-import numpy as np
-import gcodeplan as gp
+import sys, json
+sys.path.insert(0, sys.argv[2])
+import test_jit
 from gcodeplan import _jit
-out = {}
 _jit.INTERPRET_BUDGET_S = 1e9                 # interpret everything, however long it takes
-def machine(spec):
-    kind, _, where = spec.partition(":")
-    return {"cfg": lambda: gp.load_machine(klipper_config=where), "ini": lambda: gp.load_machine(linuxcnc_ini=where),
-            }.get(kind, lambda: gp.load_machine(spec))()
-for case in json.loads(sys.argv[1]):
-    path, preset, policy, jerk = case
-    m = machine(preset)
-    with _jit.interpreted():
-        try:
-            e = gp.estimate(path, m, policy=policy, jerk=jerk)
-            p = gp.plan(path, m, policy=policy, jerk=jerk)
-            h = hashlib.sha256()
-            for arr in (p.moves, p.plan, p.segments):
-                for name in arr.dtype.names:
-                    h.update(np.ascontiguousarray(arr[name]).tobytes())
-            out[json.dumps(case)] = [json.dumps(e.to_json(), sort_keys=True), h.hexdigest()]
-        except gp.GcodeplanError as err:
-            out[json.dumps(case)] = ["error", str(err)]
+with _jit.interpreted():
+    out = {json.dumps(case): test_jit._result(case) for case in json.loads(sys.argv[1])}
 print(json.dumps({"results": out, "numba": "numba" in sys.modules, "fallbacks": _jit.fallbacks}))
 """
 
@@ -63,7 +46,9 @@ def _machine(spec):
     return gp.load_machine(spec)
 
 
-def _compiled(case):
+def _result(case):
+    """[estimate JSON, sha256 of every field of every MOVE / PLAN / SEGMENT row] or ['error', message] for a case
+    [path, machine spec, policy, jerk]; compiled or interpreted as the calling process runs its kernels."""
     import hashlib
 
     path, preset, policy, jerk = case
@@ -80,9 +65,14 @@ def _compiled(case):
     return [json.dumps(e.to_json(), sort_keys=True), h.hexdigest()]
 
 
+def _compiled(case):
+    _jit.activate()
+    return _result(case)
+
+
 def _interpreted(cases):
-    r = subprocess.run([sys.executable, "-c", _CHILD, json.dumps(cases)], capture_output=True, text=True,
-                       timeout=600)
+    r = subprocess.run([sys.executable, "-c", _CHILD, json.dumps(cases), str(Path(__file__).parent)],
+                       capture_output=True, text=True, timeout=600)
     assert r.returncode == 0, r.stderr[-3000:]
     return json.loads(r.stdout)
 

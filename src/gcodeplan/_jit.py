@@ -91,40 +91,43 @@ class Kernel:
     def _interpret(self, args):
         global _interpreted_s
         here = _this_thread
-        big = any(isinstance(a, np.ndarray) and a.size > MAX_INTERPRETED_ELEMENTS for a in args)
+        too_long = any(isinstance(a, np.ndarray) and a.size > MAX_INTERPRETED_ELEMENTS for a in args)
         if getattr(here, "inside", False):       # the outermost call restores and falls back for us
-            if big:
-                raise _Diverges("an array too long to interpret")
+            if too_long:
+                raise _Diverges(_TOO_LONG)
             if _interpreted_s + (perf_counter() - here.t0) > INTERPRET_BUDGET_S:
                 raise _Diverges("interpreting took too long")
             return _run_python(self.py_func, args)
-        if big:
-            if len(fallbacks) < 100:
-                fallbacks.append((self.__qualname__, "an array too long to interpret"))
-            activate()
-            return self.dispatcher(*args)
+        if too_long:
+            return self._compiled_instead(args, _TOO_LONG)
         saved = [(a, a.copy()) for a in args if isinstance(a, np.ndarray)]
         here.inside = True
-        here.t0 = perf_counter()
+        t0 = here.t0 = perf_counter()
+        reason = None
         try:
             with np.errstate(all="ignore"):
                 out = _run_python(self.py_func, args)
         except Exception as err:                 # a Python/numba difference: run the compiled kernel instead
+            reason = repr(err)[:200]
+        finally:                                 # (KeyboardInterrupt and SystemExit just leave)
             here.inside = False
-            _interpreted_s += perf_counter() - here.t0
-            if len(fallbacks) < 100:
-                fallbacks.append((self.__qualname__, repr(err)[:200]))
-            for a, copy in saved:
-                if a.flags.writeable:
-                    a[...] = copy
-            activate()
-            return self.dispatcher(*args)
-        except BaseException:                    # KeyboardInterrupt / SystemExit: no fallback, just leave
-            here.inside = False
-            raise
-        here.inside = False
-        _interpreted_s += perf_counter() - here.t0
-        return _as_numba_returns(out)
+            _interpreted_s += perf_counter() - t0
+        if reason is None:
+            return _as_numba_returns(out)
+        for a, copy in saved:
+            if a.flags.writeable:
+                a[...] = copy
+        return self._compiled_instead(args, reason)
+
+    def _compiled_instead(self, args, reason: str):
+        """Run the compiled kernel (importing numba if needed), noting why in :data:`fallbacks`."""
+        if len(fallbacks) < 100:
+            fallbacks.append((self.__qualname__, reason))
+        activate()
+        return self.dispatcher(*args)
+
+
+_TOO_LONG = "an array too long to interpret"
 
 
 class _Diverges(Exception):
@@ -212,11 +215,11 @@ class _LibmMath:
 
     def __init__(self):
         import ctypes
+        import ctypes.util
         import math
 
         self.__dict__.update({k: getattr(math, k) for k in dir(math) if not k.startswith("__")})
-        libm = ctypes.CDLL(ctypes.util.find_library("m") or None) if hasattr(ctypes, "util") else ctypes.CDLL(None)
-        hypot = libm.hypot
+        hypot = ctypes.CDLL(ctypes.util.find_library("m")).hypot
         hypot.restype = ctypes.c_double
         hypot.argtypes = (ctypes.c_double, ctypes.c_double)
         self.hypot = hypot
@@ -253,8 +256,6 @@ def _as_numba_computes(py_func):
     import types
 
     if "libm" not in _PYTHON_FUNCS:
-        import ctypes.util  # noqa: F401  # find_library
-
         _PYTHON_FUNCS["libm"] = (_LibmMath(), _LibmNumpy())
     libm_math, libm_np = _PYTHON_FUNCS["libm"]
     g = dict(py_func.__globals__)

@@ -866,6 +866,7 @@ def make_stream_mode(base_cls):
     class LinuxcncMode(base_cls):
         name = "linuxcnc"
         own_segments = True
+        own_prepare = True
 
         def __init__(self, sp):
             super().__init__(sp)

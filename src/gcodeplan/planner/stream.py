@@ -41,6 +41,8 @@ class _Mode:
 
     name = ""
     own_segments = False     # True: the mode's pieces are not trapezoids (to_segments cannot rebuild them)
+    own_prepare = False      # True: the mode makes its own PREP rows (:meth:`prepare`); the others share the
+    #                          planner's preparation, which writes straight into the window
 
     def __init__(self, sp: "StreamPlanner"):
         self.sp = sp
@@ -50,15 +52,12 @@ class _Mode:
         return self._prepare(moves_chunk, limits, None)
 
     def window_prep(self, moves_chunk: np.ndarray, limits: np.ndarray) -> np.ndarray:
-        """The new window's PREP rows: the pending ones, then the chunk's (:meth:`prepare`)."""
+        """The new window's PREP rows: the pending ones, then the chunk's. With the shared preparation the
+        chunk's rows are made in place behind the pending ones (the chunk is not copied in afterwards)."""
         pending = self.sp._prep
-        prep = self.prepare(moves_chunk, limits)
-        return concat_rows(pending, prep) if len(pending) else prep
-
-    def _window_prep_in_place(self, moves_chunk: np.ndarray, limits: np.ndarray) -> np.ndarray:
-        """:meth:`window_prep` for the modes that use :meth:`prepare` as it is: the chunk's rows are made in
-        place behind the pending ones, so the chunk is not copied into the window afterwards."""
-        pending = self.sp._prep
+        if self.own_prepare:
+            prep = self.prepare(moves_chunk, limits)
+            return concat_rows(pending, prep) if len(pending) else prep
         window = np.zeros(len(pending) + len(moves_chunk), dtype=PREP_DTYPE)
         window[:len(pending)] = pending
         self._prepare(moves_chunk, limits, window[len(pending):])
@@ -100,9 +99,6 @@ class _TrapezoidMode(_Mode):
 
     name = MODE_TRAPEZOID
 
-    def window_prep(self, moves_chunk, limits):
-        return self._window_prep_in_place(moves_chunk, limits)
-
     def plan(self, final: bool):
         sp = self.sp
         prep = sp._prep
@@ -138,13 +134,9 @@ class _SCurveMode(_Mode):
         super().__init__(sp)
         self.start_v = 0.0        # final start speed of the first pending move
 
-    def prepare(self, moves_chunk, limits):
-        self.sp._check_same_jerk(moves_chunk, limits)
-        return super().prepare(moves_chunk, limits)
-
     def window_prep(self, moves_chunk, limits):
         self.sp._check_same_jerk(moves_chunk, limits)
-        return self._window_prep_in_place(moves_chunk, limits)
+        return super().window_prep(moves_chunk, limits)
 
     def plan(self, final: bool):
         from .scurve import scurve_plan_window
@@ -169,6 +161,7 @@ class _BlendMode(_Mode):
 
     name = MODE_BLEND
     own_segments = True
+    own_prepare = True
 
     def __init__(self, sp):
         super().__init__(sp)

@@ -176,6 +176,25 @@ def _backward_count(n, u_end):
     return int(math.ceil(x)) if x > 0.0 else 0
 
 
+@njit(cache=True, inline="always")
+def _stretch_steps(n, u_start, u_end, k, sgn, cnt):
+    """Steps of monotone stretch ``k`` (u from u_start to u_end, in steps from commanded step n): their count
+    into ``cnt[k]``, their direction (+1, -1, 0) into ``sgn[k]``. Returns (count, commanded step after)."""
+    c = 0
+    if u_end > u_start:
+        c = _forward_count(n, u_end)
+        n += c
+        sgn[k] = 1.0
+    elif u_end < u_start:
+        c = _backward_count(n, u_end)
+        n -= c
+        sgn[k] = -1.0
+    else:
+        sgn[k] = 0.0
+    cnt[k] = c
+    return c, n
+
+
 @njit(cache=True)
 def gen_steps(t0, dt, pc, vc, ac, jc, reset, step_dist, state, start, out_t, out_dir, out_n):
     """Append the step times of pieces ``start..`` to ``out_t``/``out_dir`` from index ``out_n``.
@@ -236,18 +255,7 @@ def gen_steps(t0, dt, pc, vc, ac, jc, reset, step_dist, state, start, out_t, out
         u_prev = (p - anchor) * inv_d
         for k in range(n_str):
             u_end = (_pos(p, v, a, j, bnd[k + 1]) - anchor) * inv_d
-            c = 0
-            if u_end > u_prev:
-                c = _forward_count(nn, u_end)
-                nn += c
-                sgn[k] = 1.0
-            elif u_end < u_prev:
-                c = _backward_count(nn, u_end)
-                nn -= c
-                sgn[k] = -1.0
-            else:
-                sgn[k] = 0.0
-            cnt[k] = c
+            c, nn = _stretch_steps(nn, u_prev, u_end, k, sgn, cnt)
             total += c
             u_prev = u_end
         if out_n + total > cap:
@@ -626,18 +634,7 @@ def gen_steps_poly(t0, dt, coef, reset, step_dist, state, start, out_t, out_dir,
         u_prev = (p - anchor) * inv_d
         for k in range(n_str):
             u_end = (_horner(coef, i, deg, bnd[k + 1]) - anchor) * inv_d
-            c = 0
-            if u_end > u_prev:
-                c = _forward_count(nn, u_end)
-                nn += c
-                sgn[k] = 1.0
-            elif u_end < u_prev:
-                c = _backward_count(nn, u_end)
-                nn -= c
-                sgn[k] = -1.0
-            else:
-                sgn[k] = 0.0
-            cnt[k] = c
+            c, nn = _stretch_steps(nn, u_prev, u_end, k, sgn, cnt)
             total += c
             u_prev = u_end
         if out_n + total > cap:
@@ -1009,18 +1006,7 @@ def gen_steps_delta(t0, dt, pc, vc, ac, jc, reset, arm2, tx, ty, step_dist, stat
                 need = -2
                 break
             u_end = (c_end - anchor) * inv_d
-            c = 0
-            if u_end > u_prev:
-                c = _forward_count(nn, u_end)
-                nn += c
-                sgn[k] = 1.0
-            elif u_end < u_prev:
-                c = _backward_count(nn, u_end)
-                nn -= c
-                sgn[k] = -1.0
-            else:
-                sgn[k] = 0.0
-            cnt[k] = c
+            c, nn = _stretch_steps(nn, u_prev, u_end, k, sgn, cnt)
             total += c
             u_prev = u_end
         if need == -2:
