@@ -8,6 +8,7 @@ from __future__ import annotations
 import gzip
 import json
 import math
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -327,3 +328,54 @@ def test_a_long_array_runs_compiled():
     before = len(_jit.fallbacks)
     assert k._interpret((a,)) == 0.5 * a.size
     assert len(_jit.fallbacks) == 100 or _jit.fallbacks[before:] == [("_total", "an array too long to interpret")]
+
+
+_COMMAND = """import sys, io, contextlib, gc
+sys.argv[0] = "gcodeplan"                    # this process is the command (cli._is_console_script)
+from gcodeplan.cli import main
+out = io.StringIO()
+with contextlib.redirect_stdout(out):
+    rc = main(["estimate", "--json", sys.argv[1]])
+print(out.getvalue(), end="")
+print("STATE", "numba.np.arraymath" in sys.modules, "yaml" in sys.modules, gc.isenabled(), file=sys.stderr)
+sys.exit(rc)
+"""
+
+
+def _command(path, env=None) -> tuple[dict, list[str]]:
+    r = subprocess.run([sys.executable, "-c", _COMMAND, str(path)], capture_output=True, text=True,
+                       env=None if env is None else {**os.environ, **env})
+    assert r.returncode == 0, r.stderr
+    state = [ln for ln in r.stderr.splitlines() if ln.startswith("STATE")][-1].split()[1:]
+    return json.loads(r.stdout), state
+
+
+def test_the_command_loads_cached_kernels_without_numbas_registries():
+    """A compiled run in the command's process: once the kernels are cached, numba's typing and lowering
+    registries (numba.np.arraymath among them) are never imported, nor PyYAML, and the collector is back on;
+    the estimate is the library's, bit for bit."""
+    cube = SAMPLES / "prusaslicer25_cube20_marlin2.gcode"         # 174 kB: compiled kernels
+    _command(cube)                                                # makes sure every kernel is cached
+    est, (arraymath, yaml, gc_on) = _command(cube)
+    assert arraymath == "False" and gc_on == "True"
+    assert yaml == "False"            # numba imports PyYAML only to read a .numba_config.yaml; there is none
+    _jit.activate()
+    assert json.dumps(est, sort_keys=True) == json.dumps(
+        json.loads(json.dumps(gp.estimate(str(cube)).to_json())), sort_keys=True)
+
+
+@pytest.mark.slow
+def test_the_command_compiles_kernels_missing_from_the_cache(tmp_path):
+    """With an empty numba cache the command compiles its kernels (numba refreshes its registries for that
+    itself) and gives the library's estimate; a second run loads them from that cache, same bytes."""
+    cube = SAMPLES / "prusaslicer25_cube20_marlin2.gcode"
+    env = {"NUMBA_CACHE_DIR": str(tmp_path / "numba-cache")}
+    cold, (arraymath, _, _) = _command(cube, env)
+    assert arraymath == "True"                                    # compiling needed the registries
+    assert any((tmp_path / "numba-cache").rglob("*.nbi"))
+    warm, (arraymath, _, _) = _command(cube, env)
+    assert arraymath == "False"
+    assert cold == warm
+    _jit.activate()
+    assert json.dumps(cold, sort_keys=True) == json.dumps(
+        json.loads(json.dumps(gp.estimate(str(cube)).to_json())), sort_keys=True)

@@ -49,9 +49,9 @@ _interpreted_s = 0.0        # s spent in outermost interpreted calls so far (all
 #: a kernel given an array longer than this runs compiled: its loop is over that array (chords, steps,
 #: samples), and one interpreted call cannot be stopped at the budget halfway (a tiny file's huge arc)
 MAX_INTERPRETED_ELEMENTS = 65_536
-#: set by the ``gcodeplan`` command for its own process (never by the library, whose caller may run numba
-#: code with BLAS and owns its garbage collector): numba's first-use BLAS probe is made to fail and numba's
-#: objects go to the permanent GC generation (see :func:`activate`)
+#: set by the ``gcodeplan`` command for its own process (never by the library, whose caller owns numba's set-up
+#: and the garbage collector): cached kernels load without numba's registry refresh and numba's objects go to
+#: the permanent GC generation (see :func:`activate`)
 command_process = False
 
 
@@ -349,14 +349,20 @@ def njit(*args, **options):
 
     ``@njit(cache=True, ...)`` or ``@njit``; options go to ``numba.njit`` unchanged.
     """
+    bare = bool(args) and callable(args[0]) and len(args) == 1 and not options
+    options.setdefault("nogil", True)    # kernels touch no Python object: other threads run meanwhile
+
     def wrap(fn):
-        if _numba is not None:
-            return _numba.njit(**options)(fn)
+        if _numba is not None:           # a module imported after activation
+            dispatcher = _numba.njit(**options)(fn)
+            if command_process:
+                _load_without_refresh(dispatcher)
+            return dispatcher
         k = Kernel(fn, options)
         _KERNELS.append(k)
         return k
 
-    if args and callable(args[0]) and len(args) == 1 and not options:
+    if bare:
         return wrap(args[0])
     return wrap
 
@@ -385,29 +391,20 @@ def numba_module():
 def activate() -> None:
     """Import numba and make every kernel a compiled numba dispatcher (idempotent).
 
-    numba probes for BLAS on its first use by importing scipy.linalg (0.2–0.3 s when SciPy is installed).
-    No gcodeplan kernel uses BLAS: when :data:`command_process` is set (the ``gcodeplan`` command sets it
-    for its own process) and nothing has imported SciPy's linalg yet, the probe is made to fail, so np.dot
-    inside njit code is unavailable in this process. SciPy itself imports normally afterwards. In that
+    When :data:`command_process` is set (the ``gcodeplan`` command sets it for its own process), kernels
+    load their cached machine code without numba's registry refresh (:func:`_load_without_refresh`): that
+    refresh imports ~250 modules, among them numba's BLAS probe, which imports SciPy's linalg when SciPy is
+    installed. It cost 0.14–0.3 s of a 50 MB estimate's 1.1–1.3 s here (``python tools/bench.py startup``).
+    A kernel not in the cache still compiles, with the refresh numba's compiler makes itself. In that
     process numba's large object graph, alive until exit anyway, then goes to the permanent GC generation,
-    which spares later collections and the final one from walking it (1.37 s -> 0.86 s with the BLAS
-    shortcut on ``gcodeplan parse`` of the 1.85 M-line file when it was measured).
+    which spares later collections and the final one from walking it (1.37 s -> 0.86 s on ``gcodeplan
+    parse`` of the 1.85 M-line file when it was measured).
     """
     global _numba
     if _numba is not None:
         return
-    hide = command_process and "scipy.linalg" not in sys.modules and "numba.np.arraymath" not in sys.modules
-    if hide:
-        sys.modules["scipy.linalg"] = None  # type: ignore[assignment]  # "import scipy.linalg" raises ImportError
-    try:
-        import numba
-        try:
-            import numba.np.arraymath  # noqa: F401
-        except ImportError:
-            pass
-    finally:
-        if hide and sys.modules.get("scipy.linalg", 0) is None:
-            del sys.modules["scipy.linalg"]
+    _import_numba()
+    import numba
     from numba.extending import typeof_impl
 
     @typeof_impl.register(Kernel)
@@ -416,12 +413,58 @@ def activate() -> None:
 
     for k in _KERNELS:
         k.dispatcher = numba.njit(**k.options)(k.py_func)
+        if command_process:
+            _load_without_refresh(k.dispatcher)
     _numba = numba
     rebind()
     if command_process:
         import gc
 
         gc.freeze()
+        gc.enable()          # the command turned it off until now (gcodeplan/cli.py)
+
+
+def _import_numba() -> None:
+    """``import numba``; in the command's process without PyYAML: numba imports it only to read a
+    ``.numba_config.yaml`` in the working directory (14 ms here), so it is skipped when there is none."""
+    import os
+
+    if "numba" in sys.modules or not command_process or "yaml" in sys.modules \
+            or os.path.exists(".numba_config.yaml"):
+        import numba  # noqa: F401
+        return
+    sys.modules["yaml"] = None          # type: ignore[assignment]  # "import yaml" raises ImportError
+    try:
+        import numba  # noqa: F401
+    finally:
+        if sys.modules.get("yaml", 0) is None:
+            del sys.modules["yaml"]
+
+
+def _load_without_refresh(dispatcher) -> None:
+    """Let ``dispatcher`` load its cached machine code without first refreshing numba's compiler registries.
+
+    numba's ``Cache.load_overload`` refreshes the target context before loading: it imports and installs
+    every typing and lowering registry (numba.np.*, numba.cpython.*, typed containers, jitclass: about
+    250 modules' worth of declarations) that only *compiling* needs; numba's compiler refreshes them itself
+    before it compiles (``CompilerBase.__init__``). Loading machine code needs the NRT runtime alone, which
+    is initialised here. Per dispatcher, so other numba code in the process keeps numba's own behaviour;
+    skipped (numba's own path kept) if numba's cache object does not look as expected.
+    """
+    cache = getattr(dispatcher, "_cache", None)
+    load = getattr(type(cache), "_load_overload", None)
+    guard = getattr(cache, "_guard_against_spurious_io_errors", None)
+    if load is None or guard is None:
+        return
+    from numba.core.runtime import rtsys
+
+    def load_overload(sig, target_context):
+        rtsys.initialize(target_context)
+        with guard():
+            return load(cache, sig, target_context)
+        return None          # the guard swallowed an I/O error: compile instead, as numba does
+
+    cache.load_overload = load_overload
 
 
 def rebind() -> None:

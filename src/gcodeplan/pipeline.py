@@ -56,6 +56,81 @@ def small_input(source) -> bool:
     return head[:2] != b"\x1f\x8b" and head != b"GCDE"     # gzip and binary G-code decode to more
 
 
+#: path inputs of at least this many bytes are read and interpreted in a second thread while the planner and
+#: the sinks work on earlier batches (:func:`read_ahead`); below it the thread is not worth starting
+READ_AHEAD_BYTES = 1 << 20
+
+
+def read_ahead_input(source) -> bool:
+    """True when ``source`` is the path of a regular file of at least :data:`READ_AHEAD_BYTES` (never stdin,
+    a file object or lines: those belong to the caller's thread)."""
+    import os
+    import stat
+
+    if not isinstance(source, (str, os.PathLike)) or str(source) == "-":
+        return False
+    try:
+        st = os.stat(source)
+    except (OSError, ValueError):
+        return False
+    return stat.S_ISREG(st.st_mode) and st.st_size >= READ_AHEAD_BYTES
+
+
+_END = object()
+
+
+def read_ahead(reader, depth: int = 3):
+    """``reader.batches()`` run in a second thread: yields (MOVE batch, LIMITS table so far, bytes read so
+    far), the values the reader had right after making that batch, in file order.
+
+    The kernels release the GIL (``nogil``), so parsing overlaps planning on a second core. An error raised
+    while reading is raised here, after the batches before it, as it would be without the thread. Leaving
+    the loop early (or an exception in the caller: a signal, a sink's error) stops the reader at its next
+    batch; the thread is joined before this generator finishes, so no reading outlives it.
+    """
+    import queue
+    import threading
+
+    items: queue.Queue = queue.Queue(maxsize=depth)
+    stop = threading.Event()
+
+    def put(item) -> bool:
+        while not stop.is_set():
+            try:
+                items.put(item, timeout=0.05)
+                return True
+            except queue.Full:
+                continue
+        return False
+
+    def produce():
+        batches = reader.batches()
+        try:
+            for moves in batches:
+                if not put((moves, reader.limits, reader.bytes_read)):
+                    return
+            put(_END)
+        except BaseException as err:          # handed to the consumer, which raises it in its own thread
+            put(err)
+        finally:
+            batches.close()
+
+    _jit.activate()          # once, here, not raced by two threads' first kernel calls
+    worker = threading.Thread(target=produce, name="gcodeplan-reader", daemon=True)
+    worker.start()
+    try:
+        while True:
+            item = items.get()
+            if item is _END:
+                return
+            if isinstance(item, BaseException):
+                raise item
+            yield item
+    finally:
+        stop.set()
+        worker.join()
+
+
 def open_reader(source, machine, *, strict: bool = False, batch_moves: int = 8192):
     """(GcodeReader over ``source``, small): ``small`` when :func:`small_input` says the kernels should run as
     Python (wrap the reading in ``gcodeplan._jit.interpreted(small)``); the reader then reads in short pieces,
@@ -170,21 +245,34 @@ class Run:
         self.progress = progress
         self.rows = 0
         self.finished = False
+        self.threaded = not self.small and read_ahead_input(source)
+        self._limits = None
 
     def _pieces(self, pairs: Iterable[tuple[np.ndarray, np.ndarray]]):
         for moves, plan in pairs:
             piece = Piece(moves, plan, self.rows, self.planner.mode, make_segments=self.planner.segments_for,
-                          own_segments=self.planner.own_segments, limits=self.reader.limits)
+                          own_segments=self.planner.own_segments, limits=self._limits)
             self.rows += len(moves)
             yield piece
+
+    def _batches(self):
+        """(MOVE batch, LIMITS so far, bytes read so far) from the reader, in a second thread for big files."""
+        reader = self.reader
+        if self.threaded:
+            yield from read_ahead(reader)
+            return
+        for moves in reader.batches():
+            yield moves, reader.limits, reader.bytes_read
 
     def __iter__(self):
         reader, planner = self.reader, self.planner
         with located(reader.path), _jit.interpreted(self.small):
-            for moves in reader.batches():
-                yield from self._pieces(planner.feed(moves, reader.limits))
+            for moves, limits, bytes_read in self._batches():
+                self._limits = limits
+                yield from self._pieces(planner.feed(moves, limits))
                 if self.progress is not None:
-                    self.progress(reader.bytes_read)
+                    self.progress(bytes_read)
+            self._limits = reader.limits
             yield from self._pieces(planner.finish())
             reader.interp.check_excluded()
         self.finished = True

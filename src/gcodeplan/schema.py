@@ -14,6 +14,8 @@ Data flow (docs/design.md §1)::
 """
 from __future__ import annotations
 
+import weakref
+
 import numpy as np
 
 # --------------------------------------------------------------------------- moves
@@ -153,6 +155,38 @@ def empty_moves(n: int = 0) -> np.ndarray:
 
 def empty_limits(n: int = 0) -> np.ndarray:
     return np.zeros(n, dtype=LIMITS_DTYPE)
+
+
+#: spare rows the reader leaves in front of each MOVE batch, so that the streaming planner can put the few
+#: rows still pending in its window there instead of copying the batch behind them (:func:`prepend_rows`)
+HEADROOM_ROWS = 64
+_headroom: dict[int, weakref.ref] = {}     # id(buffer) -> buffer whose front rows are free, until used once
+
+
+def rows_with_headroom(n: int, dtype: np.dtype, headroom: int = HEADROOM_ROWS) -> np.ndarray:
+    """``np.empty(n, dtype)`` with ``headroom`` spare rows in front of it in the same buffer, usable once by
+    :func:`prepend_rows`."""
+    buf = np.empty(headroom + n, dtype=dtype)
+    key = id(buf)
+    _headroom[key] = weakref.ref(buf, lambda _ref, key=key: _headroom.pop(key, None))
+    return buf[headroom:]
+
+
+def prepend_rows(head: np.ndarray, rows: np.ndarray) -> np.ndarray:
+    """``concat_rows(head, rows)``; when ``rows`` came from :func:`rows_with_headroom` with room for
+    ``head`` in front, ``head`` is written there and the result is a view of that buffer (``rows`` itself is
+    not copied). Each buffer's headroom serves once: a second call copies, so no window is overwritten."""
+    base = rows.base
+    if len(head) and base is not None and head.dtype == rows.dtype and rows.flags.c_contiguous:
+        ref = _headroom.get(id(base))
+        if ref is not None and ref() is base and base.flags.c_contiguous and base.flags.writeable:
+            at = (rows.ctypes.data - base.ctypes.data) // rows.itemsize
+            if 0 <= len(head) <= at and (rows.ctypes.data - base.ctypes.data) % rows.itemsize == 0:
+                del _headroom[id(base)]
+                window = base[at - len(head):at + len(rows)]
+                window[:len(head)] = head
+                return window
+    return concat_rows(head, rows)
 
 
 def concat_rows(*arrays: np.ndarray) -> np.ndarray:

@@ -14,7 +14,7 @@ import numpy as np
 
 from ..errors import GcodeError
 from ..machine import Machine
-from ..schema import KIND_NAMES, MOVE_DTYPE
+from ..schema import KIND_NAMES, MOVE_DTYPE, rows_with_headroom
 from . import scan as S
 from .interp import Interpreter
 from .sources import open_source
@@ -166,7 +166,7 @@ class GcodeReader:
         if self._started:
             raise RuntimeError("GcodeReader.batches() can run once")
         self._started = True
-        self._out = np.empty(self.batch_moves, dtype=MOVE_DTYPE)
+        self._out = rows_with_headroom(self.batch_moves, MOVE_DTYPE)   # batches() hands each buffer out once
         self._n = 0
         try:
             for data, pos, end in self._chunks():
@@ -233,7 +233,7 @@ class GcodeReader:
                     break
                 if status == S.ST_FULL:
                     yield self._finish(out, n)
-                    out = self._out = np.empty(cap, dtype=MOVE_DTYPE)
+                    out = self._out = rows_with_headroom(cap, MOVE_DTYPE)
                     n = 0
                     continue
             # one line through Python
@@ -253,7 +253,7 @@ class GcodeReader:
                     k0 += k
                     if n == cap:
                         yield self._finish(out, n)
-                        out = self._out = np.empty(cap, dtype=MOVE_DTYPE)
+                        out = self._out = rows_with_headroom(cap, MOVE_DTYPE)
                         n = 0
         self._n = n
         del buf

@@ -26,7 +26,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import ConfigError
-from ..schema import MOVE_DTYPE, PLAN_DTYPE, concat_rows
+from ..schema import MOVE_DTYPE, PLAN_DTYPE, concat_rows, prepend_rows
 from .passes import klipper_flush, layout_rows, plan_runs, speed_buffers, standard_flush
 from .prepare import (POLICY_BLEND, POLICY_JD, POLICY_KLIPPER, POLICY_LINUXCNC, PREP_DTYPE, custom_cap, policy_code,
                       prepare_with_context, validate)
@@ -74,7 +74,7 @@ class _Mode:
             sp._limits_checked = key
         prep, sp._stop_pending = prepare_with_context(moves_chunk, limits, pcode, sp._last_move, sp._last_prep,
                                                       sp._stop_pending, cap_v2=sp._cap_v2, out=out)
-        real = np.flatnonzero(prep["is_move"])
+        real = np.nonzero(prep["is_move"])[0]      # not flatnonzero: that copies the strided field first
         if real.size:
             sp._last_move = moves_chunk[real[-1]:real[-1] + 1].copy()
             sp._last_prep = prep[real[-1]:real[-1] + 1].copy()
@@ -102,7 +102,7 @@ class _TrapezoidMode(_Mode):
     def plan(self, final: bool):
         sp = self.sp
         prep = sp._prep
-        rows = np.flatnonzero(prep["is_move"])
+        rows = np.nonzero(prep["is_move"])[0]
         m = len(rows)
         bufs = speed_buffers(m)
         # Moves before the open run (the one not yet followed by a known full stop) are final.
@@ -239,7 +239,7 @@ class StreamPlanner:
         if self._mode is None:
             self._mode = self._choose_mode(moves_chunk, limits)
         self._prep = self._mode.window_prep(moves_chunk, limits)
-        self._moves = concat_rows(self._moves, moves_chunk)
+        self._moves = prepend_rows(self._moves, moves_chunk)    # the reader's batch is not copied
         return self._emit(final=False)
 
     def finish(self) -> list[tuple[np.ndarray, np.ndarray]]:

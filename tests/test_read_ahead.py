@@ -1,0 +1,146 @@
+"""Big files are read in a second thread (pipeline.read_ahead) while the planner and the sinks work.
+
+Truth: the same run without the thread. Everything a sink sees (pieces, their LIMITS tables, progress) and
+the run's result must be identical, an error midway must arrive after the same pieces with the same file and
+line, and no reader thread may outlive the run, however it ends.
+"""
+from __future__ import annotations
+
+import os
+import threading
+
+import numpy as np
+import pytest
+
+import gcodeplan as gp
+from conftest import SAMPLES, shared_path
+from gcodeplan import pipeline
+from gcodeplan.errors import GcodeplanError
+
+CUBE = SAMPLES / "prusaslicer25_cube20_marlin2.gcode"        # 174 kB: compiled kernels, many batches
+ARCS = SAMPLES / "linuxcnc_arcspiral.ngc"
+
+
+class Record(pipeline.Sink):
+    """Every piece's rows, LIMITS table and segments, as copies."""
+
+    def __init__(self, stop_after: int | None = None, fail_after: int | None = None):
+        self.pieces = []
+        self.stop_after = stop_after
+        self.fail_after = fail_after
+
+    def add(self, piece):
+        if self.fail_after is not None and len(self.pieces) == self.fail_after:
+            raise RuntimeError("a sink failed")
+        self.pieces.append((piece.first_move, piece.moves.copy(), piece.plan.copy(), piece.limits.copy(),
+                            piece.segments.copy()))
+        return self.stop_after is not None and len(self.pieces) >= self.stop_after
+
+
+def _reader_threads() -> list[threading.Thread]:
+    return [t for t in threading.enumerate() if t.name == "gcodeplan-reader"]
+
+
+def _run(monkeypatch, path, threaded: bool, machine=None, **kw):
+    monkeypatch.setattr(pipeline, "READ_AHEAD_BYTES", 0 if threaded else 1 << 62)
+    sink, progress = Record(), []
+    machine = machine or gp.load_machine("klipper")
+    result = pipeline.run(str(path), machine, sinks=[sink], progress=progress.append, batch_moves=256, **kw)
+    return sink, progress, result
+
+
+def _same_pieces(a: Record, b: Record, at_least: int = 4) -> None:
+    assert len(a.pieces) == len(b.pieces) >= at_least
+    for pa, pb in zip(a.pieces, b.pieces):
+        assert pa[0] == pb[0]
+        for x, y in zip(pa[1:], pb[1:]):
+            assert x.dtype == y.dtype and len(x) == len(y)
+            for f in x.dtype.names:      # field by field, bit for bit (padding bytes are not data)
+                assert np.ascontiguousarray(x[f]).tobytes() == np.ascontiguousarray(y[f]).tobytes(), f
+
+
+@pytest.mark.parametrize("preset, kw", [("klipper", {}), ("klipper", {"policy": "blend"}),
+                                        ("klipper", {"jerk": 20000.0}), ("marlin", {"policy": "classic-jerk"}),
+                                        ("marlin", {"policy": "exact-stop"})])
+def test_threaded_run_equals_the_plain_one(monkeypatch, preset, kw):
+    machine = gp.load_machine(preset)
+    plain, p_progress, p_res = _run(monkeypatch, CUBE, False, machine, **kw)
+    threaded, t_progress, t_res = _run(monkeypatch, CUBE, True, machine, **kw)
+    _same_pieces(plain, threaded)
+    assert p_progress == t_progress and p_progress[-1] == os.path.getsize(CUBE)
+    assert t_res.reader.summary.to_json() == p_res.reader.summary.to_json()
+    assert t_res.rows == p_res.rows and not t_res.stopped_early
+    assert not _reader_threads()
+
+
+def test_threaded_linuxcnc_run_equals_the_plain_one(monkeypatch):
+    mill = gp.load_machine(linuxcnc_ini=str(shared_path("reference", "linuxcnc", "config", "mill.ini")))
+    plain, _, _ = _run(monkeypatch, ARCS, False, machine=mill, policy="linuxcnc")
+    threaded, _, _ = _run(monkeypatch, ARCS, True, machine=mill, policy="linuxcnc")
+    _same_pieces(plain, threaded, at_least=2)      # LinuxCNC's planner holds the spiral until its end
+
+
+def _bad_file(tmp_path) -> tuple[str, int]:
+    """The cube with an absurd move (refused: longer than 10⁶ mm) two thirds in."""
+    lines = CUBE.read_bytes().split(b"\n")
+    bad = 2 * len(lines) // 3
+    lines.insert(bad, b"G1 X1000000000 F3000")
+    path = tmp_path / "bad.gcode"
+    path.write_bytes(b"\n".join(lines))
+    return str(path), bad + 1
+
+
+def test_an_error_midway_arrives_after_the_same_pieces(monkeypatch, tmp_path):
+    path, line = _bad_file(tmp_path)
+    seen = {}
+    for threaded in (False, True):
+        monkeypatch.setattr(pipeline, "READ_AHEAD_BYTES", 0 if threaded else 1 << 62)
+        sink = Record()
+        with pytest.raises(GcodeplanError) as err:
+            pipeline.run(path, gp.load_machine("klipper"), sinks=[sink], batch_moves=256)
+        assert err.value.file == path and err.value.line == line, str(err.value)
+        seen[threaded] = (str(err.value), sink)
+        assert not _reader_threads()
+    assert seen[False][0] == seen[True][0]
+    _same_pieces(seen[False][1], seen[True][1])
+
+
+@pytest.mark.parametrize("how", ["sink done", "sink raises", "loop left"])
+def test_no_reader_thread_outlives_the_run(monkeypatch, how):
+    monkeypatch.setattr(pipeline, "READ_AHEAD_BYTES", 0)
+    machine = gp.load_machine("klipper")
+    if how == "sink done":
+        sink = Record(stop_after=2)
+        res = pipeline.run(str(CUBE), machine, sinks=[sink], batch_moves=64)
+        assert res.stopped_early and len(sink.pieces) == 2
+    elif how == "sink raises":
+        with pytest.raises(RuntimeError, match="a sink failed"):
+            pipeline.run(str(CUBE), machine, sinks=[Record(fail_after=3)], batch_moves=64)
+    else:
+        drive = pipeline.Run(str(CUBE), machine, batch_moves=64)
+        assert drive.threaded
+        for k, _ in enumerate(drive):
+            if k == 2:
+                break
+        assert drive.result.stopped_early
+    assert not _reader_threads()
+
+
+def test_which_inputs_are_read_ahead(tmp_path, monkeypatch):
+    monkeypatch.setattr(pipeline, "READ_AHEAD_BYTES", 1000)
+    big = tmp_path / "big.gcode"
+    big.write_bytes(b"G1 X1 F600\n" * 200)
+    small = tmp_path / "small.gcode"
+    small.write_bytes(b"G1 X1 F600\n")
+    fifo = tmp_path / "fifo"
+    os.mkfifo(fifo)
+    assert pipeline.read_ahead_input(str(big)) and pipeline.read_ahead_input(big)
+    assert not pipeline.read_ahead_input(str(small))
+    assert not pipeline.read_ahead_input(str(fifo))          # a pipe belongs to the caller's thread
+    assert not pipeline.read_ahead_input("-")
+    assert not pipeline.read_ahead_input([b"G1 X1"] * 1000)
+    assert not pipeline.read_ahead_input(str(tmp_path / "missing.gcode"))
+    with open(big, "rb") as fh:
+        assert not pipeline.read_ahead_input(fh)
+    # a small input runs interpreted in the caller's thread, never read ahead (gcodeplan/_jit.py)
+    assert not pipeline.Run(str(big), gp.load_machine("klipper")).threaded
