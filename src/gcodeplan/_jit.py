@@ -456,15 +456,46 @@ def _load_without_refresh(dispatcher) -> None:
     guard = getattr(cache, "_guard_against_spurious_io_errors", None)
     if load is None or guard is None:
         return
-    from numba.core.runtime import rtsys
 
     def load_overload(sig, target_context):
-        rtsys.initialize(target_context)
+        _nrt_symbols(target_context)
         with guard():
             return load(cache, sig, target_context)
         return None          # the guard swallowed an I/O error: compile instead, as numba does
 
     cache.load_overload = load_overload
+
+
+_nrt_ready = False
+
+
+def _nrt_symbols(target_context) -> None:
+    """Make NRT's C functions (allocation, array boxing) known to the JIT linker, which is all that cached
+    machine code needs of numba's runtime: numba links its LLVM-built NRT functions (incref/decref and the
+    like) into every compiled library, so the cached object code carries them. numba's own
+    ``rtsys.initialize`` also builds and optimises that LLVM module (50 ms here, the only LLVM optimisation
+    of a run whose kernels are all cached); it still runs, in full, before anything compiles (numba's
+    registry refresh calls it). Falls back to ``rtsys.initialize`` if numba's runtime does not look as
+    expected."""
+    global _nrt_ready
+    if _nrt_ready:
+        return
+    from numba.core import config
+    from numba.core.runtime import rtsys
+
+    try:
+        from llvmlite import binding as ll
+        from numba.core.runtime import _nrt_python
+
+        helpers = dict(_nrt_python.c_helpers)
+    except (ImportError, AttributeError, TypeError):
+        helpers = None
+    if helpers is None or config.NRT_STATS or getattr(rtsys, "_init", True):
+        rtsys.initialize(target_context)
+    else:
+        for py_name, address in helpers.items():       # the names numba's rtsys.initialize gives them
+            ll.add_symbol(py_name if py_name.startswith("_") else "NRT_" + py_name, address)
+    _nrt_ready = True
 
 
 def rebind() -> None:
