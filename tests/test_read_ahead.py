@@ -41,8 +41,28 @@ def _reader_threads() -> list[threading.Thread]:
     return [t for t in threading.enumerate() if t.name == "gcodeplan-reader"]
 
 
-def _run(monkeypatch, path, threaded: bool, machine=None, **kw):
-    monkeypatch.setattr(pipeline, "READ_AHEAD_BYTES", 0 if threaded else 1 << 62)
+def _open_fds(path) -> int:
+    """This process's open file descriptors on ``path`` (Linux /proc)."""
+    target = os.path.realpath(path)
+    n = 0
+    for fd in os.listdir("/proc/self/fd"):
+        try:
+            n += os.path.realpath(os.readlink(f"/proc/self/fd/{fd}")) == target
+        except OSError:
+            pass
+    return n
+
+
+def _mode(monkeypatch, mode) -> None:
+    """'plain': one thread; 'threaded': the reader thread throughout; 'handover': the reader thread hands
+    the reading back to the main thread after its first batch (as a Python-heavy reader does)."""
+    monkeypatch.setattr(pipeline, "READ_AHEAD_BYTES", 1 << 62 if mode == "plain" else 0)
+    monkeypatch.setattr(pipeline, "READ_AHEAD_PROBE_S", 0.0 if mode == "handover" else 0.05)
+    monkeypatch.setattr(pipeline, "READ_AHEAD_MAX_PYTHON_SHARE", -1.0 if mode == "handover" else 1e9)
+
+
+def _run(monkeypatch, path, mode, machine=None, **kw):
+    _mode(monkeypatch, mode)
     sink, progress = Record(), []
     machine = machine or gp.load_machine("klipper")
     result = pipeline.run(str(path), machine, sinks=[sink], progress=progress.append, batch_moves=256, **kw)
@@ -62,10 +82,11 @@ def _same_pieces(a: Record, b: Record, at_least: int = 4) -> None:
 @pytest.mark.parametrize("preset, kw", [("klipper", {}), ("klipper", {"policy": "blend"}),
                                         ("klipper", {"jerk": 20000.0}), ("marlin", {"policy": "classic-jerk"}),
                                         ("marlin", {"policy": "exact-stop"})])
-def test_threaded_run_equals_the_plain_one(monkeypatch, preset, kw):
+@pytest.mark.parametrize("mode", ["threaded", "handover"])
+def test_threaded_run_equals_the_plain_one(monkeypatch, preset, kw, mode):
     machine = gp.load_machine(preset)
-    plain, p_progress, p_res = _run(monkeypatch, CUBE, False, machine, **kw)
-    threaded, t_progress, t_res = _run(monkeypatch, CUBE, True, machine, **kw)
+    plain, p_progress, p_res = _run(monkeypatch, CUBE, "plain", machine, **kw)
+    threaded, t_progress, t_res = _run(monkeypatch, CUBE, mode, machine, **kw)
     _same_pieces(plain, threaded)
     assert p_progress == t_progress and p_progress[-1] == os.path.getsize(CUBE)
     assert t_res.reader.summary.to_json() == p_res.reader.summary.to_json()
@@ -73,11 +94,27 @@ def test_threaded_run_equals_the_plain_one(monkeypatch, preset, kw):
     assert not _reader_threads()
 
 
-def test_threaded_linuxcnc_run_equals_the_plain_one(monkeypatch):
+@pytest.mark.parametrize("mode", ["threaded", "handover"])
+def test_threaded_linuxcnc_run_equals_the_plain_one(monkeypatch, mode):
     mill = gp.load_machine(linuxcnc_ini=str(shared_path("reference", "linuxcnc", "config", "mill.ini")))
-    plain, _, _ = _run(monkeypatch, ARCS, False, machine=mill, policy="linuxcnc")
-    threaded, _, _ = _run(monkeypatch, ARCS, True, machine=mill, policy="linuxcnc")
+    plain, _, _ = _run(monkeypatch, ARCS, "plain", machine=mill, policy="linuxcnc")
+    threaded, _, _ = _run(monkeypatch, ARCS, mode, machine=mill, policy="linuxcnc")
     _same_pieces(plain, threaded, at_least=2)      # LinuxCNC's planner holds the spiral until its end
+
+
+def test_a_python_heavy_reader_hands_the_reading_back(monkeypatch):
+    """A reader that spends most of its time on lines interpreted in Python (arcs here) stops its thread
+    once it has read for READ_AHEAD_PROBE_S: two threads running Python mostly wait for each other."""
+    monkeypatch.setattr(pipeline, "READ_AHEAD_BYTES", 0)
+    monkeypatch.setattr(pipeline, "READ_AHEAD_PROBE_S", 0.0)
+    mill = gp.load_machine(linuxcnc_ini=str(shared_path("reference", "linuxcnc", "config", "mill.ini")))
+    pipeline.run(str(ARCS), mill)       # kernels loaded: the thread's first batch is the arcs' own work
+    drive = pipeline.Run(str(ARCS), mill, batch_moves=256)
+    seen_threads = set()
+    for _ in drive:
+        seen_threads.add(len(_reader_threads()))
+    assert drive.reader.python_s > 0.0
+    assert seen_threads == {0}          # the arc spiral is Python-heavy: the reader thread had already ended
 
 
 def _bad_file(tmp_path) -> tuple[str, int]:
@@ -93,21 +130,23 @@ def _bad_file(tmp_path) -> tuple[str, int]:
 def test_an_error_midway_arrives_after_the_same_pieces(monkeypatch, tmp_path):
     path, line = _bad_file(tmp_path)
     seen = {}
-    for threaded in (False, True):
-        monkeypatch.setattr(pipeline, "READ_AHEAD_BYTES", 0 if threaded else 1 << 62)
+    for threaded in ("plain", "threaded", "handover"):
+        _mode(monkeypatch, threaded)
         sink = Record()
         with pytest.raises(GcodeplanError) as err:
             pipeline.run(path, gp.load_machine("klipper"), sinks=[sink], batch_moves=256)
         assert err.value.file == path and err.value.line == line, str(err.value)
         seen[threaded] = (str(err.value), sink)
         assert not _reader_threads()
-    assert seen[False][0] == seen[True][0]
-    _same_pieces(seen[False][1], seen[True][1])
+    for mode in ("threaded", "handover"):
+        assert seen["plain"][0] == seen[mode][0]
+        _same_pieces(seen["plain"][1], seen[mode][1])
 
 
+@pytest.mark.parametrize("mode", ["threaded", "handover"])
 @pytest.mark.parametrize("how", ["sink done", "sink raises", "loop left"])
-def test_no_reader_thread_outlives_the_run(monkeypatch, how):
-    monkeypatch.setattr(pipeline, "READ_AHEAD_BYTES", 0)
+def test_no_reader_thread_outlives_the_run(monkeypatch, how, mode):
+    _mode(monkeypatch, mode)
     machine = gp.load_machine("klipper")
     if how == "sink done":
         sink = Record(stop_after=2)
@@ -123,7 +162,9 @@ def test_no_reader_thread_outlives_the_run(monkeypatch, how):
             if k == 2:
                 break
         assert drive.result.stopped_early
+        drive = None
     assert not _reader_threads()
+    assert _open_fds(CUBE) == 0          # the reader closed the file, whichever thread was reading it
 
 
 def test_which_inputs_are_read_ahead(tmp_path, monkeypatch):

@@ -76,20 +76,37 @@ def read_ahead_input(source) -> bool:
     return stat.S_ISREG(st.st_mode) and st.st_size >= READ_AHEAD_BYTES
 
 
+#: the reader thread hands its batches back to the main thread once more than this share of its time went to
+#: lines interpreted in Python (arcs, canned cycles): two threads both running Python mostly wait for each
+#: other's GIL (a 9,170-arc LinuxCNC program took 1.9-2.5 s in two threads, 1.5-1.6 s in one)
+READ_AHEAD_MAX_PYTHON_SHARE = 0.3
+#: s of reading before that share is judged (the first batch includes loading the reader's kernels)
+READ_AHEAD_PROBE_S = 0.05
+
 _END = object()
+
+
+class _HandOver:
+    """Queue item: the reader thread stops; the main thread goes on with the batches generator itself."""
+
+    def __init__(self, batches):
+        self.batches = batches
 
 
 def read_ahead(reader, depth: int = 3):
     """``reader.batches()`` run in a second thread: yields (MOVE batch, LIMITS table so far, bytes read so
     far), the values the reader had right after making that batch, in file order.
 
-    The kernels release the GIL (``nogil``), so parsing overlaps planning on a second core. An error raised
-    while reading is raised here, after the batches before it, as it would be without the thread. Leaving
-    the loop early (or an exception in the caller: a signal, a sink's error) stops the reader at its next
-    batch; the thread is joined before this generator finishes, so no reading outlives it.
+    The kernels release the GIL (``nogil``), so parsing overlaps planning on a second core. A reader that
+    spends more than :data:`READ_AHEAD_MAX_PYTHON_SHARE` of its time in Python hands the rest of the
+    reading back to this thread. An error raised while reading is raised here, after the batches before it,
+    as it would be without the thread. Leaving the loop early (or an exception in the caller: a signal, a
+    sink's error) stops the reader at its next batch; the thread is joined before this generator finishes,
+    so no reading outlives it.
     """
     import queue
     import threading
+    from time import perf_counter
 
     items: queue.Queue = queue.Queue(maxsize=depth)
     stop = threading.Event()
@@ -105,19 +122,27 @@ def read_ahead(reader, depth: int = 3):
 
     def produce():
         batches = reader.batches()
+        t_start = perf_counter()
         try:
             for moves in batches:
                 if not put((moves, reader.limits, reader.bytes_read)):
+                    return
+                spent_s = perf_counter() - t_start
+                if spent_s > READ_AHEAD_PROBE_S and reader.python_s > READ_AHEAD_MAX_PYTHON_SHARE * spent_s:
+                    if put(_HandOver(batches)):
+                        batches = None               # the main thread owns it now
                     return
             put(_END)
         except BaseException as err:          # handed to the consumer, which raises it in its own thread
             put(err)
         finally:
-            batches.close()
+            if batches is not None:
+                batches.close()
 
     _jit.activate()          # once, here, not raced by two threads' first kernel calls
     worker = threading.Thread(target=produce, name="gcodeplan-reader", daemon=True)
     worker.start()
+    handed = None
     try:
         while True:
             item = items.get()
@@ -125,10 +150,18 @@ def read_ahead(reader, depth: int = 3):
                 return
             if isinstance(item, BaseException):
                 raise item
+            if isinstance(item, _HandOver):
+                worker.join()
+                handed = item.batches
+                for moves in handed:
+                    yield moves, reader.limits, reader.bytes_read
+                return
             yield item
     finally:
         stop.set()
         worker.join()
+        if handed is not None:
+            handed.close()
 
 
 def open_reader(source, machine, *, strict: bool = False, batch_moves: int = 8192):
@@ -291,8 +324,9 @@ def run(source, machine, *, policy: str | None = None, jerk: float | None = None
     ``policy``: junction policy name (None = the machine's); ``jerk``: mm/s³ for S-curves (None =
     trapezoids unless the machine sets max_jerk); ``strict``: unknown commands are errors;
     ``progress(bytes_read)`` after every parser batch; ``exclude_objects``: names of objects cancelled
-    (Klipper's exclude_object; a name the file never labels is an error). Errors name the file and line
-    (:class:`gcodeplan.errors.GcodeplanError`). Reading stops early once every sink said it is done.
+    (Klipper's exclude_object; a name the file never labels is an error); ``batch_moves``: MOVE rows per
+    reader batch. Errors name the file and line (:class:`gcodeplan.errors.GcodeplanError`). Reading stops
+    early once every sink said it is done.
     """
     sinks = list(sinks)
     done = [False] * len(sinks)

@@ -9,6 +9,7 @@ size.
 from __future__ import annotations
 
 import math
+from time import perf_counter
 
 import numpy as np
 
@@ -67,6 +68,7 @@ class GcodeReader:
         self.strict = strict
         self.batch_moves = int(batch_moves)
         self.bytes_read = 0          # for progress bars: input bytes read so far
+        self.python_s = 0.0          # s spent on lines the scanner hands to Python (arcs, cycles, rare commands)
         self.force_python = force_python
         self.chunk_bytes = int(chunk_bytes)
         self.source = open_source(source)
@@ -241,7 +243,9 @@ class GcodeReader:
             if eol < 0:
                 eol = end
             lineno = int(ist[S.I_LINE]) + 1
+            t0 = perf_counter()
             interp.handle(bytes(data[pos:eol]), lineno)
+            self.python_s += perf_counter() - t0
             ist[S.I_LINE] = lineno
             pos = eol + 1
             for arr in interp.take_rows():
