@@ -215,3 +215,69 @@ def test_changing_cycle_needs_r_and_z_again_and_plane_must_be_g17():
     with pytest.raises(CycleError, match="canned cycles only in G17"):
         expand_cycle(81, {"Z": -1, "R": 1}, START, plane=18)
     assert math.isnan(START.r)  # the caller's state is not modified
+
+
+def _rows_by_numpy(ends, x0, y0, z0, e0, e1, flags, feed_v, rapid, dwell, cnc, acc):
+    """The MOVE rows of straight pieces built column by column with NumPy (independent of the kernels)."""
+    from gcodeplan.schema import (FLAG_RAPID, FLAG_RETRACT, KIND_DWELL, KIND_EXTRUDE_ONLY, KIND_PRINT,
+                                  KIND_TRAVEL, MOVE_DTYPE)
+
+    n = len(ends)
+    starts = np.vstack([[x0, y0, z0], ends[:-1]])
+    d = np.sqrt(((ends - starts) ** 2).sum(axis=1))
+    es = e0 + (e1 - e0) * (np.arange(1, n + 1) / n)
+    es[-1] = e1
+    e_starts = np.concatenate([[e0], es[:-1]])
+    de = es - e_starts
+    xyz = d > 0.0
+    a = np.zeros(n, dtype=MOVE_DTYPE)
+    a["x0"], a["y0"], a["z0"], a["e0"] = starts[:, 0], starts[:, 1], starts[:, 2], e_starts
+    a["x1"], a["y1"], a["z1"], a["e1"] = ends[:, 0], ends[:, 1], ends[:, 2], es
+    a["line"], a["feature"], a["layer"], a["limits"], a["object"], a["exact_stop"] = 7, 3, 2, 1, 4, 1
+    a["blend_p"], a["blend_q"] = 0.05, 0.01
+    a["kind"] = np.where(xyz, np.where(de > 0.0, KIND_PRINT, KIND_TRAVEL), KIND_EXTRUDE_ONLY)
+    a["flags"] = flags | np.where(de < 0.0, FLAG_RETRACT, 0) | np.where(rapid, FLAG_RAPID, 0)
+    a["move_d"] = np.where(xyz, d, np.abs(de))
+    a["feed_v"] = np.where(rapid & cnc, np.inf, feed_v)
+    a["accel"] = np.where(xyz, np.where(de != 0.0, acc[0], acc[1]), acc[2])
+    a["kind"][dwell] = KIND_DWELL
+    for f in ("move_d", "accel", "feed_v"):
+        a[f][dwell] = 0.0
+    return a[xyz | (de != 0.0) | dwell]
+
+
+@pytest.mark.parametrize("seed", range(20))
+def test_piece_rows_equal_a_numpy_construction(seed):
+    """Arc chords and canned-cycle moves become MOVE rows in two kernels (gcode/commands_motion.py); they
+    must give, bit for bit, the rows NumPy builds column by column: zero-length pieces dropped, E-only
+    pieces, retractions, rapids (unlimited feed on CNC dialects) and dwells included."""
+    from gcodeplan.gcode.commands_motion import piece_rows_kernel, pieces_through_kernel
+    from gcodeplan.schema import FLAG_ARC, MOVE_DTYPE
+
+    rng = np.random.default_rng(seed)
+    n = int(rng.integers(1, 60))
+    ends = np.round(rng.uniform(-50, 50, (n, 3)), int(rng.integers(0, 4)))
+    ends[rng.random(n) < 0.2] = ends[0]                          # repeated points: zero-length pieces
+    start = ends[0] if rng.random() < 0.2 else rng.uniform(-50, 50, 3)      # the first piece may be empty
+    x0, y0, z0 = (float(v) for v in start)
+    e0, e1 = float(rng.uniform(-5, 5)), float(rng.choice([0.0, rng.uniform(-5, 5)]))
+    if rng.random() < 0.3:
+        e1 = e0                                                   # travel arc
+    rapid = rng.random(n) < 0.3
+    dwell = ~rapid & (rng.random(n) < 0.1)
+    cnc = bool(rng.random() < 0.5)
+    acc = (1500.0, 3000.0, 800.0)
+    want = _rows_by_numpy(ends, x0, y0, z0, e0, e1, FLAG_ARC, 40.0, rapid, dwell, cnc, acc)
+    from gcodeplan.gcode import scan as S
+
+    st, ist = np.zeros(S.N_ST), np.zeros(S.N_IST, dtype=np.int64)     # the interpreter's state
+    st[S.S_ACC_P], st[S.S_ACC_T], st[S.S_ACC_R] = acc
+    st[S.S_BLEND_P], st[S.S_BLEND_Q] = 0.05, 0.01
+    ist[S.I_FEATURE], ist[S.I_LAYER], ist[S.I_LIMITS], ist[S.I_OBJECT], ist[S.I_EXACT_STOP] = 3, 2, 1, 4, 1
+    starts, d, es, e_starts = pieces_through_kernel(ends, x0, y0, z0, e0, e1)
+    out = np.zeros(n, dtype=MOVE_DTYPE)
+    k = piece_rows_kernel(ends, starts, es, e_starts, d, 7, FLAG_ARC, 40.0, rapid, dwell, cnc, st, ist, out)
+    got = out[:k]
+    assert len(got) == len(want)
+    for f in MOVE_DTYPE.names:
+        assert np.ascontiguousarray(got[f]).tobytes() == np.ascontiguousarray(want[f]).tobytes(), f

@@ -6,11 +6,87 @@ import math
 
 import numpy as np
 
+from .._jit import njit
 from ..schema import (FLAG_ARC, FLAG_CANNED, FLAG_FIRMWARE_RETRACT, FLAG_HOMING, FLAG_RAPID, FLAG_RETRACT,
                       KIND_DWELL, KIND_EXTRUDE_ONLY, KIND_PRINT, KIND_TRAVEL, KIND_WAIT)
 from . import scan as S
 from .lexing import Word
 
+_NO_MASK = np.zeros(0, dtype=np.bool_)
+
+
+@njit(cache=True)
+def pieces_through_kernel(ends, x0, y0, z0, e0, e1):
+    """Straight pieces from (x0, y0, z0) through the points ``ends`` (float64[n, 3], mm), E going linearly by
+    piece count from e0 to exactly e1 (arc chords, canned-cycle moves).
+
+    Returns (starts float64[n, 3], lengths mm, E at each end, E at each start). Lengths are
+    sqrt((dx² + dy²) + dz²), the order NumPy's row sum and Klipper's move length use.
+    """
+    n = ends.shape[0]
+    starts = np.empty((n, 3))
+    d = np.empty(n)
+    es = np.empty(n)
+    e_starts = np.empty(n)
+    de = e1 - e0
+    px, py, pz, pe = x0, y0, z0, e0
+    for i in range(n):
+        starts[i, 0] = px
+        starts[i, 1] = py
+        starts[i, 2] = pz
+        dx = ends[i, 0] - px
+        dy = ends[i, 1] - py
+        dz = ends[i, 2] - pz
+        d[i] = math.sqrt(dx * dx + dy * dy + dz * dz)
+        e = e1 if i == n - 1 else e0 + de * ((i + 1) / n)
+        es[i] = e
+        e_starts[i] = pe
+        px, py, pz, pe = ends[i, 0], ends[i, 1], ends[i, 2], e
+    return starts, d, es, e_starts
+
+
+@njit(cache=True)
+def piece_rows_kernel(ends, starts, es, e_starts, d, line, flags, feed_v, rapid, dwell, rapid_inf, st, ist, out):
+    """MOVE rows of straight pieces (arc chords, canned-cycle moves) into the zeroed rows ``out``, skipping
+    pieces that move nothing; returns how many were written.
+
+    A piece with XYZ motion prints when E grows, else travels; without XYZ motion it is extrude-only; E going
+    back sets FLAG_RETRACT. ``rapid`` / ``dwell``: per-piece masks (empty: none): a rapid piece gets
+    FLAG_RAPID and, when ``rapid_inf`` (CNC dialects), an unlimited feed; a dwell piece is a KIND_DWELL row
+    (its time is set by the caller). Acceleration, feature, layer, object and the rest come from the
+    interpreter's state ``st`` / ``ist`` as for a G1 (gcode/scan.py).
+    """
+    k = 0
+    has_rapid = rapid.shape[0] > 0
+    has_dwell = dwell.shape[0] > 0
+    for i in range(ends.shape[0]):
+        de = es[i] - e_starts[i]
+        xyz = d[i] > 0.0
+        is_dwell = has_dwell and dwell[i]
+        if not (xyz or de != 0.0 or is_dwell):
+            continue
+        if xyz:
+            kind = KIND_PRINT if de > 0.0 else KIND_TRAVEL
+            move_d = d[i]
+        else:
+            kind = KIND_EXTRUDE_ONLY
+            move_d = abs(de)
+        accel = S.move_accel(0, xyz, de, st[S.S_ACC_P], st[S.S_ACC_T], st[S.S_ACC_R])
+        f = flags | (FLAG_RETRACT if de < 0.0 else 0)
+        v = feed_v
+        if has_rapid and rapid[i]:
+            f |= FLAG_RAPID
+            if rapid_inf:
+                v = math.inf
+        if is_dwell:
+            kind = KIND_DWELL
+            move_d = 0.0
+            accel = 0.0
+            v = 0.0
+        S.write_row(out, k, line, kind, f, ist, st, starts[i, 0], starts[i, 1], starts[i, 2], e_starts[i],
+                    ends[i, 0], ends[i, 1], ends[i, 2], es[i], move_d, v, accel, 0.0)
+        k += 1
+    return k
 
 
 class MotionCommands:
@@ -269,12 +345,7 @@ class MotionCommands:
         self.arcs += 1
         n = pts.shape[0]
         de = e1 - e0
-        starts = np.vstack([[x0, y0, z0], pts[:-1]]) if n else np.empty((0, 3))
-        d = np.sqrt(((pts - starts) ** 2).sum(axis=1)) if n else np.empty(0)
-        es = e0 + de * (np.arange(1, n + 1) / n) if n else np.empty(0)
-        if n:
-            es[-1] = e1
-        e_starts = np.concatenate([[e0], es[:-1]]) if n else np.empty(0)
+        starts, d, es, e_starts = pieces_through_kernel(pts, x0, y0, z0, e0, e1)
         if n and de > 0.0 and d.max() > 0.0:
             self._layer_check(float(pts[0, 2]))
         st[S.S_X], st[S.S_Y], st[S.S_Z] = x1, y1, z1
@@ -289,38 +360,12 @@ class MotionCommands:
         from ..schema import MOVE_DTYPE
 
         self._flush_rows_to_arrays()
-        st, ist = self.st, self.ist
-        n = ends.shape[0]
-        a = np.zeros(n, dtype=MOVE_DTYPE)
-        a["line"] = self.line
-        a["feature"] = ist[S.I_FEATURE]
-        a["layer"] = ist[S.I_LAYER]
-        a["limits"] = ist[S.I_LIMITS]
-        a["x0"], a["y0"], a["z0"], a["e0"] = starts[:, 0], starts[:, 1], starts[:, 2], e_starts
-        a["x1"], a["y1"], a["z1"], a["e1"] = ends[:, 0], ends[:, 1], ends[:, 2], es
-        de = es - e_starts
-        xyz = d > 0.0
-        a["kind"] = np.where(xyz, np.where(de > 0.0, KIND_PRINT, KIND_TRAVEL), KIND_EXTRUDE_ONLY)
-        a["flags"] = flags | np.where(de < 0.0, FLAG_RETRACT, 0)
-        a["move_d"] = np.where(xyz, d, np.abs(de))
-        a["feed_v"] = feed_v
-        if rapid_mask is not None:
-            a["flags"] |= np.where(rapid_mask, FLAG_RAPID, 0).astype(np.uint8)
-            if self.dialect == S.DIALECT_CNC:
-                a["feed_v"] = np.where(rapid_mask, math.inf, feed_v)
-        a["accel"] = np.where(xyz, np.where(de != 0.0, st[S.S_ACC_P], st[S.S_ACC_T]), st[S.S_ACC_R])
-        a["blend_p"] = st[S.S_BLEND_P]
-        a["blend_q"] = st[S.S_BLEND_Q]
-        a["object"] = ist[S.I_OBJECT]
-        a["exact_stop"] = ist[S.I_EXACT_STOP]
-        keep = xyz | (de != 0.0)
-        if dwell is not None:
-            a["kind"][dwell] = KIND_DWELL
-            a["move_d"][dwell] = 0.0
-            a["accel"][dwell] = 0.0
-            a["feed_v"][dwell] = 0.0
-            keep = keep | dwell
-        self.row_arrays.append(a[keep])
+        a = np.zeros(ends.shape[0], dtype=MOVE_DTYPE)
+        k = piece_rows_kernel(ends, starts, es, e_starts, d, int(self.line), int(flags), float(feed_v),
+                              _NO_MASK if rapid_mask is None else rapid_mask,
+                              _NO_MASK if dwell is None else dwell, self.dialect == S.DIALECT_CNC,
+                              self.st, self.ist, a)
+        self.row_arrays.append(a[:k])
 
     def _cycle(self, code: int, params: dict[str, Word], used: set[str], f: float | None) -> None:
         from .cycles import CycleError, CycleState, expand_cycle
@@ -355,10 +400,9 @@ class MotionCommands:
         self.canned_cycles += 1
         if rows.shape[0] == 0:
             return
-        ends = rows[:, :3] + np.array(off)
-        starts = np.vstack([[float(st[S.S_X]), float(st[S.S_Y]), float(st[S.S_Z])], ends[:-1]])
-        d = np.sqrt(((ends - starts) ** 2).sum(axis=1))
+        ends = np.ascontiguousarray(rows[:, :3] + np.array(off))
         e = float(st[S.S_E])
+        starts, d, _, _ = pieces_through_kernel(ends, float(st[S.S_X]), float(st[S.S_Y]), float(st[S.S_Z]), e, e)
         es = np.full(rows.shape[0], e)
         motion = rows[:, 3]
         dwell = motion == 2

@@ -213,7 +213,7 @@ def _comment_needs_python(buf, p, eol, ist, feat_raw, feat_len, feat_idx):
 
 
 @njit(cache=True, inline="always")
-def _write_row(out, n, line, kind, flags, ist, st, x0, y0, z0, e0, x1, y1, z1, e1, move_d, feed_v, accel,
+def write_row(out, n, line, kind, flags, ist, st, x0, y0, z0, e0, x1, y1, z1, e1, move_d, feed_v, accel,
                dwell_t):
     r = out[n]
     r.line = line
@@ -444,7 +444,7 @@ def scan_chunk(buf, pos, end, st, ist, out, n_out, feat_raw, feat_len, feat_idx)
                         feed_v = np.inf
                 accel = move_accel(dialect, kind != KIND_EXTRUDE_ONLY, de, st[S_ACC_P], st[S_ACC_T],
                                    st[S_ACC_R])
-                _write_row(out, n_out, line, kind, flags, ist, st, x0, y0, z0, e0, x1, y1, z1, e1, move_d,
+                write_row(out, n_out, line, kind, flags, ist, st, x0, y0, z0, e0, x1, y1, z1, e1, move_d,
                            feed_v, accel, 0.0)
                 n_out += 1
             ist[I_LINE] = line
@@ -474,7 +474,7 @@ def scan_chunk(buf, pos, end, st, ist, out, n_out, feat_raw, feat_len, feat_idx)
                     dwell_t = vs
                 if not dwell_t >= 0.0:
                     return ST_PYTHON, line_start, n_out
-                _write_row(out, n_out, line, KIND_DWELL, 0, ist, st, st[S_X], st[S_Y], st[S_Z], st[S_E],
+                write_row(out, n_out, line, KIND_DWELL, 0, ist, st, st[S_X], st[S_Y], st[S_Z], st[S_E],
                            st[S_X], st[S_Y], st[S_Z], st[S_E], 0.0, 0.0, 0.0, dwell_t)
                 n_out += 1
             else:
