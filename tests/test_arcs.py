@@ -7,7 +7,7 @@ import re
 
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
 from gcodeplan.gcode.arcs import (
@@ -362,6 +362,7 @@ def test_random_ijk_arcs_on_circle_minimal_and_within_tolerance(case):
 @settings(max_examples=60, deadline=None)
 @given(st.floats(0.1, 100.0), st.floats(0.0, 1.0), st.booleans(), st.booleans(), st.floats(-5, 5),
        st.floats(-5, 5))
+@example(14.5, 0.9999999999999999, False, False, 0.0, 0.0)       # a half circle to the last bit (CI found it)
 def test_random_r_arcs_never_raise_and_stay_on_circle(r_abs, chord_frac, long_way, cw, sx, sy):
     chord = max(2 * r_abs * chord_frac, 1e-3)
     if chord > 2 * r_abs:
@@ -377,7 +378,12 @@ def test_random_r_arcs_never_raise_and_stay_on_circle(r_abs, chord_frac, long_wa
     left = (not cw) == (radius > 0)
     centre = mid + (apothem if left else -apothem) * normal
     dist = np.hypot(pts[:, 0] - centre[0], pts[:, 1] - centre[1])
-    assert np.abs(dist - dist[0]).max() < 1e-9 * max(1, r_abs)
+    # That apothem is ill-conditioned near a half circle: a few ε·R² of rounding in R² − (c/2)² moves it by that
+    # over 2·apothem, at most about √ε·R (hypothesis: R 14.5, chord 2R·(1 − 1e-16): the chords lie on a circle
+    # of radius 14.5 within 5e-15 around the midpoint, while this apothem comes out 1.7e-7)
+    eps = np.finfo(float).eps
+    centre_slack = min(8 * eps * r_abs**2 / max(apothem, 1e-300), math.sqrt(8 * eps) * r_abs)
+    assert np.abs(dist - dist[0]).max() < 1e-9 * max(1, r_abs) + 2 * centre_slack
     ang = np.unwrap(np.arctan2(pts[:, 1] - centre[1], pts[:, 0] - centre[0]))
     sweep = ang[-1] - ang[0]
     assert (sweep < 0) == cw
