@@ -185,3 +185,15 @@ def test_which_inputs_are_read_ahead(tmp_path, monkeypatch):
         assert not pipeline.read_ahead_input(fh)
     # a small input runs interpreted in the caller's thread, never read ahead (gcodeplan/_jit.py)
     assert not pipeline.Run(str(big), gp.load_machine("klipper")).threaded
+
+
+def test_a_reader_thread_that_vanishes_is_an_error_not_a_hang(monkeypatch):
+    """If the reader thread ended without handing over a batch, an error or its end (a bug, not a case the
+    code knows), the main thread must not wait for ever."""
+    import queue
+
+    monkeypatch.setattr(pipeline, "READ_AHEAD_BYTES", 0)
+    monkeypatch.setattr(queue.Queue, "put", lambda self, item, block=True, timeout=None: None)   # items lost
+    with pytest.raises(RuntimeError, match="reader thread ended without a result"):
+        pipeline.run(str(CUBE), gp.load_machine("klipper"), sinks=[Record()])
+    assert not _reader_threads()

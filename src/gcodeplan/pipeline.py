@@ -145,7 +145,12 @@ def read_ahead(reader, depth: int = 3):
     handed = None
     try:
         while True:
-            item = items.get()
+            try:
+                item = items.get(timeout=0.5)
+            except queue.Empty:          # never wait on a reader that is gone (it always says how it ended)
+                if worker.is_alive() or not items.empty():
+                    continue
+                raise RuntimeError("gcodeplan's reader thread ended without a result") from None
             if item is _END:
                 return
             if isinstance(item, BaseException):
