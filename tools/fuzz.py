@@ -377,7 +377,8 @@ class _Checks:
                 m = piece.moves
                 d = (np.abs(m["x1"] - m["x0"]) + np.abs(m["y1"] - m["y0"]) + np.abs(m["z1"] - m["z0"])
                      + np.abs(m["e1"] - m["e0"]))
-                budget = float(np.sum(d[np.isfinite(d)])) * checks.scale * 2.0 + 4.0 * len(m)
+                with np.errstate(over="ignore"):     # rows near 1e308 mm: an infinite budget skips stepping
+                    budget = float(np.sum(d[np.isfinite(d)])) * checks.scale * 2.0 + 4.0 * len(m)
                 if not np.all(np.isfinite(d)) or checks.steps + budget > checks.max_steps:
                     checks.stepping = False
                     return
