@@ -248,10 +248,11 @@ def _rows_by_numpy(ends, x0, y0, z0, e0, e1, flags, feed_v, rapid, dwell, cnc, a
 
 @pytest.mark.parametrize("seed", range(20))
 def test_piece_rows_equal_a_numpy_construction(seed):
-    """Arc chords and canned-cycle moves become MOVE rows in two kernels (gcode/commands_motion.py); they
+    """Arc chords and canned-cycle moves become MOVE rows in two kernels (gcode/commands_motion.py, scan.py); they
     must give, bit for bit, the rows NumPy builds column by column: zero-length pieces dropped, E-only
     pieces, retractions, rapids (unlimited feed on CNC dialects) and dwells included."""
-    from gcodeplan.gcode.commands_motion import piece_rows_kernel, pieces_through_kernel
+    from gcodeplan.gcode.commands_motion import pieces_through_kernel
+    from gcodeplan.gcode.scan import piece_rows_kernel
     from gcodeplan.schema import FLAG_ARC, MOVE_DTYPE
 
     rng = np.random.default_rng(seed)

@@ -197,3 +197,53 @@ def test_a_reader_thread_that_vanishes_is_an_error_not_a_hang(monkeypatch):
     with pytest.raises(RuntimeError, match="reader thread ended without a result"):
         pipeline.run(str(CUBE), gp.load_machine("klipper"), sinks=[Record()])
     assert not _reader_threads()
+
+
+def test_a_signal_while_the_reader_thread_starts_still_stops_it(monkeypatch):
+    """A KeyboardInterrupt (or gcodeplan's SIGTERM exception) can arrive while Thread.start() waits for the new
+    thread: the reader must still be stopped and its file closed (found in review with random interrupts)."""
+    monkeypatch.setattr(pipeline, "READ_AHEAD_BYTES", 0)
+    start = threading.Thread.start
+
+    def start_then_signal(self):
+        start(self)
+        if self.name == "gcodeplan-reader":
+            raise KeyboardInterrupt
+
+    monkeypatch.setattr(threading.Thread, "start", start_then_signal)
+    with pytest.raises(KeyboardInterrupt):
+        pipeline.run(str(CUBE), gp.load_machine("klipper"), sinks=[Record()], batch_moves=64)
+    assert not _reader_threads()
+    assert _open_fds(CUBE) == 0
+
+
+def test_the_planner_writes_pending_rows_only_into_spare_rows():
+    """prepend_rows puts the planner's pending rows into a batch's spare rows, once, and only when the rows fed
+    start exactly there: a later slice of the same buffer is copied, the caller's rows before it untouched."""
+    from gcodeplan.schema import MOVE_DTYPE, concat_rows, prepend_rows, rows_with_headroom
+
+    def _fields(rows):         # every field's bytes (padding between fields is not data)
+        return [np.ascontiguousarray(rows[f]).tobytes() for f in rows.dtype.names]
+
+    rng = np.random.default_rng(3)
+    head = np.zeros(3, MOVE_DTYPE)
+    head["x1"] = [1.0, 2.0, 3.0]
+    batch = rows_with_headroom(100, MOVE_DTYPE, headroom=8)
+    batch[:] = np.zeros(100, MOVE_DTYPE)
+    batch["x1"] = rng.random(100)
+    kept = batch.copy()
+
+    later = prepend_rows(head, batch[10:])                 # not at the spare rows: a copy
+    assert not np.shares_memory(later, batch)
+    assert _fields(later) == _fields(concat_rows(head, kept[10:]))
+    assert _fields(batch) == _fields(kept)
+
+    window = prepend_rows(head, batch)                     # at the spare rows: no copy of the batch
+    assert np.shares_memory(window, batch) and len(window) == 103
+    assert _fields(window) == _fields(concat_rows(head, kept))
+    again = prepend_rows(head[::-1].copy(), batch)         # the spare rows served once
+    assert not np.shares_memory(again, batch)
+    assert _fields(window) == _fields(concat_rows(head, kept))
+    too_long = rows_with_headroom(5, MOVE_DTYPE, headroom=2)
+    too_long[:] = np.zeros(5, MOVE_DTYPE)
+    assert not np.shares_memory(prepend_rows(head, too_long), too_long)

@@ -403,25 +403,33 @@ def activate() -> None:
     global _numba
     if _numba is not None:
         return
-    _import_numba()
-    import numba
-    from numba.extending import typeof_impl
+    import gc
 
-    @typeof_impl.register(Kernel)
-    def _typeof_kernel(val, c):             # a Kernel passed into compiled code is its dispatcher
-        return numba.typeof(val.dispatcher, c.purpose)
-
-    for k in _KERNELS:
-        k.dispatcher = numba.njit(**k.options)(k.py_func)
-        if command_process:
-            _load_without_refresh(k.dispatcher)
-    _numba = numba
-    rebind()
+    collecting = gc.isenabled()
     if command_process:
-        import gc
+        # no cycle collection while numba's ~100,000 long-lived objects are made (20-30 ms of collections
+        # otherwise): they go to the permanent generation at the end
+        gc.disable()
+    try:
+        _import_numba()
+        import numba
+        from numba.extending import typeof_impl
 
-        gc.freeze()
-        gc.enable()          # the command turned it off until now (gcodeplan/cli.py)
+        @typeof_impl.register(Kernel)
+        def _typeof_kernel(val, c):             # a Kernel passed into compiled code is its dispatcher
+            return numba.typeof(val.dispatcher, c.purpose)
+
+        for k in _KERNELS:
+            k.dispatcher = numba.njit(**k.options)(k.py_func)
+            if command_process:
+                _load_without_refresh(k.dispatcher)
+        _numba = numba
+        rebind()
+        if command_process:
+            gc.freeze()
+    finally:
+        if collecting:
+            gc.enable()
 
 
 def _import_numba() -> None:

@@ -73,14 +73,9 @@ def _main(argv: list[str] | None = None) -> int:
 
     argv = sys.argv[1:] if argv is None else list(argv)
     if __name__ == "__main__" or _is_console_script():
-        import gc
-
         from . import _jit
 
         _jit.command_process = True     # process-wide start-up shortcuts (gcodeplan/_jit.py)
-        # No cycle collection while numba's ~100,000 long-lived objects are made: _jit.activate freezes
-        # them and turns the collector back on (20-30 ms of collections otherwise)
-        gc.disable()
     parser = build_parser(argv)
     args = parser.parse_args(argv)
     if not getattr(args, "_run", None):

@@ -141,12 +141,14 @@ def read_ahead(reader, depth: int = 3):
 
     _jit.activate()          # once, here, not raced by two threads' first kernel calls
     worker = threading.Thread(target=produce, name="gcodeplan-reader", daemon=True)
-    worker.start()
     handed = None
     try:
+        worker.start()           # inside: a signal interrupting start() must still stop the thread
         while True:
             try:
-                item = items.get(timeout=0.5)
+                # a short wait: a signal that the OS delivered to the reader thread is handled by this one
+                # only when it runs again
+                item = items.get(timeout=0.1)
             except queue.Empty:          # never wait on a reader that is gone (it always says how it ended)
                 if worker.is_alive() or not items.empty():
                     continue
@@ -164,7 +166,8 @@ def read_ahead(reader, depth: int = 3):
             yield item
     finally:
         stop.set()
-        worker.join()
+        if worker.ident is not None:     # started
+            worker.join()
         if handed is not None:
             handed.close()
 

@@ -160,7 +160,8 @@ def empty_limits(n: int = 0) -> np.ndarray:
 #: spare rows the reader leaves in front of each MOVE batch, so that the streaming planner can put the few
 #: rows still pending in its window there instead of copying the batch behind them (:func:`prepend_rows`)
 HEADROOM_ROWS = 64
-_headroom: dict[int, weakref.ref] = {}     # id(buffer) -> buffer whose front rows are free, until used once
+#: id(buffer) -> (weak reference to the buffer, its spare rows), until the spare rows are used once
+_headroom: dict[int, tuple[weakref.ref, int]] = {}
 
 
 def rows_with_headroom(n: int, dtype: np.dtype, headroom: int = HEADROOM_ROWS) -> np.ndarray:
@@ -168,22 +169,23 @@ def rows_with_headroom(n: int, dtype: np.dtype, headroom: int = HEADROOM_ROWS) -
     :func:`prepend_rows`."""
     buf = np.empty(headroom + n, dtype=dtype)
     key = id(buf)
-    _headroom[key] = weakref.ref(buf, lambda _ref, key=key: _headroom.pop(key, None))
+    _headroom[key] = (weakref.ref(buf, lambda _ref, key=key: _headroom.pop(key, None)), headroom)
     return buf[headroom:]
 
 
 def prepend_rows(head: np.ndarray, rows: np.ndarray) -> np.ndarray:
-    """``concat_rows(head, rows)``; when ``rows`` came from :func:`rows_with_headroom` with room for
-    ``head`` in front, ``head`` is written there and the result is a view of that buffer (``rows`` itself is
-    not copied). Each buffer's headroom serves once: a second call copies, so no window is overwritten."""
+    """``concat_rows(head, rows)``; when ``rows`` starts exactly where the spare rows of a buffer from
+    :func:`rows_with_headroom` end, and they can hold ``head``, ``head`` is written there and the result is a
+    view of that buffer (``rows`` itself is not copied). Any other slice of such a buffer is copied (the rows
+    in front of it are somebody's data), and each buffer's spare rows serve once, so no window is overwritten."""
     base = rows.base
     if len(head) and base is not None and head.dtype == rows.dtype and rows.flags.c_contiguous:
-        ref = _headroom.get(id(base))
-        if ref is not None and ref() is base and base.flags.c_contiguous and base.flags.writeable:
-            at = (rows.ctypes.data - base.ctypes.data) // rows.itemsize
-            if 0 <= len(head) <= at and (rows.ctypes.data - base.ctypes.data) % rows.itemsize == 0:
+        entry = _headroom.get(id(base))
+        if entry is not None and entry[0]() is base and base.flags.c_contiguous and base.flags.writeable:
+            spare = entry[1]
+            if rows.ctypes.data - base.ctypes.data == spare * rows.itemsize and len(head) <= spare:
                 del _headroom[id(base)]
-                window = base[at - len(head):at + len(rows)]
+                window = base[spare - len(head):spare + len(rows)]
                 window[:len(head)] = head
                 return window
     return concat_rows(head, rows)

@@ -45,50 +45,6 @@ def pieces_through_kernel(ends, x0, y0, z0, e0, e1):
     return starts, d, es, e_starts
 
 
-@njit(cache=True)
-def piece_rows_kernel(ends, starts, es, e_starts, d, line, flags, feed_v, rapid, dwell, rapid_inf, st, ist, out):
-    """MOVE rows of straight pieces (arc chords, canned-cycle moves) into the zeroed rows ``out``, skipping
-    pieces that move nothing; returns how many were written.
-
-    A piece with XYZ motion prints when E grows, else travels; without XYZ motion it is extrude-only; E going
-    back sets FLAG_RETRACT. ``rapid`` / ``dwell``: per-piece masks (empty: none): a rapid piece gets
-    FLAG_RAPID and, when ``rapid_inf`` (CNC dialects), an unlimited feed; a dwell piece is a KIND_DWELL row
-    (its time is set by the caller). Acceleration, feature, layer, object and the rest come from the
-    interpreter's state ``st`` / ``ist`` as for a G1 (gcode/scan.py).
-    """
-    k = 0
-    has_rapid = rapid.shape[0] > 0
-    has_dwell = dwell.shape[0] > 0
-    for i in range(ends.shape[0]):
-        de = es[i] - e_starts[i]
-        xyz = d[i] > 0.0
-        is_dwell = has_dwell and dwell[i]
-        if not (xyz or de != 0.0 or is_dwell):
-            continue
-        if xyz:
-            kind = KIND_PRINT if de > 0.0 else KIND_TRAVEL
-            move_d = d[i]
-        else:
-            kind = KIND_EXTRUDE_ONLY
-            move_d = abs(de)
-        accel = S.move_accel(0, xyz, de, st[S.S_ACC_P], st[S.S_ACC_T], st[S.S_ACC_R])
-        f = flags | (FLAG_RETRACT if de < 0.0 else 0)
-        v = feed_v
-        if has_rapid and rapid[i]:
-            f |= FLAG_RAPID
-            if rapid_inf:
-                v = math.inf
-        if is_dwell:
-            kind = KIND_DWELL
-            move_d = 0.0
-            accel = 0.0
-            v = 0.0
-        S.write_row(out, k, line, kind, f, ist, st, starts[i, 0], starts[i, 1], starts[i, 2], e_starts[i],
-                    ends[i, 0], ends[i, 1], ends[i, 2], es[i], move_d, v, accel, 0.0)
-        k += 1
-    return k
-
-
 class MotionCommands:
     """Mixed into :class:`.interp.Interpreter`: commands that move the head or set its position."""
 
@@ -361,7 +317,7 @@ class MotionCommands:
 
         self._flush_rows_to_arrays()
         a = np.zeros(ends.shape[0], dtype=MOVE_DTYPE)
-        k = piece_rows_kernel(ends, starts, es, e_starts, d, int(self.line), int(flags), float(feed_v),
+        k = S.piece_rows_kernel(ends, starts, es, e_starts, d, int(self.line), int(flags), float(feed_v),
                               _NO_MASK if rapid_mask is None else rapid_mask,
                               _NO_MASK if dwell is None else dwell, self.dialect == S.DIALECT_CNC,
                               self.st, self.ist, a)
