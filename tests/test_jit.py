@@ -150,6 +150,20 @@ def test_differential_fuzz_round():
     assert st.failures == 0, st.signatures
 
 
+def _child(code: str, *args, env: dict | None = None) -> subprocess.CompletedProcess:
+    """``python -c code args...`` in a fresh process (which has not imported numba), checked for success."""
+    r = subprocess.run([sys.executable, "-c", code, *map(str, args)], capture_output=True, text=True,
+                       env=None if env is None else {**os.environ, **env})
+    assert r.returncode == 0, r.stderr
+    return r
+
+
+def _library_estimate_json(path) -> str:
+    """gp.estimate(path).to_json() in this process with compiled kernels, as canonical JSON text."""
+    _jit.activate()
+    return json.dumps(json.loads(json.dumps(gp.estimate(str(path)).to_json())), sort_keys=True)
+
+
 def test_tiny_estimate_never_imports_numba(tmp_path):
     """`gcodeplan estimate` and `parse` of a one-line file run without numba (the start-up target), and give
     what the compiled planner gives."""
@@ -159,8 +173,7 @@ def test_tiny_estimate_never_imports_numba(tmp_path):
             "with contextlib.redirect_stdout(io.StringIO()):\n    rc = main(['parse', sys.argv[1]])\n"
             "rc |= main(['estimate', '--json', sys.argv[1]])\n"
             "print('NUMBA', 'numba' in sys.modules, file=sys.stderr)\nsys.exit(rc)")
-    r = subprocess.run([sys.executable, "-c", code, str(f)], capture_output=True, text=True)
-    assert r.returncode == 0, r.stderr
+    r = _child(code, f)
     assert "NUMBA False" in r.stderr
     est = json.loads(r.stdout)
     _jit.activate()
@@ -178,14 +191,10 @@ def test_a_run_past_the_interpreting_budget_goes_compiled_with_the_same_result(t
             "_jit.INTERPRET_BUDGET_S = 0.002\n"
             "e = gp.estimate(sys.argv[1])\n"
             "print(json.dumps({'est': e.to_json(), 'numba': 'numba' in sys.modules, 'fallbacks': _jit.fallbacks}))")
-    r = subprocess.run([sys.executable, "-c", code, str(f)], capture_output=True, text=True)
-    assert r.returncode == 0, r.stderr
-    got = json.loads(r.stdout)
+    got = json.loads(_child(code, f).stdout)
     assert got["numba"] is True
     assert any("too long" in why for _, why in got["fallbacks"])
-    _jit.activate()
-    assert json.dumps(got["est"], sort_keys=True) == json.dumps(
-        json.loads(json.dumps(gp.estimate(str(f)).to_json())), sort_keys=True)
+    assert json.dumps(got["est"], sort_keys=True) == _library_estimate_json(f)
 
 
 def test_what_counts_as_small(tmp_path):
@@ -201,6 +210,9 @@ def test_what_counts_as_small(tmp_path):
     assert not small_input("-") and not small_input(str(tmp_path / "missing.gcode"))
     assert small_input(["G1 X1\n"] * 10) and not small_input(["G1 X1\n"] * 10_000)
     assert not small_input(iter(["G1 X1\n"]))           # a stream: unknown size
+    fifo = tmp_path / "fifo"
+    os.mkfifo(fifo)
+    assert not small_input(str(fifo))                  # a pipe: unknown size, and its first bytes are not ours
 
 
 def test_step_runs_never_interpret():
@@ -343,9 +355,7 @@ sys.exit(rc)
 
 
 def _command(path, env=None) -> tuple[dict, list[str]]:
-    r = subprocess.run([sys.executable, "-c", _COMMAND, str(path)], capture_output=True, text=True,
-                       env=None if env is None else {**os.environ, **env})
-    assert r.returncode == 0, r.stderr
+    r = _child(_COMMAND, path, env=env)
     state = [ln for ln in r.stderr.splitlines() if ln.startswith("STATE")][-1].split()[1:]
     return json.loads(r.stdout), state
 
@@ -359,9 +369,7 @@ def test_the_command_loads_cached_kernels_without_numbas_registries():
     est, (arraymath, yaml, gc_on) = _command(cube)
     assert arraymath == "False" and gc_on == "True"
     assert yaml == "False"            # numba imports PyYAML only to read a .numba_config.yaml; there is none
-    _jit.activate()
-    assert json.dumps(est, sort_keys=True) == json.dumps(
-        json.loads(json.dumps(gp.estimate(str(cube)).to_json())), sort_keys=True)
+    assert json.dumps(est, sort_keys=True) == _library_estimate_json(cube)
 
 
 @pytest.mark.slow
@@ -376,6 +384,4 @@ def test_the_command_compiles_kernels_missing_from_the_cache(tmp_path):
     warm, (arraymath, _, _) = _command(cube, env)
     assert arraymath == "False"
     assert cold == warm
-    _jit.activate()
-    assert json.dumps(cold, sort_keys=True) == json.dumps(
-        json.loads(json.dumps(gp.estimate(str(cube)).to_json())), sort_keys=True)
+    assert json.dumps(cold, sort_keys=True) == _library_estimate_json(cube)

@@ -32,6 +32,18 @@ def big_file(tmp_path_factory):
     return str(p)
 
 
+@pytest.fixture(scope="module")
+def long_file(tmp_path_factory):
+    """The same zig-zag, 1.44 M moves (37 MB): an estimate takes well over a second. (It took 0.7 s on big_file
+    once planning overlapped parsing, and once finished before the signal came.)"""
+    p = tmp_path_factory.mktemp("long") / "long.gcode"
+    block = "".join(f"G1 X{(i % 2) * 180 + 10:.0f} Y{10 + (i % 1800) * 0.1:.1f} E0.5 F12000\n" for i in range(3600))
+    with open(p, "w") as fh:
+        fh.write("G90\nM83\nG1 Z0.2 F600\n")
+        fh.write(block * 400)
+    return str(p)
+
+
 def _leftovers(directory):
     return sorted(n for n in os.listdir(directory) if n.startswith("."))
 
@@ -92,8 +104,8 @@ def test_steps_compact_and_csv_interrupted_leave_nothing(tmp_path, big_file):
 
 
 @pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGHUP])
-def test_estimate_interrupted_exits_128_plus_signal(tmp_path, big_file, sig):
-    rc, err = _run_and_signal(["estimate", big_file, "--per-line", str(tmp_path / "l.csv")], tmp_path, sig,
+def test_estimate_interrupted_exits_128_plus_signal(tmp_path, long_file, sig):
+    rc, err = _run_and_signal(["estimate", long_file, "--per-line", str(tmp_path / "l.csv")], tmp_path, sig,
                               wait_for_temp=False)
     assert rc == 128 + sig, err
     assert os.listdir(tmp_path) == []

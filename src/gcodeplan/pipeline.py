@@ -33,8 +33,6 @@ def small_input(source) -> bool:
     """True when ``source`` is a plain-text file or a list of lines of at most ``_jit.SMALL_INPUT_BYTES``:
     the run then executes its kernels as Python instead of paying numba's start-up (gcodeplan/_jit.py;
     identical results). Compressed, binary, streamed and unknown-size sources are never small."""
-    import os
-
     if isinstance(source, (list, tuple)):
         total = 0
         for line in source:
@@ -44,16 +42,29 @@ def small_input(source) -> bool:
             if total > _jit.SMALL_INPUT_BYTES:
                 return False
         return True
-    if not isinstance(source, (str, os.PathLike)) or str(source) == "-":
+    size = _file_size(source)
+    if size is None or size > _jit.SMALL_INPUT_BYTES:
         return False
     try:
-        if os.stat(source).st_size > _jit.SMALL_INPUT_BYTES:
-            return False
         with open(source, "rb") as f:
             head = f.read(4)
     except (OSError, ValueError):
         return False
     return head[:2] != b"\x1f\x8b" and head != b"GCDE"     # gzip and binary G-code decode to more
+
+
+def _file_size(source) -> int | None:
+    """Bytes of the regular file ``source`` names (a path; never ``-``, stdin), None for anything else."""
+    import os
+    import stat
+
+    if not isinstance(source, (str, os.PathLike)) or str(source) == "-":
+        return None
+    try:
+        st = os.stat(source)
+    except (OSError, ValueError):
+        return None
+    return st.st_size if stat.S_ISREG(st.st_mode) else None
 
 
 #: path inputs of at least this many bytes are read and interpreted in a second thread while the planner and
@@ -64,16 +75,8 @@ READ_AHEAD_BYTES = 1 << 20
 def read_ahead_input(source) -> bool:
     """True when ``source`` is the path of a regular file of at least :data:`READ_AHEAD_BYTES` (never stdin,
     a file object or lines: those belong to the caller's thread)."""
-    import os
-    import stat
-
-    if not isinstance(source, (str, os.PathLike)) or str(source) == "-":
-        return False
-    try:
-        st = os.stat(source)
-    except (OSError, ValueError):
-        return False
-    return stat.S_ISREG(st.st_mode) and st.st_size >= READ_AHEAD_BYTES
+    size = _file_size(source)
+    return size is not None and size >= READ_AHEAD_BYTES
 
 
 #: the reader thread hands its batches back to the main thread once more than this share of its time went to

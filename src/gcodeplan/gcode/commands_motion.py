@@ -318,9 +318,9 @@ class MotionCommands:
         self._flush_rows_to_arrays()
         a = np.zeros(ends.shape[0], dtype=MOVE_DTYPE)
         k = S.piece_rows_kernel(ends, starts, es, e_starts, d, int(self.line), int(flags), float(feed_v),
-                              _NO_MASK if rapid_mask is None else rapid_mask,
-                              _NO_MASK if dwell is None else dwell, self.dialect == S.DIALECT_CNC,
-                              self.st, self.ist, a)
+                                _NO_MASK if rapid_mask is None else rapid_mask,
+                                _NO_MASK if dwell is None else dwell, self.dialect == S.DIALECT_CNC,
+                                self.st, self.ist, a)
         self.row_arrays.append(a[:k])
 
     def _cycle(self, code: int, params: dict[str, Word], used: set[str], f: float | None) -> None:
