@@ -119,7 +119,8 @@ class Plan:
     def sample(self, times) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """(position mm, velocity mm/s, acceleration mm/s², jerk mm/s³) at ``times`` (s), each of shape
         (len(times), 4) for x, y, z, e: the plan's own polynomial pieces evaluated exactly. Times
-        outside the plan hold the first / last position at rest."""
+        outside the plan hold the first / last position at rest. ``times`` must be sorted ascending
+        (``np.sort`` them first) and not NaN: otherwise a ValueError names the first entry out of order."""
         from .planner.sampling import sample_segments
 
         return sample_segments(self.segments, np.asarray(times, dtype=np.float64))
