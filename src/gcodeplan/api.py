@@ -36,6 +36,8 @@ def load_machine(spec: str | None = None, *, klipper_config: str | None = None, 
         machine = load_linuxcnc_ini(str(linuxcnc_ini))
     else:
         machine = load(spec or "klipper")
+        if spec is None and flavor is None:
+            machine = replace(machine, auto_flavor=True)   # the default: a CNC program may pick its flavor (gcode/dialect.py)
     if flavor is not None:
         from .machine import FLAVORS
 
@@ -86,7 +88,8 @@ def estimate(source, machine=None, policy: str | None = None, jerk: float | None
     r = res.reader
     return Estimate(res.name, r.summary, sink.time, list(r.layer_z), list(r.features), res.policy, machine.name,
                     line_ends=sink.lines.arrays() if sink.lines is not None else (None, None), objects=list(r.interp.objects.names),
-                    wait_time_s=dict(r.interp.wait_time_s), filament_diameter_mm=machine.filament_diameter)
+                    wait_time_s=dict(r.interp.wait_time_s),
+                    filament_diameter_mm=r.interp.filament_diameter_mm)   # the E figures' filament (M200 / UltiGCode)
 
 
 @dataclass
