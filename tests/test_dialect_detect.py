@@ -82,7 +82,7 @@ def test_named_printer_machine_is_kept_with_a_warning(tmp_path, capsys):
     assert "looks like a CNC program" in d["warning"] and "--flavor linuxcnc" in d["warning"]
     assert main(["estimate", "--machine", "klipper", str(p)]) == 0
     out = capsys.readouterr().out
-    assert "warning: part.ngc: this looks like a CNC program (LinuxCNC program, extension .ngc)" in out
+    assert "warning: part.ngc: this looks like a CNC program (extension .ngc) but the machine's flavor is klipper" in out
 
 
 def test_explicit_flavor_is_kept(tmp_path, capsys):

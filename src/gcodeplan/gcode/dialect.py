@@ -126,6 +126,7 @@ def reading_machine(source, machine):
         return machine, None, []
     name = os.path.basename(str(source))
     flavor = machine.flavor
+    what = d.evidence if d.program in ("CNC program", "LinuxCNC program") else f"{d.program}, {d.evidence}"
     note = {"kind": d.kind, "program": d.program, "evidence": d.evidence, "flavor": flavor, "switched": False}
     warnings = []
     auto = bool(getattr(machine, "auto_flavor", False))
@@ -133,15 +134,15 @@ def reading_machine(source, machine):
         if auto:
             machine = replace(machine, flavor=d.cnc_flavor)
             note.update(flavor=d.cnc_flavor, switched=True)
-            warnings.append(f"{name}: a CNC program ({d.program}, {d.evidence}): read with {d.cnc_flavor} G-code "
+            warnings.append(f"{name}: a CNC program ({what}): read with {d.cnc_flavor} G-code "
                             f"meanings (G4 P in seconds, G0 rapids) on the default printer machine's limits; give "
                             f"--machine grbl, --linuxcnc-ini or a mill's TOML for a mill's speeds")
         else:
-            warnings.append(f"{name}: this looks like a CNC program ({d.program}, {d.evidence}) but the machine's "
+            warnings.append(f"{name}: this looks like a CNC program ({what}) but the machine's "
                             f"flavor is {flavor} (a printer: G4 P in milliseconds, no rapids); give --flavor "
                             f"{d.cnc_flavor} or a CNC machine if it is one")
     elif d.kind == "printer" and machine.is_cnc:
-        warnings.append(f"{name}: this looks like a 3D printer's file ({d.program}, {d.evidence}) but the machine's "
+        warnings.append(f"{name}: this looks like a 3D printer's file ({what}) but the machine's "
                         f"flavor is {flavor} (CNC: G4 P in seconds); give a printer --machine or --flavor")
     if d.volumetric and not machine.is_cnc:
         note["volumetric_filament_mm"] = ULTIGCODE_FILAMENT_MM
