@@ -77,7 +77,8 @@ class Toolhead:
 
     ``machine``: a :class:`~gcodeplan.machine.Machine` or preset name (None = ``klipper``);
     ``policy``, ``jerk`` as in :func:`gcodeplan.plan`; ``strict``: unknown commands are errors;
-    ``block_lines``: lines buffered before they are interpreted and planned.
+    ``block_lines``: lines buffered before they are interpreted and planned. Thread-safe: every method
+    holds the Toolhead's lock (a feeding thread and a draining thread see exactly the plan of the text fed).
     """
 
     def __init__(self, machine=None, policy: str | None = None, jerk: float | None = None, *,
