@@ -42,7 +42,7 @@ def write(tmp_path: Path, name: str, text: str) -> str:
 def assert_same_machine(a: Machine, b: Machine, skip: tuple[str, ...] = ("name",)) -> None:
     """Field by field, so a failure names the field (axes: per axis and attribute)."""
     for f in fields(Machine):
-        if f.name in skip:
+        if f.name in skip or not f.compare:      # auto_flavor: how the machine was chosen, not what it is
             continue
         if f.name == "axes":
             for ax in AXES:
@@ -519,6 +519,10 @@ def test_machine_from_args_default_is_klipper_preset():
     assert_same_machine(machine_from_args(argparse.Namespace()), load_machine("klipper"), skip=())
     ns = argparse.Namespace(machine=None, klipper_config=None, flavor=None)
     assert_same_machine(machine_from_args(ns), load_machine("klipper"), skip=())
+    # only the default may take a CNC program's flavor (gcode/dialect.py); a named machine or flavor is kept
+    assert machine_from_args(ns).auto_flavor and not load_machine("klipper").auto_flavor
+    assert not machine_from_args(argparse.Namespace(machine="klipper")).auto_flavor
+    assert not machine_from_args(argparse.Namespace(flavor="marlin")).auto_flavor
 
 
 def test_machine_from_args_sources_and_flavor_override():
