@@ -166,3 +166,17 @@ def test_m200_is_not_klippers():
     # Klipper has no M200 ("Unknown command"): E stays mm of filament
     est = gp.estimate(["G90", "M83", "M200 D1.75", "G1 X10 E1 F1200"], "klipper")
     assert est.to_json()["filament_mm"] == pytest.approx(1.0)
+
+
+@pytest.mark.parametrize("parts,flavor", [(("gcode", "linuxcnc_plasmatest.ngc"), "linuxcnc"),
+                                          (("gcode", "cncjs_jscut_tball_pocket_laser.gcode"), "grbl")])
+def test_default_machine_reads_a_cnc_file_as_the_named_flavor_does(parts, flavor):
+    # switching is for G-code meanings only: the same plan, bit for bit, as the preset with --flavor given
+    p = shared_path(*parts)
+    auto = gp.plan(str(p))
+    named = gp.plan(str(p), gp.load_machine("klipper", flavor=flavor))
+    assert len(auto.plan) == len(named.plan) > 100
+    assert (auto.plan["duration"] == named.plan["duration"]).all()
+    # the printer reading of the plasma file (its F5840 on the M06 line, G4 P...) differs from LinuxCNC's
+    printer = gp.plan(str(p), "klipper")
+    assert printer.total_time_s != auto.total_time_s
