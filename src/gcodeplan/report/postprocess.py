@@ -25,8 +25,9 @@ What changes (everything else is copied byte for byte, line endings included):
   figure as if it were one plan (their ``M73 Q… S…`` progress lines go with every other M73 line).
 * One ``; gcodeplan <version>: <total> (<machine>, <policy>)`` line is appended (an earlier one dropped).
 
-A CNC program (the file read with the ``grbl`` or ``linuxcnc`` flavor: the machine's, or the one
-:mod:`gcodeplan.gcode.dialect` detects on the default preset) gets no printer command at all: grbl stops
+A CNC program (the file read with the ``grbl`` or ``linuxcnc`` flavor — the machine's, or the one
+:mod:`gcodeplan.gcode.dialect` detects on the default preset — or a file whose name or CAM header says it is
+one, whatever machine plans it) gets no printer command at all: grbl stops
 with ``error:20`` on M73 and LinuxCNC's M73 saves the modal state. Its M73 lines are left alone, none is
 inserted (``layer_info`` is refused: SET_PRINT_STATS_INFO is Klipper's), and the one line appended is the
 comment ``(gcodeplan <version>: <total>, machine <name>, policy <policy>)``.
@@ -273,8 +274,13 @@ def post_process(path, out=None, machine=None, policy: str | None = None, jerk: 
     path = str(path)
     _refuse_unsupported(path)
     machine = as_machine(machine)
-    flavor = reading_machine(path, machine)[0].flavor    # the flavor the pipeline will read the file with
+    read_machine, note, _ = reading_machine(path, machine)
+    flavor = read_machine.flavor            # the flavor the pipeline will read the file with
     cnc = flavor in ("grbl", "linuxcnc")
+    if not cnc and note and note["kind"] == "cnc":
+        # a CNC program (its name or CAM header says so) planned on a printer machine the user named: it is
+        # planned as asked, but a printer command written into it would stop the controller it is for
+        cnc, flavor = True, "CNC"
     if cnc:
         if layer_info:
             raise GcodeplanError(f"--layer-info writes Klipper's SET_PRINT_STATS_INFO: not into a {flavor} "
