@@ -180,3 +180,11 @@ def test_default_machine_reads_a_cnc_file_as_the_named_flavor_does(parts, flavor
     # the printer reading of the plasma file (its F5840 on the M06 line, G4 P...) differs from LinuxCNC's
     printer = gp.plan(str(p), "klipper")
     assert printer.total_time_s != auto.total_time_s
+
+
+@pytest.mark.parametrize("d", ["0.0000000001", "-1.75", "1000"])
+def test_m200_refuses_an_absurd_diameter(d):
+    from gcodeplan.errors import GcodeError
+
+    with pytest.raises(GcodeError, match=r"<lines>:2: M200 D must be a filament diameter of 0\.05 to 50 mm"):
+        gp.estimate(["G90", f"M200 D{d}", "G1 X10 E1 F1200"], "marlin")

@@ -218,8 +218,9 @@ class StateCommands:
         d = self._value(params, "D")
         if d is not None:
             d_mm = d * float(self.st[S.S_UNIT])
-            if not (math.isfinite(d_mm) and d_mm >= 0.0):
-                self.error("M200 D must be a filament diameter >= 0 mm (D0 = volumetric off)")
+            # a filament is a few mm thick: outside 0.05 … 50 mm a D is a typo (and a tiny one would make 1/d² inf)
+            if not (d_mm == 0.0 or 0.05 <= d_mm <= 50.0):
+                self.error("M200 D must be a filament diameter of 0.05 to 50 mm, or 0 (volumetric off)")
             if d_mm > 0.0:
                 self._filament_d = d_mm
                 on = True
