@@ -42,7 +42,7 @@ def write(tmp_path: Path, name: str, text: str) -> str:
 def assert_same_machine(a: Machine, b: Machine, skip: tuple[str, ...] = ("name",)) -> None:
     """Field by field, so a failure names the field (axes: per axis and attribute)."""
     for f in fields(Machine):
-        if f.name in skip:
+        if f.name in skip or not f.compare:      # auto_flavor: how the machine was chosen, not what it is
             continue
         if f.name == "axes":
             for ax in AXES:
@@ -204,12 +204,12 @@ def test_inf_spellings(tmp_path):
 
 
 TOML_ERRORS = [
-    ("[toolhead]\nmax_accel = -5\n", "m.toml: toolhead.max_accel: must be a positive number (inf = no limit), got -5"),
-    ("[toolhead]\nmax_velocity = 0\n", "toolhead.max_velocity: must be a positive number"),
-    ("[toolhead]\nmax_accel = nan\n", "toolhead.max_accel: must be a positive number (inf = no limit), got nan"),
+    ("[toolhead]\nmax_accel = -5\n", "m.toml: toolhead.max_accel: must be at least 0.001 mm/s² (inf = no limit), got -5"),
+    ("[toolhead]\nmax_velocity = 0\n", "toolhead.max_velocity: must be at least 0.001 mm/s (inf = no limit), got 0"),
+    ("[toolhead]\nmax_accel = nan\n", "toolhead.max_accel: must be at least 0.001 mm/s² (inf = no limit), got nan"),
     ("[toolhead]\nmax_accel = \"fast\"\n", "toolhead.max_accel: must be a number, got 'fast'"),
     ("[toolhead]\nmax_accel = true\n", "toolhead.max_accel: must be a number, got true"),
-    ("[toolhead]\naccel_print = -1.5\n", "toolhead.accel_print: must be a positive number (inf = no limit), got -1.5"),
+    ("[toolhead]\naccel_print = -1.5\n", "toolhead.accel_print: must be at least 0.001 mm/s² (inf = no limit), got -1.5"),
     ("[toolhead]\nmax_acel = 5\n", "toolhead.max_acel: unknown key (did you mean 'max_accel'?)"),
     ("[tolhead]\nmax_accel = 5\n", "tolhead: unknown section (did you mean 'toolhead'?)"),
     ("[junction]\nminimum_cruise_ratio = 1.0\n", "junction.minimum_cruise_ratio: must be a number in [0, 1), got 1"),
@@ -230,7 +230,7 @@ TOML_ERRORS = [
     ("max_accel = 3000\n", "max_accel: unknown top-level key (it belongs in [toolhead])"),
     ("toolhead = 5\n", "toolhead: must be a table [toolhead], got 5"),
     ("[axis.w]\nmax_accel = 5\n", "axis.w: unknown axis (axes are x, y, z, e)"),
-    ("[axis.x]\nsteps_per_mm = 0\n", "axis.x.steps_per_mm: must be a positive finite number, got 0"),
+    ("[axis.x]\nsteps_per_mm = 0\n", "axis.x.steps_per_mm: must be a number of steps/mm from 0.001 (a step of 1 m) to 1e6 (a step of 1 nm), got 0"),
     ("[axis.x]\nsteps = 80\n", "axis.x.steps: unknown key (did you mean 'steps_per_mm'?)"),
     ("[axis.x]\nhome = inf\n", "axis.x.home: must be a finite number, got inf"),
     ("[axis.y]\nsteps_per_mm = 80\nrotation_distance = 40\nmicrosteps = 16\n",
@@ -245,7 +245,7 @@ TOML_ERRORS = [
     ("[extruder]\nmax_extrude_ratio = 2\nmax_extrude_cross_section = 4\n",
      "extruder.max_extrude_cross_section: give it or max_extrude_ratio, not both"),
     ("[arcs]\ntolerance = 0\n", "arcs.tolerance: must be a positive finite number, got 0"),
-    ("[firmware_retraction]\nretract_speed = 0\n", "firmware_retraction.retract_speed: must be a positive"),
+    ("[firmware_retraction]\nretract_speed = 0\n", "firmware_retraction.retract_speed: must be a finite speed of at least 0.001 mm/s, got 0"),
     ("[time]\nhoming_time = -1\n", "time.homing_time: must be a finite number >= 0, got -1"),
     ("[stepper]\nmax_step_rate = -1\n", "stepper.max_step_rate: must be a positive number"),
     ("[toolhead]\nmax_accel = inf\n", "toolhead.max_accel: must be finite with junction.policy 'klipper', got inf"),
@@ -327,7 +327,7 @@ def test_validate_axes():
     validate(Machine())                                           # the defaults are valid
     m = Machine()
     m.axes["y"].steps_per_mm = 0.0
-    with pytest.raises(ConfigError, match=r"^axis\.y\.steps_per_mm: must be a positive finite number, got 0$"):
+    with pytest.raises(ConfigError, match=r"^axis\.y\.steps_per_mm: must be a number of steps/mm from 0\.001 .*, got 0$"):
         validate(m)
     m = Machine()
     del m.axes["e"]
@@ -519,6 +519,10 @@ def test_machine_from_args_default_is_klipper_preset():
     assert_same_machine(machine_from_args(argparse.Namespace()), load_machine("klipper"), skip=())
     ns = argparse.Namespace(machine=None, klipper_config=None, flavor=None)
     assert_same_machine(machine_from_args(ns), load_machine("klipper"), skip=())
+    # only the default may take a CNC program's flavor (gcode/dialect.py); a named machine or flavor is kept
+    assert machine_from_args(ns).auto_flavor and not load_machine("klipper").auto_flavor
+    assert not machine_from_args(argparse.Namespace(machine="klipper")).auto_flavor
+    assert not machine_from_args(argparse.Namespace(flavor="marlin")).auto_flavor
 
 
 def test_machine_from_args_sources_and_flavor_override():

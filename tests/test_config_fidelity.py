@@ -244,7 +244,8 @@ def test_generated_configs_read_as_klipper_reads_them(tmp_path, text):
 
 # ----------------------------------------------------------------------------- TOML writer
 _floats = st.floats(allow_nan=False)
-_pos = st.floats(min_value=1e-300, allow_nan=False, allow_infinity=False)
+_pos = st.floats(min_value=1e-3, allow_nan=False, allow_infinity=False)   # the speed/accel floor (docs/machine.md)
+_steps = st.floats(min_value=1e-3, max_value=1e6)                          # the steps_per_mm bounds
 
 
 @st.composite
@@ -266,7 +267,7 @@ def machines(draw):
         if not hi > lo:
             lo, hi = -math.inf, math.inf
         m.axes[a] = Axis(max_velocity=draw(st.one_of(_pos, st.just(math.inf))), max_accel=draw(_pos),
-                         jerk=draw(st.floats(0, 1e3)), steps_per_mm=draw(_pos),
+                         jerk=draw(st.floats(0, 1e3)), steps_per_mm=draw(_steps),
                          home=draw(st.floats(-1e6, 1e6)), position_min=lo, position_max=hi)
     return m
 

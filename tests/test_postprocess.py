@@ -23,6 +23,7 @@ import pytest
 import gcodeplan as gp
 from gcodeplan.cli import main
 from gcodeplan.errors import GcodeplanError
+from gcodeplan.gcode.dialect import detect
 from gcodeplan.report.postprocess import dhms, m73_values, post_process
 
 from conftest import CORPUS, SHARED, shared_path
@@ -32,7 +33,8 @@ SAMPLE = os.path.join(os.path.dirname(__file__), "..", "gcode_samples", "prusasl
 M73 = re.compile(rb"^\s*M73\b")
 SLICER_TIME = re.compile(rb"^(; estimated printing time \(normal mode\) = |; estimated first layer printing time "
                          rb"\(normal mode\) = |;TIME:|;PRINT\.TIME:|;TIME_ELAPSED:|;Print Time: |;PRINTING_TIME: |"
-                         rb";REMAINING_TIME: |; model printing time: )")
+                         rb";REMAINING_TIME: |; model printing time: |"
+                         rb"; estimated (first layer )?printing time \(silent mode\) = )")   # silent: dropped
 
 
 def _lines(data: bytes) -> list[bytes]:
@@ -115,6 +117,7 @@ PRUSA_LIKE = (
     "; estimated printing time (normal mode) = 2m 10s\n"
     "; estimated printing time (silent mode) = 2m 30s\n"
     "; estimated first layer printing time (normal mode) = 1m 0s\n"
+    "; estimated first layer printing time (silent mode) = 1m 9s\n"
 )
 
 
@@ -133,7 +136,8 @@ def test_prusaslicer_like_file(tmp_path, eol):
     check_post_processed(orig, new, est)
     text = new.decode()
     assert f"; estimated printing time (normal mode) = {dhms(est.total_time_s)}{eol}" in text
-    assert f"; estimated printing time (silent mode) = 2m 30s{eol}" in text      # not ours to change
+    # the slicer's stealth-mode figures are not gcodeplan's plan: they go, with their M73 Q/S lines
+    assert "(silent mode)" not in text
     assert "M73 Q0 S3" not in text                                                # the slicer's M73 lines go
     assert text.count("; gcodeplan ") == 1 and text.endswith(eol)
     assert all(ln.endswith("\r\n") for ln in text.splitlines(True)) == (eol == "\r\n")
@@ -260,9 +264,12 @@ def test_post_process_every_corpus_file(tmp_path, name):
     src = shared_path("gcode", name)
     machine = gp.load_machine(klipper_config=str(shared_path("reference", "klipper", "cartesian_corpus.cfg")))
     dst = tmp_path / name
-    post_process(src, dst, machine)
+    res = post_process(src, dst, machine)
     orig, new = src.read_bytes(), dst.read_bytes()
-    check_post_processed(orig, new, gp.estimate(str(src), machine))
+    if detect(name, orig[:65536]).kind == "cnc":      # jscut's laser program: no printer command goes in
+        assert res.cnc_flavor and res.m73 == [] and new.startswith(orig) and new.count(b"\n") == orig.count(b"\n") + 1
+    else:
+        check_post_processed(orig, new, gp.estimate(str(src), machine))
     post_process(dst, None, machine)
     assert dst.read_bytes() == new
 
@@ -332,3 +339,48 @@ def test_kill_9_in_the_middle_leaves_the_original_intact(tmp_path):
     assert killed, "the run ended before it could be killed in the middle"
     assert proc.returncode == -signal.SIGKILL
     assert p.read_bytes() == src.read_bytes()
+
+
+# ---------------------------------------------------------------------------- what the summary says, CNC programs
+def test_summary_counts_are_singular_and_plural(tmp_path, capsys):
+    p = tmp_path / "a.gcode"
+    p.write_text(PRUSA_LIKE)
+    assert main(["post-process", str(p)]) == 0
+    err = capsys.readouterr().err
+    assert re.search(r"; \d+ M73 lines, 2 slicer time lines rewritten$", err.strip()), err
+    q = tmp_path / "b.gcode"
+    q.write_text(";FLAVOR:Marlin\n;TIME:31\nG28\nG1 X10 E1 F600\n")
+    assert main(["post-process", str(q)]) == 0
+    err = capsys.readouterr().err
+    assert err.strip().endswith(", 1 slicer time line rewritten"), err
+
+
+CNC_PROGRAM = "%\n(a cut)\nG21 G90\nG0 Z5\nM3 S1000\nG1 Z-1 F100\nG1 X50 F600\nG4 P0.5\nG1 Y50\nG0 Z5\nM5\nM2\n%\n"
+
+
+@pytest.mark.parametrize("name,machine,flavor", [("cut.nc", "grbl", "grbl"), ("cut.ngc", None, "linuxcnc"),
+                                                 ("cut.gcode", "grbl", "grbl"), ("cut.ngc", "klipper", "CNC"),
+                                                 ("cut.gcode", "klipper", "CNC")])   # the % tape mark
+def test_cnc_programs_get_no_printer_commands(tmp_path, capsys, name, machine, flavor):
+    p = tmp_path / name
+    p.write_text(CNC_PROGRAM)
+    res = post_process(p, None, machine)
+    new = p.read_text()
+    assert "M73" not in new and "SET_PRINT_STATS_INFO" not in new and res.m73 == [] and res.cnc_flavor == flavor
+    # everything kept byte for byte; one RS274 comment (no nested parentheses) appended
+    assert new.startswith(CNC_PROGRAM)
+    extra = new[len(CNC_PROGRAM):]
+    assert re.fullmatch(r"\(gcodeplan \S+: [^()\n]* s, machine [^()\n]*, policy [^()\n]*\)\n", extra), extra
+    again = post_process(p, None, machine)
+    assert p.read_text() == new and again.total_time_s == res.total_time_s      # twice = once
+    assert f"(a {flavor} program: no printer commands written" in res.counts_text()
+
+
+def test_cnc_program_keeps_its_own_m73_and_refuses_layer_info(tmp_path):
+    p = tmp_path / "cut.ngc"
+    text = CNC_PROGRAM.replace("M5\n", "M73\nM5\n")       # LinuxCNC's M73: save modal state (the user's own)
+    p.write_text(text)
+    post_process(p, None, None)
+    assert p.read_text().startswith(text)
+    with pytest.raises(GcodeplanError, match="SET_PRINT_STATS_INFO: not into a linuxcnc program"):
+        post_process(p, None, None, layer_info=True)

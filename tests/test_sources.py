@@ -207,6 +207,9 @@ def test_parse_reads_stdin_with_dash(capsys):
     d = json.loads(out.stdout)
     assert d.pop("file") == "<stdin>"
     ref.pop("file")
+    # a named file's slicer/CAM program is detected from its head (gcode/dialect.py); standard input is not
+    # peeked at (it can be read once)
+    assert d.pop("dialect") is None and ref.pop("dialect")["program"] == "PrusaSlicer"
     assert d == ref
 
 

@@ -36,6 +36,8 @@ def load_machine(spec: str | None = None, *, klipper_config: str | None = None, 
         machine = load_linuxcnc_ini(str(linuxcnc_ini))
     else:
         machine = load(spec or "klipper")
+        if spec is None and flavor is None:
+            machine = replace(machine, auto_flavor=True)   # the default: a CNC program may pick its flavor (gcode/dialect.py)
     if flavor is not None:
         from .machine import FLAVORS
 
@@ -86,7 +88,8 @@ def estimate(source, machine=None, policy: str | None = None, jerk: float | None
     r = res.reader
     return Estimate(res.name, r.summary, sink.time, list(r.layer_z), list(r.features), res.policy, machine.name,
                     line_ends=sink.lines.arrays() if sink.lines is not None else (None, None), objects=list(r.interp.objects.names),
-                    wait_time_s=dict(r.interp.wait_time_s), filament_diameter_mm=machine.filament_diameter)
+                    wait_time_s=dict(r.interp.wait_time_s),
+                    filament_diameter_mm=r.interp.filament_diameter_mm)   # the E figures' filament (M200 / UltiGCode)
 
 
 @dataclass
@@ -119,7 +122,8 @@ class Plan:
     def sample(self, times) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """(position mm, velocity mm/s, acceleration mm/s², jerk mm/s³) at ``times`` (s), each of shape
         (len(times), 4) for x, y, z, e: the plan's own polynomial pieces evaluated exactly. Times
-        outside the plan hold the first / last position at rest."""
+        outside the plan hold the first / last position at rest. ``times`` must be sorted ascending
+        (``np.sort`` them first) and not NaN: otherwise a ValueError names the first entry out of order."""
         from .planner.sampling import sample_segments
 
         return sample_segments(self.segments, np.asarray(times, dtype=np.float64))

@@ -115,6 +115,11 @@ class Machine:
     delta_position_endstop: tuple[float, float, float] = (0.0, 0.0, 0.0)
     delta_steps_per_mm: tuple[float, float, float] = (80.0, 80.0, 80.0)      # steps per mm of carriage travel
 
+    # True for the default machine (no --machine / --flavor / --klipper-config / --linuxcnc-ini; machine=None in
+    # the API): a file that is clearly a CNC program is then read with a CNC flavor (gcode/dialect.py). Not a
+    # machine property: equal machines may differ in it.
+    auto_flavor: bool = field(default=False, compare=False, repr=False)
+
     # ------------------------------------------------------------------ derived
     def limits_row(self) -> np.ndarray:
         """Row 0 of the LIMITS table: the limits in force before the G-code changes any."""

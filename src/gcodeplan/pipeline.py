@@ -186,7 +186,14 @@ def open_reader(source, machine, *, strict: bool = False, batch_moves: int = 819
     if small:
         batch_moves = min(batch_moves, 512)
         extra["chunk_bytes"] = 2 * _jit.SMALL_INPUT_BYTES
-    return GcodeReader(source, machine, strict=strict, batch_moves=batch_moves, **extra), small
+    # what the file says it is (gcode/dialect.py): a CNC program on the default printer preset is read with CNC
+    # G-code meanings, a mismatch with a named machine is a warning; the planner keeps ``machine``
+    from .gcode.dialect import apply_note, reading_machine
+
+    read_machine, note, warnings = reading_machine(source, machine)
+    reader = GcodeReader(source, read_machine, strict=strict, batch_moves=batch_moves, **extra)
+    apply_note(reader, note, warnings)
+    return reader, small
 
 
 class Piece:

@@ -9,10 +9,17 @@ for bit, whatever the chunking.
 
 Text is interpreted lazily, in blocks of ``block_lines`` lines or when moves are asked for, so that
 a call with one line costs about a microsecond and planning runs over many moves at once.
+
+A Toolhead may be shared between threads: every public method holds the Toolhead's lock while it
+runs, so calls never interleave inside the planner (lines fed from two threads are planned in the
+order their calls took the lock). An uncontended lock costs well under a microsecond per call.
 """
 from __future__ import annotations
 
+import math
+import threading
 from dataclasses import dataclass
+from decimal import Decimal
 
 import numpy as np
 
@@ -43,12 +50,35 @@ class CommittedMove:
     limit: str
 
 
+def _finite(v, name: str) -> float:
+    if isinstance(v, bool) or not isinstance(v, (int, float)) and not hasattr(v, "__float__"):
+        raise TypeError(f"Toolhead.move: {name} must be a number, got {type(v).__name__}")
+    x = float(v)
+    if not math.isfinite(x):
+        raise ValueError(f"Toolhead.move: {name} must be a finite number, got {x!r}")
+    return x
+
+
+def gcode_number(v, name: str = "value") -> str:
+    """``v`` as a G-code number: a plain decimal (no exponent: G-code reads ``1e-05`` as ``1`` followed by
+    the word ``E-05``) with the shortest digits that read back as the same float (Python's ``repr``).
+    Integers lose their ``.0``. NaN and ±inf are a ValueError naming ``name``."""
+    x = _finite(v, name)
+    text = repr(x)
+    if "e" in text:                   # 1e-05, 1e+20: the same digits written out in full
+        text = format(Decimal(text), "f")
+    if text.endswith(".0"):
+        text = text[:-2]
+    return text
+
+
 class Toolhead:
     """An incremental planner: ``gcode(text)``/``move(...)`` in, ``committed()`` moves out.
 
     ``machine``: a :class:`~gcodeplan.machine.Machine` or preset name (None = ``klipper``);
     ``policy``, ``jerk`` as in :func:`gcodeplan.plan`; ``strict``: unknown commands are errors;
-    ``block_lines``: lines buffered before they are interpreted and planned.
+    ``block_lines``: lines buffered before they are interpreted and planned. Thread-safe: every method
+    holds the Toolhead's lock (a feeding thread and a draining thread see exactly the plan of the text fed).
     """
 
     def __init__(self, machine=None, policy: str | None = None, jerk: float | None = None, *,
@@ -69,13 +99,26 @@ class Toolhead:
         self._rows = 0            # rows made final so far
         self._handed = 0          # rows handed out by committed()
         self._closed = False
+        # one lock for all state: a Toolhead fed from two threads would otherwise interleave the
+        # reader's and planner's updates (wrong row counts, divisions by a half-updated clock)
+        self._lock = threading.Lock()
 
     # ------------------------------------------------------------------ input
     def gcode(self, text: str | bytes) -> None:
-        """Queue G-code: one or many lines (a str or bytes; a missing last newline is added)."""
+        """Queue G-code: one or many lines (a str or bytes-like; a missing last newline is added).
+        Anything else (a number, None, a list) is a TypeError."""
+        if isinstance(text, str):
+            data = text.encode("utf-8")
+        elif isinstance(text, (bytes, bytearray, memoryview)):
+            data = bytes(text)
+        else:
+            raise TypeError(f"Toolhead.gcode() takes G-code text (str or bytes), got {type(text).__name__}")
+        with self._lock:
+            self._queue(data)
+
+    def _queue(self, data: bytes) -> None:
         if self._closed:
             raise RuntimeError("Toolhead.gcode() after close()")
-        data = text.encode("utf-8") if isinstance(text, str) else bytes(text)
         if not data.endswith(b"\n"):
             data += b"\n"
         self._text.append(data)
@@ -87,13 +130,18 @@ class Toolhead:
              speed: float | None = None, rapid: bool = False) -> None:
         """Queue one linear move to (x, y, z, e) mm (None = unchanged) at ``speed`` mm/s (None = the modal
         feed rate). It is written as a ``G1``/``G0`` line in the current modes (G90/G91, M82/M83, G20
-        units), so it behaves exactly like the same G-code line."""
+        units), so it behaves exactly like the same G-code line. Every number is written as a plain
+        decimal that reads back as the same float (never ``1e-05``, which G-code reads as X1 E-05);
+        a value that is not a finite number (NaN, ±inf) is a ValueError, a speed must be > 0."""
         words = ["G0" if rapid else "G1"]
         for letter, v in (("X", x), ("Y", y), ("Z", z), ("E", e)):
             if v is not None:
-                words.append(f"{letter}{float(v)!r}")
+                words.append(letter + gcode_number(v, letter.lower()))
         if speed is not None:
-            words.append(f"F{float(speed) * 60.0!r}")
+            mm_s = _finite(speed, "speed")
+            if not mm_s > 0.0:
+                raise ValueError(f"Toolhead.move: speed must be > 0 mm/s, got {mm_s!r}")
+            words.append("F" + gcode_number(mm_s * 60.0, "speed·60 (mm/min)"))
         self.gcode(" ".join(words))
 
     # ------------------------------------------------------------------ planning
@@ -114,23 +162,29 @@ class Toolhead:
 
     def flush(self) -> None:
         """A full stop: everything queued is planned to rest and becomes final (Klipper's ``M400``)."""
-        self._interpret()
-        self._plan(self._planner.finish())
+        with self._lock:
+            self._interpret()
+            self._plan(self._planner.finish())
 
     def close(self) -> None:
         """End of program: interpret a last line without a newline, plan everything to rest."""
-        if self._closed:
-            return
-        self._interpret()
-        for rows in self._reader.end():
-            self._plan(self._planner.feed(rows, self._reader.limits))
-        self._plan(self._planner.finish())
-        self._closed = True
+        with self._lock:
+            if self._closed:
+                return
+            self._interpret()
+            for rows in self._reader.end():
+                self._plan(self._planner.feed(rows, self._reader.limits))
+            self._plan(self._planner.finish())
+            self._closed = True
 
     # ------------------------------------------------------------------ output
     def committed_arrays(self) -> tuple[np.ndarray, np.ndarray]:
         """(MOVE rows, PLAN rows) made final since the last ``committed()`` / ``committed_arrays()`` call
         (interprets what is queued first). The PLAN rows' times continue across calls."""
+        with self._lock:
+            return self._take()
+
+    def _take(self) -> tuple[np.ndarray, np.ndarray]:
         self._interpret()
         if not self._out:
             return np.zeros(0, MOVE_DTYPE), np.zeros(0, PLAN_DTYPE)
@@ -142,8 +196,9 @@ class Toolhead:
 
     def committed(self) -> list[CommittedMove]:
         """The rows made final since the last call, as :class:`CommittedMove` objects."""
-        first = self._handed
-        moves, plan = self.committed_arrays()
+        with self._lock:
+            first = self._handed
+            moves, plan = self._take()
         end_t = plan["t_start"] + plan["duration"]
         out = []
         for k in range(len(moves)):
@@ -157,12 +212,14 @@ class Toolhead:
     @property
     def pending(self) -> int:
         """Rows planned but not final yet (held in the look-ahead window)."""
-        return self._planner.pending
+        with self._lock:
+            return self._planner.pending
 
     @property
     def print_time(self) -> float:
         """End time (s) of the last final move: the planned time so far."""
-        return self._planner._clock
+        with self._lock:
+            return self._planner._clock
 
     @property
     def summary(self):
@@ -170,4 +227,4 @@ class Toolhead:
         return self._reader.summary
 
 
-__all__ = ["Toolhead", "CommittedMove"]
+__all__ = ["Toolhead", "CommittedMove", "gcode_number"]

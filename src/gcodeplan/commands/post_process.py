@@ -46,5 +46,5 @@ def run(args) -> int:
             bar.close()
     if not args.quiet:
         print(f"{shown}: {hms(res.total_time_s)} ({res.total_time_s:.3f} s; {res.machine}, {res.policy}); "
-              f"{len(res.m73)} M73 lines, {res.rewritten} slicer time lines rewritten", file=sys.stderr)
+              f"{res.counts_text()}", file=sys.stderr)
     return 0

@@ -46,6 +46,8 @@ def machine_from_args(args: Any) -> Machine:
     else:
         machine = load_machine(machine_spec or "klipper")
     flavor = getattr(args, "flavor", None)
+    if not (machine_spec or klipper_cfg or linuxcnc_ini or flavor):
+        machine = replace(machine, auto_flavor=True)     # the default preset: a CNC program may pick its flavor
     if flavor:
         problem = rule_choice(FLAVORS)(flavor)
         if problem is not None:

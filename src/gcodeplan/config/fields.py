@@ -87,6 +87,40 @@ def rule_positive_or_inf(v: Any) -> str | None:
     return None
 
 
+# Sensible bounds (docs/machine.md "Bounds"). A speed below MIN_SPEED mm/s (3.6 mm an hour) or an accel below
+# MIN_ACCEL mm/s² is a typo, not a machine: 1e-300 passes "> 0" yet makes the planner's v² and 1/a overflow.
+MIN_SPEED = 1e-3          # mm/s
+MIN_ACCEL = 1e-3          # mm/s² (and mm/s³ for max_jerk)
+# A step of a nanometre is finer than any drive; above, one move holds more steps than memory (the step stage
+# holds the steps of one motion piece at once, 9 bytes each) and a step file grows by terabytes.
+MAX_STEPS_PER_MM = 1e6    # steps/mm
+MIN_STEPS_PER_MM = 1e-3   # steps/mm: a step of a metre
+
+
+def _rule_at_least_or_inf(lo: float, unit: str, optional: bool = False) -> Rule:
+    def rule(v: Any) -> str | None:
+        if optional and v is None:
+            return None
+        if not is_number(v) or not v >= lo:      # also rejects NaN
+            return f"must be at least {lo:g} {unit} (inf = no limit)"
+        return None
+    return rule
+
+
+def _rule_steps_per_mm(v: Any) -> str | None:
+    if not is_number(v) or not (MIN_STEPS_PER_MM <= v <= MAX_STEPS_PER_MM):
+        return "must be a number of steps/mm from 0.001 (a step of 1 m) to 1e6 (a step of 1 nm)"
+    return None
+
+
+def _rule_speed_at_least(lo: float) -> Rule:
+    def rule(v: Any) -> str | None:
+        if not is_number(v) or not (v >= lo and math.isfinite(v)):
+            return f"must be a finite speed of at least {lo:g} mm/s"
+        return None
+    return rule
+
+
 def _rule_positive(v: Any) -> str | None:
     if not is_number(v) or not (v > 0 and math.isfinite(v)):
         return "must be a positive finite number"
@@ -188,34 +222,40 @@ class Field:
     unit: str         # for messages and docs
 
 
+_SPEED = _rule_at_least_or_inf(MIN_SPEED, "mm/s")
+_OPT_SPEED = _rule_at_least_or_inf(MIN_SPEED, "mm/s", optional=True)
+_ACCEL = _rule_at_least_or_inf(MIN_ACCEL, "mm/s²")
+_OPT_ACCEL = _rule_at_least_or_inf(MIN_ACCEL, "mm/s²", optional=True)
+_JERK = _rule_at_least_or_inf(MIN_ACCEL, "mm/s³")
+
 FIELDS: tuple[Field, ...] = (
     Field("", "name", "name", _rule_string, "string", ""),
     Field("", "kinematics", "kinematics", rule_choice(KINEMATICS, UNSUPPORTED_KINEMATICS), "string", ""),
     Field("", "flavor", "flavor", rule_choice(FLAVORS), "string", ""),
-    Field("toolhead", "max_velocity", "max_velocity", rule_positive_or_inf, "number", "mm/s"),
-    Field("toolhead", "max_accel", "max_accel", rule_positive_or_inf, "number", "mm/s²"),
-    Field("toolhead", "accel_print", "accel_print", _rule_optional_positive_or_inf, "number", "mm/s²"),
-    Field("toolhead", "accel_travel", "accel_travel", _rule_optional_positive_or_inf, "number", "mm/s²"),
-    Field("toolhead", "accel_retract", "accel_retract", _rule_optional_positive_or_inf, "number", "mm/s²"),
-    Field("toolhead", "rapid_velocity", "rapid_velocity", _rule_optional_positive_or_inf, "number", "mm/s"),
+    Field("toolhead", "max_velocity", "max_velocity", _SPEED, "number", "mm/s"),
+    Field("toolhead", "max_accel", "max_accel", _ACCEL, "number", "mm/s²"),
+    Field("toolhead", "accel_print", "accel_print", _OPT_ACCEL, "number", "mm/s²"),
+    Field("toolhead", "accel_travel", "accel_travel", _OPT_ACCEL, "number", "mm/s²"),
+    Field("toolhead", "accel_retract", "accel_retract", _OPT_ACCEL, "number", "mm/s²"),
+    Field("toolhead", "rapid_velocity", "rapid_velocity", _OPT_SPEED, "number", "mm/s"),
     Field("junction", "policy", "junction_policy", rule_choice(POLICIES), "string", ""),
     Field("junction", "square_corner_velocity", "square_corner_velocity", _rule_non_negative, "number", "mm/s"),
     Field("junction", "minimum_cruise_ratio", "minimum_cruise_ratio", _rule_ratio01, "number", ""),
     Field("junction", "junction_deviation", "junction_deviation", _rule_non_negative, "number", "mm"),
     Field("junction", "blend_tolerance", "blend_tolerance", _rule_non_negative, "number", "mm"),
-    Field("junction", "max_jerk", "max_jerk", rule_positive_or_inf, "number", "mm/s³"),
-    Field("axis", "max_velocity", "max_velocity", rule_positive_or_inf, "number", "mm/s"),
-    Field("axis", "max_accel", "max_accel", rule_positive_or_inf, "number", "mm/s²"),
+    Field("junction", "max_jerk", "max_jerk", _JERK, "number", "mm/s³"),
+    Field("axis", "max_velocity", "max_velocity", _SPEED, "number", "mm/s"),
+    Field("axis", "max_accel", "max_accel", _ACCEL, "number", "mm/s²"),
     Field("axis", "jerk", "jerk", _rule_non_negative_or_inf, "number", "mm/s"),
-    Field("axis", "steps_per_mm", "steps_per_mm", _rule_positive, "number", "steps/mm"),
+    Field("axis", "steps_per_mm", "steps_per_mm", _rule_steps_per_mm, "number", "steps/mm"),
     Field("axis", "home", "home", _rule_finite, "number", "mm"),
     Field("axis", "position_min", "position_min", _rule_number_or_inf, "number", "mm"),
     Field("axis", "position_max", "position_max", _rule_number_or_inf, "number", "mm"),
     Field("extruder", "nozzle_diameter", "nozzle_diameter", _rule_positive, "number", "mm"),
     Field("extruder", "filament_diameter", "filament_diameter", _rule_positive, "number", "mm"),
-    Field("extruder", "max_extrude_only_velocity", "max_extrude_only_velocity", rule_positive_or_inf,
+    Field("extruder", "max_extrude_only_velocity", "max_extrude_only_velocity", _SPEED,
            "number", "mm/s"),
-    Field("extruder", "max_extrude_only_accel", "max_extrude_only_accel", rule_positive_or_inf,
+    Field("extruder", "max_extrude_only_accel", "max_extrude_only_accel", _ACCEL,
            "number", "mm/s²"),
     Field("extruder", "instantaneous_corner_velocity", "instantaneous_corner_velocity", _rule_non_negative,
            "number", "mm/s"),
@@ -223,10 +263,10 @@ FIELDS: tuple[Field, ...] = (
     Field("arcs", "tolerance", "arc_tolerance", _rule_positive, "number", "mm"),
     Field("arcs", "resolution", "arc_resolution", _rule_non_negative, "number", "mm"),
     Field("firmware_retraction", "retract_length", "retract_length", _rule_non_negative, "number", "mm"),
-    Field("firmware_retraction", "retract_speed", "retract_speed", _rule_positive, "number", "mm/s"),
+    Field("firmware_retraction", "retract_speed", "retract_speed", _rule_speed_at_least(MIN_SPEED), "number", "mm/s"),
     Field("firmware_retraction", "unretract_extra_length", "unretract_extra_length", _rule_non_negative,
            "number", "mm"),
-    Field("firmware_retraction", "unretract_speed", "unretract_speed", _rule_positive, "number", "mm/s"),
+    Field("firmware_retraction", "unretract_speed", "unretract_speed", _rule_speed_at_least(MIN_SPEED), "number", "mm/s"),
     Field("time", "homing_time", "homing_time", _rule_non_negative, "number", "s"),
     Field("time", "heat_wait_time", "heat_wait_time", _rule_non_negative, "number", "s"),
     Field("time", "tool_change_time", "tool_change_time", _rule_non_negative, "number", "s"),
@@ -251,7 +291,7 @@ FIELDS: tuple[Field, ...] = (
     Field("delta", "arm_length", "delta_arm_length", _rule_triple(_rule_non_negative), "triple", "mm"),
     Field("delta", "angle", "delta_angle", _rule_triple(_rule_finite), "triple", "°"),
     Field("delta", "position_endstop", "delta_position_endstop", _rule_triple(_rule_finite), "triple", "mm"),
-    Field("delta", "steps_per_mm", "delta_steps_per_mm", _rule_triple(_rule_positive), "triple", "steps/mm"),
+    Field("delta", "steps_per_mm", "delta_steps_per_mm", _rule_triple(_rule_steps_per_mm), "triple", "steps/mm"),
 )
 
 # Keys that are read but are not Machine fields: they are turned into one.

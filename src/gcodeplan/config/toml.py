@@ -92,6 +92,10 @@ def _load_toml_text(text: str, source: str, base_dir: str | None, seen: tuple[st
         if m:
             msg += f" (column {m.group(2)})"
         raise ConfigError(f"TOML syntax error: {msg}", source, line) from None
+    except RecursionError:
+        # tomllib parses nested arrays/tables recursively: thousands of '[' exhaust Python's stack
+        raise ConfigError("TOML nested too deeply (arrays or inline tables inside each other by the "
+                          "thousand): not a machine description", source) from None
 
     machine = _base_machine(doc.get("base"), source, base_dir, seen)
     _apply_toml(doc, machine, source)
@@ -260,7 +264,12 @@ def _steps_from_toml(a: str, sub: dict[str, Any], source: str) -> float:
             raise ConfigError(f"{p}.gear_ratio: {err}", source) from None
     elif not is_number(ratio) or not (ratio > 0 and math.isfinite(ratio)):
         raise ConfigError(f"{p}.gear_ratio: must be a positive number or 'a:b, c:d', got {show_value(ratio)}", source)
-    return steps_per_mm_from_rotation(float(rd), microsteps, full_steps, float(ratio))
+    steps = steps_per_mm_from_rotation(float(rd), microsteps, full_steps, float(ratio))
+    problem = _field("axis", "steps_per_mm").rule(steps)
+    if problem is not None:
+        raise ConfigError(f"{p}.rotation_distance: full_steps_per_rotation·microsteps·gear_ratio / rotation_distance "
+                          f"= {steps:g} steps/mm; steps_per_mm {problem}", source)
+    return steps
 
 
 # ---------------------------------------------------------------------------- writer

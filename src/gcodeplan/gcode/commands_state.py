@@ -167,13 +167,74 @@ class StateCommands:
             if s is not None:
                 if not s > 0:
                     self.error(f"M{mc} S must be > 0 (percent)")
-                st[S.S_SPEED_F if mc == 220 else S.S_FLOW_F] = s / 100.0
+                if mc == 220:
+                    st[S.S_SPEED_F] = s / 100.0
+                else:
+                    self._flow_factor = s / 100.0
+                    self._set_e_scale()
+        elif mc == 200 and self.dialect == S.DIALECT_MARLIN:
+            self._m200(params, used)
         elif mc == 600:
             used.update(params)
             self._wait("M600", self._macros.get("M600", float(getattr(m, "filament_change_time", 0.0))))
         else:
             used.update(params)
             self._unknown_or_macro(f"M{mc}")
+
+    # ------------------------------------------------------------------ volumetric E (M200, UltiGCode)
+    # E words are mm³ of plastic while volumetric mode is on; the machine moves E / (π·d²/4) mm of filament of
+    # diameter d (Marlin's planner.calculate_volumetric_multipliers, RepRapFirmware's M200). The factor joins
+    # M221's in S_FLOW_F, which scales every E change (scanner and interpreter alike).
+    _flow_factor = 1.0               # M221 S / 100
+    volumetric_d = None              # mm, filament diameter while E is in mm³; None = E in mm of filament
+    _filament_d = None               # mm, M200 D last given (Marlin keeps it across M200 S0 / S1)
+
+    def _set_e_scale(self) -> None:
+        scale = self._flow_factor
+        if self.volumetric_d is not None:
+            scale = scale / (math.pi * self.volumetric_d * self.volumetric_d / 4.0)
+        self.st[S.S_FLOW_F] = scale
+
+    def set_volumetric(self, diameter_mm: float | None) -> None:
+        """E in mm³ from now on, for filament of ``diameter_mm`` (None: E in mm of filament again)."""
+        if diameter_mm is not None:
+            self._filament_d = float(diameter_mm)
+        self.volumetric_d = None if diameter_mm is None else float(diameter_mm)
+        self._set_e_scale()
+
+    @property
+    def filament_diameter_mm(self) -> float:
+        """mm: the filament the E figures are in (the volumetric diameter when E was in mm³)."""
+        d = self.volumetric_d if self.volumetric_d is not None else self._filament_d
+        return float(d) if d is not None else float(self.machine.filament_diameter)
+
+    def _m200(self, params: dict[str, Word], used: set[str]) -> None:
+        """M200 [D<mm>] [S<0|1>]: Marlin 2 / RepRapFirmware volumetric extrusion. D > 0 sets the diameter and
+        turns volumetric E on, D0 turns it off; S1 / S0 turn it on / off (with the last D, else the machine's
+        filament diameter). Without D or S it reports (no change)."""
+        used.update(params)
+        on = self.volumetric_d is not None
+        can = True
+        d = self._value(params, "D")
+        if d is not None:
+            d_mm = d * float(self.st[S.S_UNIT])
+            # a filament is a few mm thick: outside 0.05 … 50 mm a D is a typo (and a tiny one would make 1/d² inf)
+            if not (d_mm == 0.0 or 0.05 <= d_mm <= 50.0):
+                self.error("M200 D must be a filament diameter of 0.05 to 50 mm, or 0 (volumetric off)")
+            if d_mm > 0.0:
+                self._filament_d = d_mm
+                on = True
+            else:
+                can = False
+        s = self._value(params, "S")
+        if s is not None:
+            on = s != 0.0
+        if d is None and s is None:
+            return
+        diameter = self._filament_d if self._filament_d is not None else float(self.machine.filament_diameter)
+        self.volumetric_d = diameter if (on and can) else None
+        self._set_e_scale()
+        self.event("M200 volumetric E " + (f"on (filament {diameter:g} mm)" if self.volumetric_d else "off"))
 
     def _unknown_or_macro(self, name: str) -> None:
         """A command the machine's [time] macros time (G29 = 90: a wait of 90 s), else unknown."""

@@ -64,6 +64,10 @@ class ParseSummary:
     travel_bounds_mm: dict[str, list[float]] | None = None
     speed_capped_moves: int = 0                    # moves whose feed was above the speed limit: capped
     speed_capped_first_line: int | None = None
+    # what the file says it is (gcode/dialect.py): {"kind": "printer"|"cnc", "program", "evidence", "flavor" (the
+    # flavor its G-code was read with), "switched" (the default preset's flavor was changed for it),
+    # "volumetric_filament_mm" (UltiGCode), "warning"}; None when the file names no slicer/CAM program
+    dialect: dict | None = None
 
     def to_json(self) -> dict:
         d = asdict(self)
@@ -71,6 +75,8 @@ class ParseSummary:
         return d
 
     def text(self) -> str:
+        from .dialect import note_text
+
         lines = [f"file            {self.file}",
                  f"lines           {self.lines}",
                  f"moves           {self.moves}  (" + ", ".join(f"{k} {v}" for k, v in self.moves_by_kind.items())
@@ -84,6 +90,8 @@ class ParseSummary:
                  f"naive time      {hms(self.naive_time_s)}  ({self.naive_time_s:.1f} s: length / feed, no "
                  f"acceleration)",
                  ]
+        if self.dialect:
+            lines.insert(1, f"dialect         {note_text(self.dialect)}")
         for what, b in (("print box", self.print_bounds_mm), ("travel box", self.travel_bounds_mm)):
             if b:
                 lines.append(f"{what:<16}{box_text(b)}")

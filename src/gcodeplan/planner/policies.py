@@ -3,7 +3,9 @@
 A policy is a numba-compiled function ``cap_v2(prev, cur, lim) -> float``: the highest speed² (mm²/s²)
 at which the tool may pass from move ``prev`` to move ``cur``. ``prev`` and ``cur`` are float64 vectors
 indexed by the constants below (unit direction per mm of path, length, acceleration, cruise cap, ...);
-``lim`` is the LIMITS row in force for ``cur`` (float64, indexed by :data:`LIMIT_INDEX`). The planner
+``lim`` is the LIMITS row in force for ``cur`` (float64, indexed by :data:`LIMIT_INDEX`). 0 means a
+stop at the corner, ``inf`` no cap of its own; NaN or a negative value is an error naming the policy
+and the line (a rule's bug must not pass for a full stop). The planner
 then applies what every policy shares: both moves' cruise caps and the forward reach
 (``prev`` start speed² + 2·d·a), and plans the trapezoids with look-ahead as Klipper's toolhead does.
 
@@ -33,7 +35,7 @@ from .. import _jit
 from .._jit import njit
 import numpy as np
 
-from ..errors import ConfigError
+from ..errors import ConfigError, GcodeError
 from ..schema import LIMITS_DTYPE
 from .junctions import (jd_junction_v2, klipper_centripetal_v2, klipper_extruder_corner_v2,
                         marlin_jerk_junction_v, marlin_small_segment_v2)
@@ -139,7 +141,8 @@ def register_policy(name: str, cap_v2, *, moves_like: str = "junction-deviation"
     """Add a junction policy usable everywhere a policy name is (``policy=`` in the API, ``--policy``).
 
     ``cap_v2``: a ``numba.njit`` function ``(prev, cur, lim) -> mm²/s²`` (module docstring). A plain
-    Python function is compiled with ``numba.njit``. ``moves_like``: the built-in whose per-move limits
+    Python function is compiled with ``numba.njit``; returning NaN or a negative number is an error
+    naming the policy and the G-code line when it plans. ``moves_like``: the built-in whose per-move limits
     and flush rule apply ('klipper', 'junction-deviation' or 'classic-jerk'). Built-in names cannot be
     replaced; a custom name can with ``replace=True``. Returns the :class:`Policy`.
     """
@@ -204,18 +207,16 @@ def _move_vector(pr, out):
 
 
 @njit(cache=False)
-def cap_junction_kernel(moves, lim, cap_v2, stop_every, i_start, prev, stop_pending, prep):
-    """The junction pass of :mod:`gcodeplan.planner.prepare` with the cap taken from ``cap_v2``.
-
-    Like the built-in ``_junction_kernel``: rows i_start.. of ``prep`` get their junction
-    cap (``max_start_v2``, ``max_mcr_start_v2``, ``stop_before``); ``prev`` is the row of the previous
-    move (-1: none), ``stop_pending`` a full stop since it. Returns (prev, stop_pending).
-    """
+def _cap_junction_rows(moves, lim, cap_v2, stop_every, i_start, prev, stop_pending, prep):
+    """:func:`cap_junction_kernel`'s loop; also returns the first row whose cap was NaN or negative
+    (-1: none) and that cap."""
     kind_dwell = 3
     kind_wait = 4
     n = moves.shape[0]
     pv = np.empty(MOVE_VECTOR_LEN)
     cv = np.empty(MOVE_VECTOR_LEN)
+    bad_row = -1
+    bad_cap = 0.0
     for i in range(i_start, n):
         cur = prep[i]
         k = moves[i].kind
@@ -236,13 +237,36 @@ def cap_junction_kernel(moves, lim, cap_v2, stop_every, i_start, prev, stop_pend
             _move_vector(cur, cv)
             reach_v2 = pm.max_start_v2 + pm.delta_v2
             cap = cap_v2(pv, cv, lim[moves[i].limits])
-            if not (cap >= 0.0):       # NaN or negative from a user's rule: stop there
+            if not (cap >= 0.0):       # NaN or negative: no speed at all, the caller reports it
+                if bad_row < 0:
+                    bad_row = i
+                    bad_cap = cap
                 cap = 0.0
             v2 = min(cap, cur.max_cruise_v2, pm.max_cruise_v2, reach_v2)
             cur.max_start_v2 = v2
             cur.max_mcr_start_v2 = min(v2, pm.max_mcr_start_v2 + pm.mcr_delta_v2)
         prev = i
         stop_pending = moves[i].exact_stop != 0
+    return prev, stop_pending, bad_row, bad_cap
+
+
+def cap_junction_kernel(moves, lim, cap_v2, stop_every, i_start, prev, stop_pending, prep):
+    """The junction pass of :mod:`gcodeplan.planner.prepare` with the cap taken from ``cap_v2``.
+
+    Like the built-in ``_junction_kernel``: rows i_start.. of ``prep`` get their junction
+    cap (``max_start_v2``, ``max_mcr_start_v2``, ``stop_before``); ``prev`` is the row of the previous
+    move (-1: none), ``stop_pending`` a full stop since it. Returns (prev, stop_pending).
+    A cap that is NaN or negative is no speed² at all (a bug in the rule, not a full stop): a
+    :class:`~gcodeplan.errors.GcodeError` naming the policy and the move's line.
+    """
+    prev, stop_pending, bad_row, bad_cap = _cap_junction_rows(moves, lim, cap_v2, stop_every, i_start, prev,
+                                                              stop_pending, prep)
+    if bad_row >= 0:
+        name = next((p.name for p in _REGISTRY.values() if p.cap_v2 is cap_v2), getattr(cap_v2, "__name__", "?"))
+        what = "NaN" if math.isnan(bad_cap) else f"a negative speed² ({bad_cap!r} mm²/s²)"
+        raise GcodeError(f"junction policy {name!r} returned {what} for the corner before this move: a cap "
+                         f"function must return a speed² >= 0 mm²/s² (0 = stop there)",
+                         line=int(moves[bad_row]["line"]))
     return prev, stop_pending
 
 

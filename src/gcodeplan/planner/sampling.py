@@ -44,10 +44,20 @@ def _sample_kernel(t0, dt, p, v, a, j, times, o_pos, o_vel, o_acc, o_jerk):
 
 
 def sample_segments(segs: np.ndarray, times) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """(pos, vel, acc, jerk), each (len(times), 4) for x, y, z, e; ``times`` sorted ascending."""
+    """(pos, vel, acc, jerk), each (len(times), 4) for x, y, z, e.
+
+    ``times`` (s) must be sorted ascending (one forward sweep over the pieces: ``np.sort`` them first)
+    and not NaN; otherwise a ValueError says which entry is out of order."""
     times = np.ascontiguousarray(np.asarray(times, dtype=np.float64).reshape(-1))
-    if times.size > 1 and np.any(np.diff(times) < 0.0):
-        raise ValueError("sample_segments: times must be sorted ascending")
+    if np.isnan(times).any():
+        k = int(np.flatnonzero(np.isnan(times))[0])
+        raise ValueError(f"sample times must be numbers: times[{k}] is NaN")
+    if times.size > 1:
+        back = np.flatnonzero(np.diff(times) < 0.0)
+        if back.size:
+            k = int(back[0]) + 1
+            raise ValueError(f"sample times must be sorted ascending (np.sort them first): times[{k}] = "
+                             f"{float(times[k])!r} comes after times[{k - 1}] = {float(times[k - 1])!r}")
     shape = (times.size, 4)
     out = [np.zeros(shape) for _ in range(4)]
     segs = np.asarray(segs)

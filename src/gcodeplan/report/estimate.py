@@ -96,6 +96,13 @@ def print_text(est: Estimate, out=None) -> None:
     w = (out or sys.stdout).write
     w(f"{est.path}\n")
     w(f"  machine {est.machine_name}, policy {est.policy}\n")
+    dialect = getattr(s, "dialect", None)
+    if dialect:
+        from ..gcode.dialect import note_text
+
+        w(f"  dialect: {note_text(dialect)}\n")
+        if dialect.get("warning"):
+            w(f"  warning: {dialect['warning']}\n")
     w(f"  total time      {hms(t.total_time_s):>10}  ({t.total_time_s:.3f} s)\n")
     naive = s.naive_time_s
     w(f"  naive time      {hms(naive):>10}  ({naive:.3f} s, distance / feed rate, for contrast)\n")

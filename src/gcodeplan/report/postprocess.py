@@ -19,7 +19,18 @@ What changes (everything else is copied byte for byte, line endings included):
   M73) and ``SET_PRINT_STATS_INFO CURRENT_LAYER=<k>`` (1-based, before each layer's first line), and
   drops the existing ``SET_PRINT_STATS_INFO`` lines.
 * The slicer's own time lines get gcodeplan's figure, in the slicer's format (:data:`TIME_LINES`).
+  PrusaSlicer's *silent mode* lines (``; estimated printing time (silent mode) = …`` and its first-layer
+  line) are dropped: they are the slicer's figures for the printer's second set of limits (Prusa's
+  stealth mode), which gcodeplan does not plan, and they would stand beside gcodeplan's normal-mode
+  figure as if it were one plan (their ``M73 Q… S…`` progress lines go with every other M73 line).
 * One ``; gcodeplan <version>: <total> (<machine>, <policy>)`` line is appended (an earlier one dropped).
+
+A CNC program (the file read with the ``grbl`` or ``linuxcnc`` flavor — the machine's, or the one
+:mod:`gcodeplan.gcode.dialect` detects on the default preset — or a file whose name or CAM header says it is
+one, whatever machine plans it) gets no printer command at all: grbl stops
+with ``error:20`` on M73 and LinuxCNC's M73 saves the modal state. Its M73 lines are left alone, none is
+inserted (``layer_info`` is refused: SET_PRINT_STATS_INFO is Klipper's), and the one line appended is the
+comment ``(gcodeplan <version>: <total>, machine <name>, policy <policy>)``.
 
 So a second run with the same options gives the same bytes as the first.
 """
@@ -38,7 +49,9 @@ MINUTE_S = 60.0     # the longest planned time between two inserted M73 lines (s
 
 _M73_RE = re.compile(rb"[ \t]*[Mm]0*73(?![0-9.])")
 _STATS_RE = re.compile(rb"[ \t]*SET_PRINT_STATS_INFO(?![A-Za-z0-9_])", re.I)
-_OURS_RE = re.compile(rb"; gcodeplan \S+: ")
+_OURS_RE = re.compile(rb"; gcodeplan \S+: |\(gcodeplan \S+: ")
+# PrusaSlicer's stealth-mode figures: not gcodeplan's plan, dropped with their M73 Q/S lines (module docstring)
+_SILENT_RE = re.compile(rb"; estimated (first layer )?printing time \(silent mode\) = ")
 _ORCA_RE = re.compile(rb"(model printing time: |total estimated time: )[^;\r\n]*")
 
 # The slicer time lines rewritten, each with what it holds. Formats as each slicer writes them
@@ -136,6 +149,17 @@ class PostProcessResult:
     dropped: int = 0
     rewritten: int = 0
     m73: list = field(default_factory=list)
+    cnc_flavor: str | None = None      # 'grbl' / 'linuxcnc' when the file was a CNC program (no M73 written)
+
+    def counts_text(self) -> str:
+        """What was done, for the one summary line: ``12 M73 lines, 1 slicer time line rewritten``."""
+        def n(k: int, what: str) -> str:
+            return f"{k} {what}{'' if k == 1 else 's'}"
+
+        text = f"{n(len(self.m73), 'M73 line')}, {n(self.rewritten, 'slicer time line')} rewritten"
+        if self.cnc_flavor:
+            text += f" (a {self.cnc_flavor} program: no printer commands written, only a comment)"
+        return text
 
 
 def _refuse_unsupported(path: str) -> None:
@@ -245,9 +269,23 @@ def post_process(path, out=None, machine=None, policy: str | None = None, jerk: 
     from ..pipeline import run
     from .output import atomic_output
 
+    from ..gcode.dialect import reading_machine
+
     path = str(path)
     _refuse_unsupported(path)
     machine = as_machine(machine)
+    read_machine, note, _ = reading_machine(path, machine)
+    flavor = read_machine.flavor            # the flavor the pipeline will read the file with
+    cnc = flavor in ("grbl", "linuxcnc")
+    if not cnc and note and note["kind"] == "cnc":
+        # a CNC program (its name or CAM header says so) planned on a printer machine the user named: it is
+        # planned as asked, but a printer command written into it would stop the controller it is for
+        cnc, flavor = True, "CNC"
+    if cnc:
+        if layer_info:
+            raise GcodeplanError(f"--layer-info writes Klipper's SET_PRINT_STATS_INFO: not into a {flavor} "
+                                 f"program", path)
+        m73 = False          # printer-only: grbl stops with error:20, LinuxCNC's M73 saves modal state
     sink = ProgressSink()
     res = run(path, machine, policy=policy, jerk=jerk, strict=strict, sinks=[sink], progress=progress,
               exclude_objects=exclude_objects)
@@ -255,7 +293,10 @@ def post_process(path, out=None, machine=None, policy: str | None = None, jerk: 
     total = sink.total_s
     keys, inserts = _schedule(lines, ends, sink.layer_starts, total, len(res.reader.layer_z), m73, layer_info)
     ours = f"; gcodeplan {__version__}: {dhms(total)} = {total:.3f} s ({machine.name}, {res.policy})"
-    result = PostProcessResult(str(out or path), total, machine.name, res.policy)
+    if cnc:       # an RS274 comment (no nested parentheses), which grbl and LinuxCNC both skip
+        name = machine.name.translate(str.maketrans("()", "[]"))
+        ours = f"(gcodeplan {__version__}: {dhms(total)} = {total:.3f} s, machine {name}, policy {res.policy})"
+    result = PostProcessResult(str(out or path), total, machine.name, res.policy, cnc_flavor=flavor if cnc else None)
 
     def time_at(n: int) -> float:
         # planned time when source line n is reached: the end of the last line before it that takes time
@@ -295,7 +336,8 @@ def post_process(path, out=None, machine=None, policy: str | None = None, jerk: 
                     last_eol = le
                     if first_eol is None:
                         first_eol = le
-                if (m73 and _M73_RE.match(body)) or (layer_info and _STATS_RE.match(body)) or _OURS_RE.match(body):
+                if (m73 and _M73_RE.match(body)) or (layer_info and _STATS_RE.match(body)) or _OURS_RE.match(body) \
+                        or _SILENT_RE.match(body):
                     result.dropped += 1
                     dropped_at = n
                     continue
