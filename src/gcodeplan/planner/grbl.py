@@ -218,7 +218,8 @@ I_RUNNING, I_OCR, I_CYCLE, I_NSTEPS_OUT = 16, 17, 18, 19
 I_CX, I_CY, I_CZ, I_SX, I_SY, I_SZ = 20, 21, 22, 23, 24, 25
 I_TICK, I_NEXT_ISR, I_LAST_MATCH, I_POS_X, I_POS_Y, I_POS_Z = 26, 27, 28, 29, 30, 31
 I_PHASE = 32          # TCNT1 at the interrupt that fired at once at a cycle start; -1 after a compare match
-N_SI = 33
+I_STARTED, I_T0, I_NEXT_OP = 33, 34, 35
+N_SI = 36
 # float32 state slots: prep (st_prep_t) and pl.previous_*
 F_STEPS_REM, F_STEP_PER_MM, F_REQ_MM, F_DT_REM, F_CUR_V, F_EXIT_V, F_MM_COMPLETE = 0, 1, 2, 3, 4, 5, 6
 F_ACC_UNTIL, F_DEC_AFTER, F_MAX_V, F_PREV_NOMINAL, F_PUX, F_PUY, F_PUZ = 7, 8, 9, 10, 11, 12, 13
@@ -359,7 +360,7 @@ def _lround(x):
 
 @numba.njit(cache=True)
 def _st_prep_buffer(si, sf, bf, bsteps, bdir, bop, brapid, st_steps, st_sec, st_dir, st_op, seg_n, seg_cycles,
-                    seg_block, seg_amass):
+                    seg_block, seg_amass, window_base, op_info):
     """stepper.c st_prep_buffer, normal operation (no feed hold, parking or overrides): fill the segment ring
     with 10 ms segments of the block at the planner's tail."""
     while si[I_SEG_TAIL] != si[I_SEG_NEXT_HEAD]:
@@ -368,9 +369,11 @@ def _st_prep_buffer(si, sf, bf, bsteps, bdir, bop, brapid, st_steps, st_sec, st_
                 return
             pb = si[I_TAIL]
             si[I_PL_BLOCK] = pb
+            loaded = False
             if si[I_RECALC] & PREP_FLAG_RECALCULATE:
                 si[I_RECALC] = 0
             else:
+                loaded = True
                 sbi = _next(si[I_ST_BLOCK_INDEX], ST_BLOCK_BUFFER_SIZE)
                 si[I_ST_BLOCK_INDEX] = sbi
                 st_dir[sbi] = bdir[pb]
@@ -428,6 +431,16 @@ def _st_prep_buffer(si, sf, bf, bsteps, bdir, bop, brapid, st_steps, st_sec, st_
             else:
                 sf[F_ACC_UNTIL] = 0.0
                 sf[F_MAX_V] = sf[F_EXIT_V]
+            if loaded:
+                row = bop[pb] - window_base
+                op_info[row, 0] = sf[F_CUR_V]
+                if si[I_RAMP] == RAMP_DECEL or si[I_RAMP] == RAMP_DECEL_OVERRIDE:
+                    op_info[row, 1] = sf[F_CUR_V]     # deceleration only: the peak is the entry
+                else:
+                    op_info[row, 1] = sf[F_MAX_V]
+                op_info[row, 2] = sf[F_EXIT_V]
+                op_info[row, 3] = acc
+                op_info[row, 4] = mm
         pb = si[I_PL_BLOCK]
         seg = si[I_SEG_HEAD]
         seg_block[seg] = si[I_ST_BLOCK_INDEX]
@@ -540,15 +553,14 @@ def _st_prep_buffer(si, sf, bf, bsteps, bdir, bop, brapid, st_steps, st_sec, st_
 
 
 @numba.njit(cache=True)
-def _isr(si, st_steps, st_sec, st_dir, st_op, seg_n, seg_cycles, seg_block, seg_amass, op_end_tick, step_t,
-         step_dir, n_out):
+def _isr(si, st_steps, st_sec, st_dir, st_op, seg_n, seg_cycles, seg_block, seg_amass, window_base, op_end_tick,
+         step_t, step_dir, n_out):
     """stepper.c ISR(TIMER1_COMPA_vect) at tick si[I_TICK]: pulse the bits decided last time, load a segment
     when none is running (or go idle when there is none), then decide the next pulse by Bresenham."""
     tick = si[I_TICK]
     out = si[I_OUTBITS]
     if out:
-        op = st_op[si[I_EXEC_BLOCK]]
-        op_end_tick[op] = tick
+        op_end_tick[st_op[si[I_EXEC_BLOCK]] - window_base] = tick
         for ax in range(3):
             if out & (1 << ax):
                 k = n_out[ax]
@@ -611,89 +623,64 @@ def _isr(si, st_steps, st_sec, st_dir, st_op, seg_n, seg_cycles, seg_block, seg_
 
 
 @numba.njit(cache=True)
-def grbl_run_kernel(op_kind, op_target, op_rate, op_rapid, op_dwell_ticks, steps_per_mm, max_rate, acceleration,
-                    junction_deviation, op_end_tick, step_t, step_dir, n_out):
-    """Run grbl on a list of operations (OP_LINE: a straight move to op_target at op_rate mm/min, or a rapid;
-    OP_SYNC: wait for the motion to stop, then op_dwell_ticks of dwell). Writes each op's last step tick into
-    op_end_tick (−1: no step, e.g. a move that rounds to zero steps) and the step pulses into step_t /
-    step_dir (per axis, up to their width; n_out counts all). Returns the tick of the last step."""
-    si = np.zeros(N_SI, np.int64)
-    sf = np.zeros(N_SF, np.float32)
-    bf = np.zeros((BLOCK_BUFFER_SIZE, N_BF), np.float32)
-    bsteps = np.zeros((BLOCK_BUFFER_SIZE, 3), np.int64)
-    bdir = np.zeros(BLOCK_BUFFER_SIZE, np.int64)
-    bop = np.zeros(BLOCK_BUFFER_SIZE, np.int64)
-    brapid = np.zeros(BLOCK_BUFFER_SIZE, np.bool_)
-    st_steps = np.zeros((ST_BLOCK_BUFFER_SIZE, 3), np.int64)
-    st_sec = np.zeros(ST_BLOCK_BUFFER_SIZE, np.int64)
-    st_dir = np.zeros(ST_BLOCK_BUFFER_SIZE, np.int64)
-    st_op = np.zeros(ST_BLOCK_BUFFER_SIZE, np.int64)
-    seg_n = np.zeros(SEGMENT_BUFFER_SIZE, np.int64)
-    seg_cycles = np.zeros(SEGMENT_BUFFER_SIZE, np.int64)
-    seg_block = np.zeros(SEGMENT_BUFFER_SIZE, np.int64)
-    seg_amass = np.zeros(SEGMENT_BUFFER_SIZE, np.int64)
-    si[I_NEXT_HEAD] = 1
-    si[I_PL_BLOCK] = -1
-    si[I_EXEC_SEG] = -1
-    si[I_SEG_NEXT_HEAD] = 1
-    si[I_OCR] = 0
-    si[I_LAST_MATCH] = -1
-    si[I_TICK] = 0
-    started = False
-    t0 = 0
-    last_step = -1
-    for i in range(op_end_tick.shape[0]):
-        op_end_tick[i] = -1
+def grbl_feed_kernel(si, sf, bf, bsteps, bdir, bop, brapid, st_steps, st_sec, st_dir, st_op, seg_n, seg_cycles,
+                     seg_block, seg_amass, op_kind, op_target, op_rate, op_rapid, op_dwell_ticks, op_base, final,
+                     steps_per_mm, max_rate, acceleration, junction_deviation, window_base, op_end_tick, op_info,
+                     step_t, step_dir, n_out):
+    """Run grbl's main loop over a batch of operations (global indices op_base …), resuming from the state in
+    the arrays (grbl's globals, :class:`GrblState`); with ``final`` the program then ends (auto cycle start,
+    the motion runs out). An OP_LINE op is a straight move to op_target at op_rate mm/min (or a rapid); an
+    OP_SYNC op waits for the motion to stop, then dwells op_dwell_ticks.
+    Outputs, indexed by global op − window_base: op_end_tick (absolute tick of the op's last step pulse, or
+    of the end of a sync; −1 none) and op_info (entry, peak, exit speed mm/min, acceleration mm/min²,
+    length mm of the block as the segment generator first profiled it); step pulses into step_t / step_dir
+    (absolute ticks, per axis up to their width; n_out counts every pulse)."""
     nops = op_kind.shape[0]
-    for k in range(nops + 1):
-        if k < nops and op_kind[k] == OP_LINE:
+    for j in range(nops + (1 if final else 0)):
+        k = op_base + j
+        if j < nops and op_kind[j] == OP_LINE:
             # mc_line: wait for room, starting the cycle when the buffer is full
             while si[I_TAIL] == si[I_NEXT_HEAD]:
                 if si[I_CYCLE] == 0:
-                    started, t0 = _cycle_start(si, sf, bf, bsteps, bdir, bop, brapid, st_steps, st_sec, st_dir,
-                                               st_op, seg_n, seg_cycles, seg_block, seg_amass, started, t0)
+                    _cycle_start(si, sf, bf, bsteps, bdir, bop, brapid, st_steps, st_sec, st_dir, st_op, seg_n,
+                                 seg_cycles, seg_block, seg_amass, window_base, op_info)
                 _prep_then_wait(si, sf, bf, bsteps, bdir, bop, brapid, st_steps, st_sec, st_dir, st_op, seg_n,
-                                seg_cycles, seg_block, seg_amass, op_end_tick, step_t, step_dir, n_out, True)
-            _plan_buffer_line(si, sf, bf, bsteps, bdir, bop, brapid, op_target[k], op_rate[k], op_rapid[k], k,
+                                seg_cycles, seg_block, seg_amass, window_base, op_end_tick, op_info, step_t,
+                                step_dir, n_out, True)
+            _plan_buffer_line(si, sf, bf, bsteps, bdir, bop, brapid, op_target[j], op_rate[j], op_rapid[j], k,
                               steps_per_mm, max_rate, acceleration, junction_deviation)
             if si[I_CYCLE]:
                 _st_prep_buffer(si, sf, bf, bsteps, bdir, bop, brapid, st_steps, st_sec, st_dir, st_op, seg_n,
-                                seg_cycles, seg_block, seg_amass)
+                                seg_cycles, seg_block, seg_amass, window_base, op_info)
         else:
             # protocol_buffer_synchronize (a sync, or the end of the program)
             if si[I_HEAD] != si[I_TAIL] and si[I_CYCLE] == 0:
-                started, t0 = _cycle_start(si, sf, bf, bsteps, bdir, bop, brapid, st_steps, st_sec, st_dir, st_op,
-                                           seg_n, seg_cycles, seg_block, seg_amass, started, t0)
+                _cycle_start(si, sf, bf, bsteps, bdir, bop, brapid, st_steps, st_sec, st_dir, st_op, seg_n,
+                             seg_cycles, seg_block, seg_amass, window_base, op_info)
             while si[I_CYCLE]:
                 _prep_then_wait(si, sf, bf, bsteps, bdir, bop, brapid, st_steps, st_sec, st_dir, st_op, seg_n,
-                                seg_cycles, seg_block, seg_amass, op_end_tick, step_t, step_dir, n_out, False)
+                                seg_cycles, seg_block, seg_amass, window_base, op_end_tick, op_info, step_t,
+                                step_dir, n_out, False)
                 if si[I_RUNNING] == 0:
                     si[I_CYCLE] = 0
-            if k < nops:
-                si[I_TICK] += op_dwell_ticks[k]
-    for i in range(op_end_tick.shape[0]):
-        if op_end_tick[i] >= 0 and op_kind[i] == OP_LINE:
-            op_end_tick[i] -= t0
-            if op_end_tick[i] > last_step:
-                last_step = op_end_tick[i]
-    for ax in range(3):
-        for j in range(min(n_out[ax], step_t.shape[1])):
-            step_t[ax, j] -= t0
-    return last_step
+            if j < nops:
+                si[I_TICK] += op_dwell_ticks[j]
+                op_end_tick[k - window_base] = si[I_TICK]
+        si[I_NEXT_OP] = k + 1 if j < nops else k
 
 
 @numba.njit(cache=True)
 def _cycle_start(si, sf, bf, bsteps, bdir, bop, brapid, st_steps, st_sec, st_dir, st_op, seg_n, seg_cycles,
-                 seg_block, seg_amass, started, t0):
+                 seg_block, seg_amass, window_base, op_info):
     """protocol_exec_rt_system on EXEC_CYCLE_START: prepare segments, then st_wake_up (enable the interrupt of
     the free-running Timer1)."""
     si[I_CYCLE] = 1
     _st_prep_buffer(si, sf, bf, bsteps, bdir, bop, brapid, st_steps, st_sec, st_dir, st_op, seg_n, seg_cycles,
-                    seg_block, seg_amass)
+                    seg_block, seg_amass, window_base, op_info)
     tick = si[I_TICK]
-    if not started:
-        started = True
-        t0 = tick
+    if not si[I_STARTED]:
+        si[I_STARTED] = 1
+        si[I_T0] = tick
     si[I_RUNNING] = 1
     si[I_OUTBITS] = 0
     last = si[I_LAST_MATCH]
@@ -706,23 +693,75 @@ def _cycle_start(si, sf, bf, bsteps, bdir, bop, brapid, st_steps, st_sec, st_dir
         # next compare match (measured on the reference: up to one old period, 4 ms, after the start)
         si[I_NEXT_ISR] = last + period * ((tick - last) // period + 1)
         si[I_PHASE] = -1
-    return started, t0
 
 
 @numba.njit(cache=True)
 def _prep_then_wait(si, sf, bf, bsteps, bdir, bop, brapid, st_steps, st_sec, st_dir, st_op, seg_n, seg_cycles,
-                    seg_block, seg_amass, op_end_tick, step_t, step_dir, n_out, need_full):
+                    seg_block, seg_amass, window_base, op_end_tick, op_info, step_t, step_dir, n_out, need_full):
     """grbl-sim's lock-step st_prep_buffer: grbl's own, then, while the stepper runs and grbl waits (planner
     full, or a sync), the clock runs to the next stepper interrupt."""
     _st_prep_buffer(si, sf, bf, bsteps, bdir, bop, brapid, st_steps, st_sec, st_dir, st_op, seg_n, seg_cycles,
-                    seg_block, seg_amass)
+                    seg_block, seg_amass, window_base, op_info)
     if si[I_RUNNING] and (not need_full or si[I_TAIL] == si[I_NEXT_HEAD]):
         si[I_TICK] = si[I_NEXT_ISR]
-        _isr(si, st_steps, st_sec, st_dir, st_op, seg_n, seg_cycles, seg_block, seg_amass, op_end_tick, step_t,
-             step_dir, n_out)
+        _isr(si, st_steps, st_sec, st_dir, st_op, seg_n, seg_cycles, seg_block, seg_amass, window_base,
+             op_end_tick, step_t, step_dir, n_out)
 
 
 # --------------------------------------------------------------------------- MOVE rows in, times out
+class GrblState:
+    """grbl's globals between two batches of a stream: the planner ring, the segment generator, the segment
+    and stepper-block rings, the stepper interrupt and Timer1, the clock (ticks of 62.5 ns)."""
+
+    def __init__(self, settings: "GrblSettings"):
+        self.settings = settings
+        self.si = np.zeros(N_SI, np.int64)
+        self.sf = np.zeros(N_SF, np.float32)
+        self.bf = np.zeros((BLOCK_BUFFER_SIZE, N_BF), np.float32)
+        self.bsteps = np.zeros((BLOCK_BUFFER_SIZE, 3), np.int64)
+        self.bdir = np.zeros(BLOCK_BUFFER_SIZE, np.int64)
+        self.bop = np.zeros(BLOCK_BUFFER_SIZE, np.int64)
+        self.brapid = np.zeros(BLOCK_BUFFER_SIZE, np.bool_)
+        self.st_steps = np.zeros((ST_BLOCK_BUFFER_SIZE, 3), np.int64)
+        self.st_sec = np.zeros(ST_BLOCK_BUFFER_SIZE, np.int64)
+        self.st_dir = np.zeros(ST_BLOCK_BUFFER_SIZE, np.int64)
+        self.st_op = np.zeros(ST_BLOCK_BUFFER_SIZE, np.int64)
+        self.seg = np.zeros((4, SEGMENT_BUFFER_SIZE), np.int64)     # n_step, cycles_per_tick, st block, amass
+        si = self.si
+        si[I_NEXT_HEAD] = 1
+        si[I_PL_BLOCK] = -1
+        si[I_EXEC_SEG] = -1
+        si[I_SEG_NEXT_HEAD] = 1
+        si[I_LAST_MATCH] = -1
+
+    def feed(self, op_kind, op_target, op_rate, op_rapid, op_dwell_ticks, final, window_base, op_end_tick, op_info,
+             step_t, step_dir, n_out) -> None:
+        """Run the next operations (their global indices continue from the last call)."""
+        s, g = self.settings, self.seg
+        grbl_feed_kernel(self.si, self.sf, self.bf, self.bsteps, self.bdir, self.bop, self.brapid, self.st_steps,
+                         self.st_sec, self.st_dir, self.st_op, g[0], g[1], g[2], g[3], op_kind, op_target, op_rate,
+                         op_rapid, op_dwell_ticks, int(self.si[I_NEXT_OP]), final, s.steps_per_mm, s.max_rate,
+                         s.acceleration, s.junction_deviation, window_base, op_end_tick, op_info, step_t, step_dir,
+                         n_out)
+
+    def first_open_op(self) -> int:
+        """The first operation whose last step pulse has not been issued yet (all before it are final)."""
+        si = self.si
+        cands = [int(si[I_NEXT_OP])]
+        if si[I_HEAD] != si[I_TAIL]:
+            cands.append(int(self.bop[si[I_TAIL]]))
+        if si[I_SEG_HEAD] != si[I_SEG_TAIL]:
+            cands.append(int(self.st_op[self.seg[2, si[I_SEG_TAIL]]]))
+        if si[I_EXEC_SEG] >= 0 or si[I_OUTBITS]:
+            cands.append(int(self.st_op[si[I_EXEC_BLOCK]]))
+        return min(cands)
+
+    @property
+    def t0(self) -> int:
+        """Tick of the first cycle start (time zero), 0 before it."""
+        return int(self.si[I_T0]) if self.si[I_STARTED] else int(self.si[I_TICK])
+
+
 class GrblRun:
     """What :func:`run` returns: per MOVE row, the time of its last step pulse (s from the first cycle start;
     nan for a row that made no step: a dropped sub-step move, a wait before any motion), the program's total
@@ -767,19 +806,22 @@ def run(moves: np.ndarray, settings: GrblSettings, steps_capacity: int = 0) -> G
     """Run grbl 1.1 on MOVE rows (a whole program; see the module docstring for what is modelled).
     ``steps_capacity``: how many step pulses per axis to keep (0: none)."""
     op_kind, target, rate, rapid, dwell_ticks, rows = operations(moves)
-    op_end = np.empty(len(op_kind), np.int64)
+    op_end = np.full(len(op_kind), -1, np.int64)
+    op_info = np.zeros((len(op_kind), 5), np.float32)
     step_t = np.zeros((3, steps_capacity), np.int64)
     step_dir = np.zeros((3, steps_capacity), np.int8)
     n_out = np.zeros(3, np.int64)
-    last = grbl_run_kernel(op_kind, target, rate, rapid, dwell_ticks, settings.steps_per_mm, settings.max_rate,
-                           settings.acceleration, settings.junction_deviation, op_end, step_t, step_dir, n_out)
+    state = GrblState(settings)
+    state.feed(op_kind, target, rate, rapid, dwell_ticks, True, 0, op_end, op_info, step_t, step_dir, n_out)
+    t0 = state.t0
     row_end = np.full(len(moves), np.nan)
-    ok = op_end >= 0
-    row_end[rows[ok]] = op_end[ok] / F_CPU
+    lines = (op_end >= 0) & (op_kind == OP_LINE)
+    row_end[rows[lines]] = (op_end[lines] - t0) / F_CPU
+    last = int(op_end[lines].max()) - t0 if lines.any() else 0
     steps = None
     if steps_capacity:
         steps = {}
         for ax, name in enumerate("xyz"):
             k = min(int(n_out[ax]), steps_capacity)
-            steps[f"stepper_{name}"] = (step_t[ax, :k] / F_CPU, step_dir[ax, :k].copy())
-    return GrblRun(row_end, last / F_CPU if last >= 0 else 0.0, steps)
+            steps[f"stepper_{name}"] = ((step_t[ax, :k] - t0) / F_CPU, step_dir[ax, :k].copy())
+    return GrblRun(row_end, last / F_CPU, steps)
