@@ -146,3 +146,104 @@ def test_read_float_is_grbls_not_the_nearest_float():
     assert G.read_float("-0.4252") == expected
     assert G.read_float("0.010") == np.float32(0.01)
     assert G.read_float("123456789") == np.float32(123456780)     # digits past 8 are dropped, scaled by 10
+
+
+# --------------------------------------------------------------------------- as a machine's firmware
+def _settings_machine():
+    return gp.load_machine(str(shared_path("reference", "grbl", "grbl_settings.txt")))
+
+
+def test_dollar_dollar_report_is_a_machine():
+    """grbl's $$ report (the reference's grbl_settings.txt) is recognised by content: grbl 1.1 model, the
+    report's limits in gcodeplan's units, no travel bounds with soft limits off ($20=0)."""
+    m = _settings_machine()
+    assert m.firmware == "grbl-1.1"
+    assert [m.axes[a].steps_per_mm for a in "xyz"] == [80.0, 80.0, 400.0]
+    assert [m.axes[a].max_velocity for a in "xyz"] == pytest.approx([100.0, 100.0, 20.0])
+    assert [m.axes[a].max_accel for a in "xyz"] == [500.0, 500.0, 100.0]
+    assert (m.junction_deviation, m.arc_tolerance, m.grbl_idle_lock_ms) == (0.01, 0.002, 255.0)
+    assert m.axes["y"].position_max == math.inf
+
+
+def test_dollar_dollar_report_errors_name_the_file(tmp_path):
+    from gcodeplan.errors import ConfigError
+
+    p = tmp_path / "settings.txt"
+    p.write_text("$100=80\n$101=80\n$102=400\n$99=1\n")
+    with pytest.raises(ConfigError, match=r"\$99.*settings.txt|settings.txt.*\$99"):
+        gp.load_machine(str(p))
+    p.write_text("$100=80\n$101=0\n$102=400\n")
+    with pytest.raises(ConfigError, match=r"\$101"):
+        gp.load_machine(str(p))
+    p.write_text("$100=80.000 (x, step/mm)\n$101=80.000 (y, step/mm)\nok\n$102=400\n$20=1\n$130=200\n")
+    m = gp.load_machine(str(p))                    # grbl 0.9's commented report; soft limits on: travel bounds
+    assert m.axes["x"].position_max == 200.0 and m.axes["z"].steps_per_mm == 400.0
+
+
+@pytest.mark.parametrize("name", ["synth_square", "synth_arcs", "linuxcnc_plasmatest", "linuxcnc_arcspiral"])
+def test_estimate_on_the_grbl_machine_is_grbl_s_time(tmp_path, name):
+    """The whole pipeline (gp.estimate) on the $$ machine: total and every line's end equal grbl's."""
+    entry = json.loads(shared_path("reference", "grbl", "times.json").read_text())[name]
+    est = gp.estimate(_program(tmp_path, entry), _settings_machine())
+    assert est.firmware == "grbl-1.1" and "firmware grbl-1.1" in est.to_text()
+    assert est.total_time_s == pytest.approx(entry["total_time_s"], abs=2e-7)
+    lines, ends = est.line_times()
+    ours = dict(zip(lines.tolist(), ends.tolist()))
+    with gzip.open(shared_path("reference", "grbl", "per_line", f"{name}.per_line_end_time.csv.gz"), "rt") as f:
+        for r in csv.DictReader(f):
+            assert ours[int(r["source_line"])] == pytest.approx(float(r["end_time_s"]),
+                                                                abs=5e-4 * entry["total_time_s"])
+
+
+def test_idle_lock_delay_costs_what_grbl_sim_measured(tmp_path):
+    """README (settings): with $1 = 25 grbl busy-waits 25 ms in st_go_idle at every stop; plasmatest took
+    0.716 s longer over its 29 stops in grbl-sim."""
+    entry = json.loads(shared_path("reference", "grbl", "times.json").read_text())["linuxcnc_plasmatest"]
+    program = _program(tmp_path, entry)
+    text = shared_path("reference", "grbl", "grbl_settings.txt").read_text().replace("$1=255", "$1=25")
+    p = tmp_path / "settings25.txt"
+    p.write_text(text)
+    base = gp.estimate(program, _settings_machine()).total_time_s
+    slow = gp.estimate(program, gp.load_machine(str(p))).total_time_s
+    assert slow - base == pytest.approx(0.716, abs=0.002)
+
+
+def test_streaming_in_any_chunks_is_bit_identical(tmp_path):
+    """The grbl mode emits a row once its last step pulse is out: any chunking gives the same PLAN rows,
+    and the window stays bounded (15 planner blocks, 5 segments)."""
+    from gcodeplan.planner.stream import StreamPlanner
+
+    entry = json.loads(shared_path("reference", "grbl", "times.json").read_text())["synth_arcs"]
+    m = _settings_machine()
+    mv = gp.plan(_program(tmp_path, entry), m).moves
+    lim = m.limits_row()
+    outs = []
+    for chunk in (len(mv), 1, 7, 64):
+        sp = StreamPlanner(m)
+        got, window = [], 0
+        for i in range(0, len(mv), chunk):
+            got.extend(sp.feed(mv[i:i + chunk], lim))
+            window = max(window, sp.pending)
+        got.extend(sp.finish())
+        plan = np.concatenate([g[1] for g in got])
+        assert len(plan) == len(mv)
+        outs.append(plan)
+        if chunk == 1:
+            assert window < 40
+    for plan in outs[1:]:
+        for f in plan.dtype.names:
+            assert np.array_equal(plan[f], outs[0][f]), f
+
+
+def test_plan_rows_are_continuous_trapezoids(tmp_path):
+    """Each PLAN row's phases cover its own length and its duration (the pieces the plots and samplers use)."""
+    entry = json.loads(shared_path("reference", "grbl", "times.json").read_text())["synth_polycircle30"]
+    p = gp.plan(_program(tmp_path, entry), _settings_machine())
+    mv, pl = p.moves, p.plan
+    moving = (mv["kind"] <= 1) & (pl["duration"] > 0)
+    d = ((pl["start_v"] + pl["cruise_v"]) / 2 * pl["accel_t"] + pl["cruise_v"] * pl["cruise_t"]
+         + (pl["cruise_v"] + pl["end_v"]) / 2 * pl["decel_t"])
+    assert np.allclose(d[moving], mv["move_d"][moving], rtol=1e-9)
+    assert np.allclose((pl["accel_t"] + pl["cruise_t"] + pl["decel_t"])[moving], pl["duration"][moving], rtol=1e-9)
+    assert np.all(np.diff(pl["t_start"]) >= 0)
+    assert pl["t_start"][-1] + pl["duration"][-1] == pytest.approx(entry["total_time_s"], abs=2e-7)

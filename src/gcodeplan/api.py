@@ -86,7 +86,8 @@ def estimate(source, machine=None, policy: str | None = None, jerk: float | None
     r = res.reader
     return Estimate(res.name, r.summary, sink.time, list(r.layer_z), list(r.features), res.policy, machine.name,
                     line_ends=sink.lines.arrays() if sink.lines is not None else (None, None), objects=list(r.interp.objects.names),
-                    wait_time_s=dict(r.interp.wait_time_s), filament_diameter_mm=machine.filament_diameter)
+                    wait_time_s=dict(r.interp.wait_time_s), filament_diameter_mm=machine.filament_diameter,
+                    firmware=machine.firmware)
 
 
 @dataclass

@@ -56,6 +56,7 @@ PREP_FLAG_RECALCULATE = 1
 PREP_FLAG_DECEL_OVERRIDE = 8
 
 OP_LINE, OP_SYNC = 0, 1
+N_INFO = 6           # op_info columns: entry, peak, exit, nominal speed mm/min, acceleration mm/min², length mm
 
 
 def read_float(text: str) -> np.float32:
@@ -101,15 +102,33 @@ def grbl_float(x: float) -> np.float32:
     most 8 significant digits, what G-code files hold), grbl's :func:`read_float` of that decimal, which can be
     one unit in the last place away from the nearest float; otherwise (a value gcodeplan computed: inch
     conversion, offsets) the nearest float."""
-    if not math.isfinite(x):
-        return np.float32(x)
-    text = repr(float(x))
-    if "e" in text or "E" in text:
-        return np.float32(x)
-    digits = text.lstrip("-").replace(".", "").lstrip("0")
-    if len(digits.rstrip("0")) > 8:
-        return np.float32(x)
-    return read_float(text)
+    return grbl_floats(np.array([x], dtype=np.float64))[0]
+
+
+def grbl_floats(values: np.ndarray) -> np.ndarray:
+    """:func:`grbl_float` of every value (float32 array), vectorised: the shortest decimal of each value (the
+    fewest decimals d ≤ 8 that give it back), then read_float's arithmetic on its digits."""
+    x = np.asarray(values, dtype=np.float64)
+    out = x.astype(np.float32)
+    mag = np.abs(x)
+    todo = np.isfinite(x) & (mag < 1e8) & (mag > 0)
+    for d in range(9):
+        if not todo.any():
+            break
+        scale = 10.0 ** d
+        iv = np.round(mag * scale)
+        hit = todo & (iv / scale == mag) & (iv < 1e8)
+        if hit.any():
+            f = iv[hit].astype(np.float32)
+            e = -d
+            while e <= -2:
+                f = (f.astype(np.float64) * 0.01).astype(np.float32)
+                e += 2
+            if e < 0:
+                f = (f.astype(np.float64) * 0.1).astype(np.float32)
+            out[hit] = np.where(x[hit] < 0, -f, f)
+            todo &= ~hit
+    return out
 
 
 class GrblSettings:
@@ -128,6 +147,7 @@ class GrblSettings:
         self.acceleration = np.array(acc, dtype=np.float32)
         self.junction_deviation = f32(junction_deviation_mm)
         self.arc_tolerance = f32(arc_tolerance_mm)
+        self.idle_lock_ticks = 0
 
     @classmethod
     def from_machine(cls, m) -> "GrblSettings":
@@ -137,10 +157,15 @@ class GrblSettings:
             return read_float(_decimal(v * 60.0))
 
         axes = [m.axes[a] for a in "xyz"]
-        return cls([read_float(_decimal(a.steps_per_mm)) for a in axes],
-                   [rate(a.max_velocity) for a in axes],
-                   [read_float(_decimal(a.max_accel)) for a in axes],
-                   read_float(_decimal(m.junction_deviation)), read_float(_decimal(m.arc_tolerance)))
+        s = cls([read_float(_decimal(a.steps_per_mm)) for a in axes],
+                [rate(a.max_velocity) for a in axes],
+                [read_float(_decimal(a.max_accel)) for a in axes],
+                read_float(_decimal(m.junction_deviation)), read_float(_decimal(m.arc_tolerance)))
+        # $1 (stepper idle delay): st_go_idle busy-waits that long inside the stepper interrupt at every stop,
+        # unless it is 255 (keep the motors enabled)
+        idle_ms = int(getattr(m, "grbl_idle_lock_ms", 255))
+        s.idle_lock_ticks = 0 if idle_ms == 255 else idle_ms * (F_CPU // 1000)
+        return s
 
 
 def _decimal(v: float) -> str:
@@ -218,8 +243,8 @@ I_RUNNING, I_OCR, I_CYCLE, I_NSTEPS_OUT = 16, 17, 18, 19
 I_CX, I_CY, I_CZ, I_SX, I_SY, I_SZ = 20, 21, 22, 23, 24, 25
 I_TICK, I_NEXT_ISR, I_LAST_MATCH, I_POS_X, I_POS_Y, I_POS_Z = 26, 27, 28, 29, 30, 31
 I_PHASE = 32          # TCNT1 at the interrupt that fired at once at a cycle start; -1 after a compare match
-I_STARTED, I_T0, I_NEXT_OP = 33, 34, 35
-N_SI = 36
+I_STARTED, I_T0, I_NEXT_OP, I_IDLE_LOCK, I_LAST_PULSE = 33, 34, 35, 36, 37
+N_SI = 38
 # float32 state slots: prep (st_prep_t) and pl.previous_*
 F_STEPS_REM, F_STEP_PER_MM, F_REQ_MM, F_DT_REM, F_CUR_V, F_EXIT_V, F_MM_COMPLETE = 0, 1, 2, 3, 4, 5, 6
 F_ACC_UNTIL, F_DEC_AFTER, F_MAX_V, F_PREV_NOMINAL, F_PUX, F_PUY, F_PUZ = 7, 8, 9, 10, 11, 12, 13
@@ -439,8 +464,9 @@ def _st_prep_buffer(si, sf, bf, bsteps, bdir, bop, brapid, st_steps, st_sec, st_
                 else:
                     op_info[row, 1] = sf[F_MAX_V]
                 op_info[row, 2] = sf[F_EXIT_V]
-                op_info[row, 3] = acc
-                op_info[row, 4] = mm
+                op_info[row, 3] = nominal
+                op_info[row, 4] = acc
+                op_info[row, 5] = mm
         pb = si[I_PL_BLOCK]
         seg = si[I_SEG_HEAD]
         seg_block[seg] = si[I_ST_BLOCK_INDEX]
@@ -561,6 +587,7 @@ def _isr(si, st_steps, st_sec, st_dir, st_op, seg_n, seg_cycles, seg_block, seg_
     out = si[I_OUTBITS]
     if out:
         op_end_tick[st_op[si[I_EXEC_BLOCK]] - window_base] = tick
+        si[I_LAST_PULSE] = tick
         for ax in range(3):
             if out & (1 << ax):
                 k = n_out[ax]
@@ -590,6 +617,7 @@ def _isr(si, st_steps, st_sec, st_dir, st_op, seg_n, seg_cycles, seg_block, seg_
         else:
             si[I_RUNNING] = 0          # st_go_idle; Timer1 keeps counting with the last OCR1A
             si[I_LAST_MATCH] = tick
+            si[I_TICK] = tick + si[I_IDLE_LOCK]    # $1: delay_ms inside the interrupt
             return
     eb = si[I_EXEC_BLOCK]
     sec = st_sec[eb]
@@ -664,8 +692,13 @@ def grbl_feed_kernel(si, sf, bf, bsteps, bdir, bop, brapid, st_steps, st_sec, st
                 if si[I_RUNNING] == 0:
                     si[I_CYCLE] = 0
             if j < nops:
-                si[I_TICK] += op_dwell_ticks[j]
-                op_end_tick[k - window_base] = si[I_TICK]
+                # a sync without dwell ends with the last step (the few empty interrupts of the last segment
+                # after it count to the next motion); a dwell ends where it ends
+                if op_dwell_ticks[j] > 0:
+                    si[I_TICK] += op_dwell_ticks[j]
+                    op_end_tick[k - window_base] = si[I_TICK]
+                else:
+                    op_end_tick[k - window_base] = si[I_LAST_PULSE]
         si[I_NEXT_OP] = k + 1 if j < nops else k
 
 
@@ -703,9 +736,15 @@ def _prep_then_wait(si, sf, bf, bsteps, bdir, bop, brapid, st_steps, st_sec, st_
     _st_prep_buffer(si, sf, bf, bsteps, bdir, bop, brapid, st_steps, st_sec, st_dir, st_op, seg_n, seg_cycles,
                     seg_block, seg_amass, window_base, op_info)
     if si[I_RUNNING] and (not need_full or si[I_TAIL] == si[I_NEXT_HEAD]):
-        si[I_TICK] = si[I_NEXT_ISR]
-        _isr(si, st_steps, st_sec, st_dir, st_op, seg_n, seg_cycles, seg_block, seg_amass, window_base,
-             op_end_tick, step_t, step_dir, n_out)
+        # Until a segment completes nothing changes for the main loop (the segment ring stays as full as it
+        # was, so st_prep_buffer has nothing to do and no block leaves the planner): run the interrupts of
+        # the current segment in one go, exactly as one interrupt per main-loop pass would.
+        while True:
+            si[I_TICK] = si[I_NEXT_ISR]
+            _isr(si, st_steps, st_sec, st_dir, st_op, seg_n, seg_cycles, seg_block, seg_amass, window_base,
+                 op_end_tick, step_t, step_dir, n_out)
+            if si[I_EXEC_SEG] < 0 or si[I_RUNNING] == 0:
+                break
 
 
 # --------------------------------------------------------------------------- MOVE rows in, times out
@@ -733,6 +772,7 @@ class GrblState:
         si[I_EXEC_SEG] = -1
         si[I_SEG_NEXT_HEAD] = 1
         si[I_LAST_MATCH] = -1
+        si[I_IDLE_LOCK] = settings.idle_lock_ticks
 
     def feed(self, op_kind, op_target, op_rate, op_rapid, op_dwell_ticks, final, window_base, op_end_tick, op_info,
              step_t, step_dir, n_out) -> None:
@@ -791,8 +831,7 @@ def operations(moves: np.ndarray):
     for k, axis in enumerate(("x1", "y1", "z1")):
         col = m[axis]
         target[:, k] = col
-        values, inverse = np.unique(col[parsed], return_inverse=True)
-        target[parsed, k] = np.array([grbl_float(v) for v in values], dtype=np.float32)[inverse]
+        target[parsed, k] = grbl_floats(col[parsed])
     feed = m["feed_v"]
     rapid = ((m["flags"] & FLAG_RAPID) != 0) | ~np.isfinite(feed)
     rate = np.where(rapid, 0.0, feed * 60.0).astype(np.float32)
@@ -807,7 +846,7 @@ def run(moves: np.ndarray, settings: GrblSettings, steps_capacity: int = 0) -> G
     ``steps_capacity``: how many step pulses per axis to keep (0: none)."""
     op_kind, target, rate, rapid, dwell_ticks, rows = operations(moves)
     op_end = np.full(len(op_kind), -1, np.int64)
-    op_info = np.zeros((len(op_kind), 5), np.float32)
+    op_info = np.zeros((len(op_kind), N_INFO), np.float32)
     step_t = np.zeros((3, steps_capacity), np.int64)
     step_dir = np.zeros((3, steps_capacity), np.int8)
     n_out = np.zeros(3, np.int64)
@@ -825,3 +864,131 @@ def run(moves: np.ndarray, settings: GrblSettings, steps_capacity: int = 0) -> G
             k = min(int(n_out[ax]), steps_capacity)
             steps[f"stepper_{name}"] = ((step_t[ax, :k] - t0) / F_CPU, step_dir[ax, :k].copy())
     return GrblRun(row_end, last / F_CPU, steps)
+
+
+# --------------------------------------------------------------------------- the StreamPlanner mode
+def _plan_rows(moves, op_of_row, op_kind, op_end, op_info, op_rapid, clock_s, t0):
+    """PLAN rows of complete MOVE rows. A row ends at its last step pulse (a sync at the end of its dwell);
+    rows without a step end where the previous one did. Speeds and phases are the block's profile as grbl's
+    segment generator planned it, laid on the row's own length and stretched in time to the firmware's
+    duration (its timer rounds every step period up: +0.004 … +0.12 %), so that the pieces are continuous
+    in position and their times are the firmware's."""
+    from ..schema import LIMIT_ACCEL, LIMIT_AXIS, LIMIT_FEED, LIMIT_NONE, PLAN_DTYPE
+
+    n = len(moves)
+    plan = np.zeros(n, dtype=PLAN_DTYPE)
+    has_op = op_of_row >= 0
+    k = np.where(has_op, op_of_row, 0)
+    end_tick = np.where(has_op, op_end[k] if len(op_end) else -1, -1)
+    end_s = np.where(end_tick >= 0, (end_tick - t0) / F_CPU, -np.inf)
+    end_s = np.maximum.accumulate(np.maximum(end_s, clock_s)) if n else end_s
+    start_s = np.concatenate([[clock_s], end_s[:-1]]) if n else end_s
+    duration = end_s - start_s
+    plan["t_start"] = start_s
+    plan["duration"] = duration
+    plan["limit"] = LIMIT_NONE
+    info = op_info[k] if len(op_info) else np.zeros((n, N_INFO), np.float32)
+    line = has_op & (op_kind[k] == OP_LINE if len(op_kind) else False) & (duration > 0) & (moves["move_d"] > 0)
+    i = np.nonzero(line)[0]
+    if i.size:
+        v0, vp, v1 = (info[i, c].astype(np.float64) / 60.0 for c in (0, 1, 2))
+        nominal = info[i, 3].astype(np.float64) / 60.0
+        a = info[i, 4].astype(np.float64) / 3600.0
+        d = moves["move_d"][i]
+        da = np.maximum(vp * vp - v0 * v0, 0.0) / (2 * a)
+        dd = np.maximum(vp * vp - v1 * v1, 0.0) / (2 * a)
+        short = da + dd > d             # the step-rounded length differs from the row's: the peak on the row
+        if short.any():
+            vps = np.maximum(np.maximum(v0, v1), np.sqrt(np.maximum((2 * a * d + v0 * v0 + v1 * v1) / 2, 0.0)))
+            das = np.maximum(vps * vps - v0 * v0, 0.0) / (2 * a)
+            dds = np.maximum(d - das, 0.0)
+            vp = np.where(short, vps, vp)
+            v1 = np.where(short, np.sqrt(np.maximum(vps * vps - 2 * a * dds, 0.0)), v1)
+            da = np.where(short, das, da)
+            dd = np.where(short, dds, dd)
+        ta, td = (vp - v0) / a, (vp - v1) / a
+        tc = np.where(vp > 0, np.maximum(d - da - dd, 0.0) / np.where(vp > 0, vp, 1.0), 0.0)
+        t_plan = ta + tc + td
+        f = np.where(t_plan > 0, duration[i] / np.where(t_plan > 0, t_plan, 1.0), 1.0)
+        plan["start_v"][i], plan["cruise_v"][i], plan["end_v"][i] = v0 / f, vp / f, v1 / f
+        plan["accel"][i] = plan["decel"][i] = a / (f * f)
+        plan["accel_t"][i], plan["cruise_t"][i], plan["decel_t"][i] = ta * f, tc * f, td * f
+        feed = moves["feed_v"][i]
+        at_nominal = vp >= nominal * (1 - 1e-6)
+        capped = op_rapid[k[i]] | (np.isfinite(feed) & (nominal < feed * (1 - 1e-6)))
+        plan["limit"][i] = np.where(at_nominal, np.where(capped, LIMIT_AXIS, LIMIT_FEED), LIMIT_ACCEL)
+    t_end = float(end_s[-1]) if n else clock_s
+    return plan, t_end
+
+
+def make_stream_mode(base_cls):
+    """The StreamPlanner mode of machines with ``firmware = "grbl-1.1"`` (``base_cls``: planner.stream._Mode):
+    every batch runs grbl on, and the rows whose last step pulse is out are final."""
+    from .prepare import PREP_DTYPE
+
+    class GrblMode(base_cls):
+        name = "grbl-1.1"
+        own_prepare = True
+
+        def __init__(self, sp):
+            super().__init__(sp)
+            self.state = GrblState(GrblSettings.from_machine(sp.machine))
+            self.fed = 0                                   # pending rows already given to grbl
+            self.row_op = np.zeros(0, np.int64)            # per pending row: its op (global index), −1 none
+            self.op_base = 0                               # global index of the first op kept below
+            self.op_kind = np.zeros(0, np.int64)
+            self.op_rapid = np.zeros(0, np.bool_)
+            self.op_end = np.zeros(0, np.int64)
+            self.op_info = np.zeros((0, N_INFO), np.float32)
+            self.n_out = np.zeros(3, np.int64)
+            self.no_steps = np.zeros((3, 0), np.int64)
+            self.no_dirs = np.zeros((3, 0), np.int8)
+
+        def prepare(self, moves_chunk, limits):
+            return np.zeros(len(moves_chunk), dtype=PREP_DTYPE)
+
+        def plan(self, final: bool):
+            sp = self.sp
+            new = sp._moves[self.fed:]
+            kind, target, rate, rapid, dwell, rows = operations(new)
+            first = self.op_base + len(self.op_kind)
+            ops = np.full(len(new), -1, np.int64)
+            ops[rows] = first + np.arange(len(rows))
+            self.row_op = np.concatenate([self.row_op, ops])
+            self.op_kind = np.concatenate([self.op_kind, kind])
+            self.op_rapid = np.concatenate([self.op_rapid, rapid])
+            self.op_end = np.concatenate([self.op_end, np.full(len(kind), -1, np.int64)])
+            self.op_info = np.concatenate([self.op_info, np.zeros((len(kind), N_INFO), np.float32)])
+            self.state.feed(kind, target, rate, rapid, dwell, final, self.op_base, self.op_end, self.op_info,
+                            self.no_steps, self.no_dirs, self.n_out)
+            self.fed = len(sp._moves)
+            if final:
+                n_rows = len(sp._moves)
+            else:
+                open_op = self.state.first_open_op()
+                later = np.nonzero(self.row_op >= open_op)[0]
+                n_rows = int(later[0]) if later.size else len(sp._moves)
+            if n_rows == 0:
+                return 0, None, sp._clock, None
+            local = np.where(self.row_op[:n_rows] >= 0, self.row_op[:n_rows] - self.op_base, -1)
+            plan, t_end = _plan_rows(sp._moves[:n_rows], local, self.op_kind, self.op_end, self.op_info,
+                                     self.op_rapid, sp._clock, 0)
+            return n_rows, plan, t_end, None
+
+        def drop(self, n_rows: int) -> None:
+            self.fed -= n_rows
+            gone = self.row_op[:n_rows]
+            self.row_op = self.row_op[n_rows:].copy()
+            used = gone[gone >= 0]
+            if used.size:
+                k = int(used.max()) + 1 - self.op_base
+                self.op_base += k
+                self.op_kind = self.op_kind[k:].copy()
+                self.op_rapid = self.op_rapid[k:].copy()
+                self.op_end = self.op_end[k:].copy()
+                self.op_info = self.op_info[k:].copy()
+
+        def reset(self) -> None:
+            pass
+
+    return GrblMode
