@@ -23,7 +23,8 @@ PROGRAMS = ["synth_square", "synth_polycircle30", "synth_arcs", "linuxcnc_plasma
 
 
 def _machine():
-    return gp.load_machine(str(shared_path("reference", "grbl", "grbl_settings_as_gcodeplan_machine.toml")))
+    """grbl-sim's settings, from its $$ report ($1 = 255: no idle delay at stops)."""
+    return gp.load_machine(str(shared_path("reference", "grbl", "grbl_settings.txt")))
 
 
 def _program(tmp_path, entry) -> str:

@@ -73,7 +73,7 @@ def main(argv: list[str]) -> int:
         print(f"{REF} not found", file=sys.stderr)
         return 2
     times = json.loads((REF / "times.json").read_text())
-    machine = gp.load_machine(str(REF / "grbl_settings_as_gcodeplan_machine.toml"))
+    machine = gp.load_machine(str(REF / "grbl_settings.txt"))      # its $$ report
     names = argv or list(times)
     print("| program | grbl 1.1h s | gcodeplan grbl-1.1 s | difference | max per-line error | steps equal "
           "| max step error | steps within 1 µs |")

@@ -945,6 +945,13 @@ def make_stream_mode(base_cls):
             self.no_dirs = np.zeros((3, 0), np.int8)
 
         def prepare(self, moves_chunk, limits):
+            from ..errors import GcodeError
+
+            e_moves = np.nonzero(moves_chunk["e1"] != moves_chunk["e0"])[0]
+            if e_moves.size:     # gcode.c: E is no grbl word (error:20), the whole line is rejected
+                line = int(moves_chunk["line"][e_moves[0]])
+                raise GcodeError("grbl 1.1 has no E axis: it rejects this line (error:20, unsupported command)",
+                                 line=line)
             return np.zeros(len(moves_chunk), dtype=PREP_DTYPE)
 
         def plan(self, final: bool):

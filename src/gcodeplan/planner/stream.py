@@ -275,11 +275,11 @@ class StreamPlanner:
         """plan_moves' dispatch: a jerk (argument, else the limits in force) selects S-curves, then 'blend'."""
         from . import scurve_jerk
 
-        if getattr(self.machine, "firmware", "") == "grbl-1.1":
+        # a firmware model plans unless a policy other than the machine's, or a jerk, was asked for
+        if (getattr(self.machine, "firmware", "") == "grbl-1.1" and self._jerk is None
+                and self.policy == self.machine.junction_policy):
             from .grbl import make_stream_mode as grbl_mode
 
-            if self._jerk is not None:
-                raise ConfigError("the grbl-1.1 firmware model plans trapezoids as grbl does: --jerk does not apply")
             return grbl_mode(_Mode)(self)
         if self._jerk is None:
             self._jerk = scurve_jerk(moves, limits, None)
