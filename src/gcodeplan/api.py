@@ -14,11 +14,12 @@ from . import pipeline
 
 
 def load_machine(spec: str | None = None, *, klipper_config: str | None = None, linuxcnc_ini: str | None = None,
-                 flavor: str | None = None):
+                 flavor: str | None = None, firmware: str | None = None):
     """A :class:`~gcodeplan.machine.Machine`: a preset name (``klipper``, ``marlin``, ``grbl``), a machine
     ``.toml`` path, or ``klipper_config=`` a Klipper ``printer.cfg`` (includes followed; the G-code then
     has Klipper's meanings), or ``linuxcnc_ini=`` a LinuxCNC machine ``.ini`` (planned with the ``linuxcnc``
-    policy). ``flavor`` overrides the G-code dialect. Default: the ``klipper`` preset.
+    policy). ``flavor`` overrides the G-code dialect; ``firmware`` the firmware model (``grbl-1.1``, or
+    ``none`` for the junction policy alone). Default: the ``klipper`` preset.
     Its limits are in mm, mm/s, mm/s² (docs/machine.md lists every key)."""
     from dataclasses import replace
 
@@ -44,6 +45,14 @@ def load_machine(spec: str | None = None, *, klipper_config: str | None = None, 
         if flavor not in FLAVORS:
             raise ConfigError(f"flavor: unknown value {flavor!r} (one of {', '.join(FLAVORS)})")
         machine = replace(machine, flavor=flavor)
+    if firmware is not None:
+        from .machine import FIRMWARES
+
+        name = "" if firmware == "none" else firmware
+        if name not in FIRMWARES:
+            raise ConfigError(f"firmware: unknown value {firmware!r} (one of none, "
+                              f"{', '.join(f for f in FIRMWARES if f)})")
+        machine = replace(machine, firmware=name)
     return machine
 
 
@@ -89,7 +98,8 @@ def estimate(source, machine=None, policy: str | None = None, jerk: float | None
     return Estimate(res.name, r.summary, sink.time, list(r.layer_z), list(r.features), res.policy, machine.name,
                     line_ends=sink.lines.arrays() if sink.lines is not None else (None, None), objects=list(r.interp.objects.names),
                     wait_time_s=dict(r.interp.wait_time_s),
-                    filament_diameter_mm=r.interp.filament_diameter_mm)   # the E figures' filament (M200 / UltiGCode)
+                    filament_diameter_mm=r.interp.filament_diameter_mm,   # the E figures' filament (M200 / UltiGCode)
+                    firmware=res.machine.firmware)
 
 
 @dataclass

@@ -23,6 +23,9 @@ FLAVORS = ("marlin", "klipper", "reprap", "grbl", "linuxcnc")
 SHAPER_TYPES = ("none", "zv", "mzv", "zvd", "ei", "2hump_ei", "3hump_ei")
 SHAPER_TYPE_CODES = {name: i for i, name in enumerate(SHAPER_TYPES)}
 POLICIES = ("klipper", "junction-deviation", "classic-jerk", "blend", "exact-stop", "linuxcnc")
+# firmware models: "" = the junction policy alone (a generic planner); "grbl-1.1" = grbl 1.1's planner, segment
+# generator and stepper as they run (planner/grbl.py)
+FIRMWARES = ("", "grbl-1.1")
 AXES = ("x", "y", "z", "e")
 
 
@@ -45,6 +48,9 @@ class Machine:
     kinematics: str = "cartesian"
     # G-code dialect: G4 P unit, M204 meaning, whether M201/M203/M205 apply, G0 rapid rate
     flavor: str = "marlin"
+    # firmware model (FIRMWARES): when set, the firmware's own planning and step timing replace the policy
+    firmware: str = ""
+    grbl_idle_lock_ms: float = 255.0     # grbl $1: ms the stepper ISR holds at every stop; 255 = keep enabled (none)
 
     # toolhead
     max_velocity: float = 300.0          # mm/s

@@ -287,6 +287,10 @@ class Run:
                  exclude_objects: Sequence[str] = ()):
         from .planner import StreamPlanner
 
+        if policy is not None and getattr(machine, "firmware", ""):
+            from dataclasses import replace
+
+            machine = replace(machine, firmware="")   # an explicit policy plans instead of the firmware model
         self.machine = machine
         self.policy = policy or machine.junction_policy
         self.reader, self.small = open_reader(source, machine, strict=strict, batch_moves=batch_moves)

@@ -53,6 +53,9 @@ def machine_from_args(args: Any) -> Machine:
         if problem is not None:
             raise ConfigError(f"--flavor: {problem}")
         machine = replace(machine, flavor=flavor)
+    firmware = getattr(args, "firmware", None)
+    if firmware:
+        machine = replace(machine, firmware="" if firmware == "none" else firmware)
     if getattr(args, "no_bounds", False):
         machine = without_bounds(machine)
     return machine

@@ -42,6 +42,10 @@ def load_machine(path_or_preset: str) -> Machine:
             raise ConfigError("no such file", spec)
         raise ConfigError("this looks like a Klipper printer.cfg: use --klipper-config for it", spec)
     if os.path.isfile(spec):
+        from .grbl_settings import is_grbl_settings, load_grbl_settings
+
+        if is_grbl_settings(spec):            # grbl's $$ report
+            return load_grbl_settings(spec)
         return load_machine_toml(spec)
     presets = preset_names()
     if spec in presets:

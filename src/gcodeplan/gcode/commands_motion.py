@@ -250,6 +250,7 @@ class MotionCommands:
 
     def _arc(self, clockwise: bool, params: dict[str, Word], used: set[str], f: float | None) -> None:
         from .arcs import ArcError, arc_chords
+        from .arcs_grbl import grbl_arc_chords
 
         st = self.st
         used.update("XYZEFIJKRP")
@@ -293,10 +294,13 @@ class MotionCommands:
             r = r * scale
         m = self.machine
         try:
-            pts = arc_chords((x0, y0, z0), (x1, y1, z1), ijk=ijk, r=r, plane=self.plane, clockwise=clockwise,
-                             turns=int(turns), tolerance=m.arc_tolerance, resolution=m.arc_resolution,
-                             units_mm=float(st[S.S_UNIT]) == 1.0)
-        except ArcError as err:
+            if flavor == "grbl":        # grbl's own chord count and single-precision chords (arcs_grbl.py)
+                pts = grbl_arc_chords((x0, y0, z0), (x1, y1, z1), ijk, r, self.plane, clockwise, m.arc_tolerance)
+            else:
+                pts = arc_chords((x0, y0, z0), (x1, y1, z1), ijk=ijk, r=r, plane=self.plane, clockwise=clockwise,
+                                 turns=int(turns), tolerance=m.arc_tolerance, resolution=m.arc_resolution,
+                                 units_mm=float(st[S.S_UNIT]) == 1.0)
+        except (ArcError, ValueError) as err:
             self.error(str(err))
         self.arcs += 1
         n = pts.shape[0]

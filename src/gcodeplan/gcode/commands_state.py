@@ -119,6 +119,33 @@ class StateCommands:
             self.unknown_command(uname)
 
     # ------------------------------------------------------------------ M commands
+    def _grbl_syncs(self, ms, params: dict[str, Word]) -> None:
+        """grbl 1.1's gc_execute stops the motion (``spindle_sync`` / ``coolant_sync``: the planner drains, the
+        cycle ends) for a spindle speed change while the spindle turns, a spindle state change (M3/M4/M5) and
+        a coolant change (M7/M8/M9); a repeated command that changes nothing does not stop. Each stop is a
+        wait row (zero time: what it costs is the stop itself)."""
+        spindle = getattr(self, "grbl_spindle", 5)
+        coolant = getattr(self, "grbl_coolant", frozenset())
+        s_word = params.get("S")
+        if s_word is not None and s_word.value is not None:
+            if s_word.value != getattr(self, "grbl_s", 0.0) and spindle != 5:
+                self._wait("S")
+            self.grbl_s = s_word.value
+        new_spindle, new_coolant = spindle, set(coolant)
+        for mc in ms:
+            if mc in (3, 4, 5):
+                new_spindle = mc
+            elif mc == 7 or mc == 8:
+                new_coolant.add(mc)
+            elif mc == 9:
+                new_coolant.clear()
+        if new_spindle != spindle:
+            self._wait(f"M{new_spindle}")
+            self.grbl_spindle = new_spindle
+        if new_coolant != coolant:
+            self._wait("M9" if not new_coolant else f"M{max(new_coolant)}")
+            self.grbl_coolant = frozenset(new_coolant)
+
     def _m_command(self, mc: int, params: dict[str, Word], used: set[str]) -> None:
         st, ist = self.st, self.ist
         m = self.machine

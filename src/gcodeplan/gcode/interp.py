@@ -605,6 +605,8 @@ class Interpreter(StateCommands, MotionCommands):
             used.add("F")
             if not f > 0.0:
                 self.error(f"feed rate F must be > 0, got {params['F'].text}")
+        if self.machine.flavor == "grbl":
+            self._grbl_syncs(ms, params)
         # M commands
         for mc in ms:
             self._m_command(mc, params, used)

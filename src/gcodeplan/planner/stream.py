@@ -275,6 +275,12 @@ class StreamPlanner:
         """plan_moves' dispatch: a jerk (argument, else the limits in force) selects S-curves, then 'blend'."""
         from . import scurve_jerk
 
+        # a firmware model plans unless a policy other than the machine's, or a jerk, was asked for
+        if (getattr(self.machine, "firmware", "") == "grbl-1.1" and self._jerk is None
+                and self.policy == self.machine.junction_policy):
+            from .grbl import make_stream_mode as grbl_mode
+
+            return grbl_mode(_Mode)(self)
         if self._jerk is None:
             self._jerk = scurve_jerk(moves, limits, None)
             self._jerk_from_limits = self._jerk is not None

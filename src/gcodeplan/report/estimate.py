@@ -32,6 +32,7 @@ class Estimate:
     objects: list = field(default_factory=list)          # object names (MOVE.object indexes them)
     wait_time_s: dict = field(default_factory=dict)      # s of modelled waits by name ([time] of the machine)
     filament_diameter_mm: float = 1.75                   # for the volumetric flow
+    firmware: str = ""                                   # the firmware model that planned it ("" = the policy)
 
     @property
     def total_time_s(self) -> float:
@@ -64,6 +65,7 @@ class Estimate:
             file=self.path,
             machine=self.machine_name,
             policy=self.policy,
+            firmware=self.firmware,
             total_time_s=t.total_time_s,
             total_time_hms=hms(t.total_time_s),
             moves=self.parse.moves,
@@ -95,7 +97,8 @@ def print_text(est: Estimate, out=None) -> None:
     t, s = est.time, est.parse
     w = (out or sys.stdout).write
     w(f"{est.path}\n")
-    w(f"  machine {est.machine_name}, policy {est.policy}\n")
+    how = f"firmware {est.firmware}" if est.firmware else f"policy {est.policy}"
+    w(f"  machine {est.machine_name}, {how}\n")
     dialect = getattr(s, "dialect", None)
     if dialect:
         from ..gcode.dialect import note_text

@@ -1,0 +1,1001 @@
+"""grbl 1.1's planner and stepper as they run: the ``grbl-1.1`` firmware model (docs/design.md, *grbl 1.1*).
+
+grbl (github gnea/grbl, 1.1h) plans and steps in single precision on an 8-bit MCU. This module runs the same
+rules on the MOVE rows gcodeplan's reader makes, with the firmware's arithmetic, so that the time of every
+step, and so of every line and of the whole program, is the one the firmware gives:
+
+* ``planner.c``: step-rounded targets (``lround(target·steps/mm)``, a move of zero steps is dropped and its
+  displacement goes into the next one), per-axis limited acceleration and rapid rate, junction deviation with
+  the acceleration the axes allow along the junction vector, the 16-block ring (15 usable) with its
+  reverse/forward passes and its *planned* pointer (:func:`_plan_buffer_line`, :func:`_planner_recalculate`);
+* ``stepper.c``: the segment generator (``st_prep_buffer``, :func:`_st_prep_buffer`): 10 ms segments of
+  constant step rate (``ACCELERATION_TICKS_PER_SECOND`` 100), its ramp state machine, the step-remainder
+  time carried from segment to segment, AMASS levels, the 16 MHz Timer1 in CTC mode (a period is
+  OCR1A + 1 cycles) and the stepper interrupt (:func:`_isr`): Bresenham across axes, a step pulse written at
+  the interrupt *after* the one that decided it;
+* the main loop as grbl-sim's lock-step mode runs it: parsing and planning take no time, the planner is
+  refilled as soon as a block leaves it (a block leaves when its last segment is *prepared*, not executed),
+  the cycle starts when the 15 blocks are full or at a sync (G4, M2/M30, spindle/coolant changes: KIND_DWELL /
+  KIND_WAIT rows), G4 P is rounded up to 50 ms steps (``DWELL_TIME_STEP``).
+
+Floating point follows the C source: ``float`` variables are float32 and ``double`` literals promote an
+expression to float64 before it is stored back into a float (the x86 build grbl-sim runs, the reference).
+Function boundaries follow grbl's so the code can be diffed against a new release.
+"""
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+
+from ..schema import FLAG_ARC, FLAG_RAPID, KIND_DWELL, KIND_WAIT
+
+f32 = np.float32
+
+# grbl 1.1h config.h / planner.h / stepper.h / cpu_map (ATmega328P, 16 MHz)
+F_CPU = 16_000_000                      # Hz, the tick of every time below
+BLOCK_BUFFER_SIZE = 16                  # planner ring; one slot always empty: 15 usable blocks
+SEGMENT_BUFFER_SIZE = 6                 # step segment ring; 5 usable segments
+ST_BLOCK_BUFFER_SIZE = SEGMENT_BUFFER_SIZE - 1
+ACCELERATION_TICKS_PER_SECOND = 100
+DT_SEGMENT = 1.0 / (ACCELERATION_TICKS_PER_SECOND * 60.0)   # min per segment (a double in C)
+REQ_MM_INCREMENT_SCALAR = 1.25
+MAX_AMASS_LEVEL = 3
+AMASS_LEVEL1 = F_CPU // 8000            # cycles per step below which AMASS is off
+AMASS_LEVEL2 = F_CPU // 4000
+AMASS_LEVEL3 = F_CPU // 2000
+CYCLES_PER_MINUTE = 16 * 1000000 * 60   # (TICKS_PER_MICROSECOND*1000000*60)
+SOME_LARGE_VALUE = 1.0e38
+MINIMUM_FEED_RATE = 1.0                 # mm/min
+DWELL_TIME_STEP_MS = 50
+DWELL_TICKS = F_CPU // 1000 * DWELL_TIME_STEP_MS
+
+RAMP_ACCEL, RAMP_CRUISE, RAMP_DECEL, RAMP_DECEL_OVERRIDE = 0, 1, 2, 3
+PREP_FLAG_RECALCULATE = 1
+PREP_FLAG_DECEL_OVERRIDE = 8
+
+OP_LINE, OP_SYNC = 0, 1
+N_INFO = 6           # op_info columns: entry, peak, exit, nominal speed mm/min, acceleration mm/min², length mm
+
+
+def read_float(text: str) -> np.float32:
+    """A number as grbl's ``read_float`` (nuts_bolts.c) reads it: the digits into a uint32 (at most 8
+    significant), then scaled by 0.01 / 0.1 / 10 in single precision with double constants. Not always the
+    float nearest to the decimal: grbl's own value is what it plans with."""
+    s = text.strip()
+    neg = s.startswith("-")
+    if s[:1] in "+-":
+        s = s[1:]
+    intval, exp, ndigit, isdecimal = 0, 0, 0, False
+    for ch in s:
+        if ch.isdigit():
+            ndigit += 1
+            if ndigit <= 8:
+                if isdecimal:
+                    exp -= 1
+                intval = intval * 10 + int(ch)
+            elif not isdecimal:
+                exp += 1
+        elif ch == "." and not isdecimal:
+            isdecimal = True
+        else:
+            break
+    if not ndigit:
+        raise ValueError(f"not a number: {text!r}")
+    fval = f32(intval)
+    if fval != 0:
+        while exp <= -2:
+            fval = f32(float(fval) * 0.01)
+            exp += 2
+        if exp < 0:
+            fval = f32(float(fval) * 0.1)
+        elif exp > 0:
+            while exp > 0:
+                fval = f32(float(fval) * 10.0)
+                exp -= 1
+    return -fval if neg else fval
+
+
+def grbl_float(x: float) -> np.float32:
+    """The float grbl holds for a value gcodeplan read as the float64 ``x``: when ``x`` is a short decimal (at
+    most 8 significant digits, what G-code files hold), grbl's :func:`read_float` of that decimal, which can be
+    one unit in the last place away from the nearest float; otherwise (a value gcodeplan computed: inch
+    conversion, offsets) the nearest float."""
+    return grbl_floats(np.array([x], dtype=np.float64))[0]
+
+
+def grbl_floats(values: np.ndarray) -> np.ndarray:
+    """:func:`grbl_float` of every value (float32 array), vectorised: the shortest decimal of each value (the
+    fewest decimals d ≤ 8 that give it back), then read_float's arithmetic on its digits."""
+    x = np.asarray(values, dtype=np.float64)
+    out = x.astype(np.float32)
+    mag = np.abs(x)
+    todo = np.isfinite(x) & (mag < 1e8) & (mag > 0)
+    for d in range(9):
+        if not todo.any():
+            break
+        scale = 10.0 ** d
+        iv = np.round(mag * scale)
+        hit = todo & (iv / scale == mag) & (iv < 1e8)
+        if hit.any():
+            f = iv[hit].astype(np.float32)
+            e = -d
+            while e <= -2:
+                f = (f.astype(np.float64) * 0.01).astype(np.float32)
+                e += 2
+            if e < 0:
+                f = (f.astype(np.float64) * 0.1).astype(np.float32)
+            out[hit] = np.where(x[hit] < 0, -f, f)
+            todo &= ~hit
+    return out
+
+
+class GrblSettings:
+    """The ``$`` settings the planner and stepper use, in grbl's units and precision: steps/mm ($100-$102),
+    max rate mm/min ($110-$112), acceleration mm/min² ($120-$122 × 60 × 60, as settings.c stores it),
+    junction deviation mm ($11), arc tolerance mm ($12)."""
+
+    def __init__(self, steps_per_mm, max_rate_mm_min, accel_mm_s2, junction_deviation_mm, arc_tolerance_mm):
+        self.steps_per_mm = np.array([f32(v) for v in steps_per_mm], dtype=np.float32)
+        self.max_rate = np.array([f32(v) for v in max_rate_mm_min], dtype=np.float32)
+        acc = []
+        for v in accel_mm_s2:
+            a = f32(v)
+            a = f32(a * f32(60))
+            acc.append(f32(a * f32(60)))
+        self.acceleration = np.array(acc, dtype=np.float32)
+        self.junction_deviation = f32(junction_deviation_mm)
+        self.arc_tolerance = f32(arc_tolerance_mm)
+        self.idle_lock_ticks = 0
+
+    @classmethod
+    def from_machine(cls, m) -> "GrblSettings":
+        """From a :class:`~gcodeplan.machine.Machine` (mm/s, mm/s²): each value is the float grbl would hold
+        for the ``$`` line that sets it (a rate of 83.333… mm/s is $110 = 5000)."""
+        def rate(v):
+            return read_float(_decimal(v * 60.0))
+
+        axes = [m.axes[a] for a in "xyz"]
+        s = cls([read_float(_decimal(a.steps_per_mm)) for a in axes],
+                [rate(a.max_velocity) for a in axes],
+                [read_float(_decimal(a.max_accel)) for a in axes],
+                read_float(_decimal(m.junction_deviation)), read_float(_decimal(m.arc_tolerance)))
+        # $1 (stepper idle delay): st_go_idle busy-waits that long inside the stepper interrupt at every stop,
+        # unless it is 255 (keep the motors enabled)
+        idle_ms = int(getattr(m, "grbl_idle_lock_ms", 255))
+        s.idle_lock_ticks = 0 if idle_ms == 255 else idle_ms * (F_CPU // 1000)
+        return s
+
+
+def _decimal(v: float) -> str:
+    """``$`` value text for v: grbl prints settings with 3 decimals; a value read back from such a report (or
+    typed by a user) has few digits, so the shortest repr rounded to 6 decimals is what the firmware got."""
+    if not math.isfinite(v):
+        raise ValueError(f"grbl setting must be finite, got {v}")
+    return f"{round(v, 6):.6f}"
+
+
+# --------------------------------------------------------------------------- the simulation
+# State lives in small arrays so one numba function can run the whole program (grbl's globals).
+# planner ring, per block
+B_MM, B_ACC, B_RAPID, B_PROG, B_ENTRY2, B_MAXENTRY2, B_MAXJUNC2 = range(7)
+N_BF = 7
+
+
+@numba.njit(cache=True)
+def _limit_value_by_axis_maximum(max_value, unit_vec):
+    limit = np.float32(SOME_LARGE_VALUE)
+    for i in range(3):
+        if unit_vec[i] != 0:
+            v = abs(np.float64(max_value[i] / unit_vec[i]))
+            if v < limit:
+                limit = np.float32(v)
+    return limit
+
+
+@numba.njit(cache=True)
+def _convert_delta_vector_to_unit_vector(vec):
+    mag = np.float32(0.0)
+    for i in range(3):
+        if vec[i] != 0.0:
+            mag = np.float32(mag + np.float32(vec[i] * vec[i]))
+    mag = np.float32(math.sqrt(np.float64(mag)))
+    inv = np.float32(1.0 / np.float64(mag))
+    for i in range(3):
+        vec[i] = np.float32(vec[i] * inv)
+    return mag
+
+
+@numba.njit(cache=True)
+def _nominal_speed(bf, b, rapid):
+    """plan_compute_profile_nominal_speed, overrides at 100 %."""
+    v = bf[b, B_PROG]
+    if not rapid[b]:
+        if v > bf[b, B_RAPID]:
+            v = bf[b, B_RAPID]
+    if v > np.float32(MINIMUM_FEED_RATE):
+        return v
+    return np.float32(MINIMUM_FEED_RATE)
+
+
+@numba.njit(cache=True)
+def _next(i, n):
+    i += 1
+    return 0 if i == n else i
+
+
+@numba.njit(cache=True)
+def _prev(i, n):
+    return n - 1 if i == 0 else i - 1
+
+
+class _State:
+    """Names of the integer (``si``) and float32 (``sf``) state slots of the simulation, grbl's globals."""
+
+
+# integer state slots
+I_HEAD, I_TAIL, I_NEXT_HEAD, I_PLANNED = 0, 1, 2, 3
+I_PL_BLOCK, I_ST_BLOCK_INDEX, I_RAMP, I_RECALC = 4, 5, 6, 7
+I_SEG_HEAD, I_SEG_TAIL, I_SEG_NEXT_HEAD = 8, 9, 10
+I_EXEC_SEG, I_EXEC_BLOCK, I_STEP_COUNT, I_OUTBITS, I_DIRBITS = 11, 12, 13, 14, 15
+I_RUNNING, I_OCR, I_CYCLE, I_NSTEPS_OUT = 16, 17, 18, 19
+I_CX, I_CY, I_CZ, I_SX, I_SY, I_SZ = 20, 21, 22, 23, 24, 25
+I_TICK, I_NEXT_ISR, I_LAST_MATCH, I_POS_X, I_POS_Y, I_POS_Z = 26, 27, 28, 29, 30, 31
+I_PHASE = 32          # TCNT1 at the interrupt that fired at once at a cycle start; -1 after a compare match
+I_STARTED, I_T0, I_NEXT_OP, I_IDLE_LOCK, I_LAST_PULSE = 33, 34, 35, 36, 37
+N_SI = 38
+# float32 state slots: prep (st_prep_t) and pl.previous_*
+F_STEPS_REM, F_STEP_PER_MM, F_REQ_MM, F_DT_REM, F_CUR_V, F_EXIT_V, F_MM_COMPLETE = 0, 1, 2, 3, 4, 5, 6
+F_ACC_UNTIL, F_DEC_AFTER, F_MAX_V, F_PREV_NOMINAL, F_PUX, F_PUY, F_PUZ = 7, 8, 9, 10, 11, 12, 13
+N_SF = 14
+
+
+@numba.njit(cache=True)
+def _planner_recalculate(si, sf, bf):
+    """planner.c planner_recalculate: reverse pass from the newest block back to the planned pointer, then the
+    forward pass that moves the planned pointer past every block that can no longer change."""
+    n = BLOCK_BUFFER_SIZE
+    head = si[I_HEAD]
+    block_index = _prev(head, n)
+    if block_index == si[I_PLANNED]:
+        return
+    cur = block_index
+    bf[cur, B_ENTRY2] = min(bf[cur, B_MAXENTRY2], np.float32(np.float32(2) * bf[cur, B_ACC] * bf[cur, B_MM]))
+    block_index = _prev(block_index, n)
+    if block_index == si[I_PLANNED]:
+        if block_index == si[I_TAIL]:
+            _st_update_plan_block_parameters(si, sf, bf)
+    else:
+        while block_index != si[I_PLANNED]:
+            nxt = cur
+            cur = block_index
+            block_index = _prev(block_index, n)
+            if block_index == si[I_TAIL]:
+                _st_update_plan_block_parameters(si, sf, bf)
+            if bf[cur, B_ENTRY2] != bf[cur, B_MAXENTRY2]:
+                e2 = np.float32(bf[nxt, B_ENTRY2] + np.float32(np.float32(2) * bf[cur, B_ACC]) * bf[cur, B_MM])
+                if e2 < bf[cur, B_MAXENTRY2]:
+                    bf[cur, B_ENTRY2] = e2
+                else:
+                    bf[cur, B_ENTRY2] = bf[cur, B_MAXENTRY2]
+    nxt = si[I_PLANNED]
+    block_index = _next(si[I_PLANNED], n)
+    while block_index != head:
+        cur = nxt
+        nxt = block_index
+        if bf[cur, B_ENTRY2] < bf[nxt, B_ENTRY2]:
+            e2 = np.float32(bf[cur, B_ENTRY2] + np.float32(np.float32(2) * bf[cur, B_ACC]) * bf[cur, B_MM])
+            if e2 < bf[nxt, B_ENTRY2]:
+                bf[nxt, B_ENTRY2] = e2
+                si[I_PLANNED] = block_index
+        if bf[nxt, B_ENTRY2] == bf[nxt, B_MAXENTRY2]:
+            si[I_PLANNED] = block_index
+        block_index = _next(block_index, n)
+
+
+@numba.njit(cache=True)
+def _st_update_plan_block_parameters(si, sf, bf):
+    """stepper.c: the block being prepared was re-planned: restart its profile from the current speed."""
+    if si[I_PL_BLOCK] >= 0:
+        si[I_RECALC] |= PREP_FLAG_RECALCULATE
+        bf[si[I_PL_BLOCK], B_ENTRY2] = np.float32(sf[F_CUR_V] * sf[F_CUR_V])
+        si[I_PL_BLOCK] = -1
+
+
+@numba.njit(cache=True)
+def _plan_buffer_line(si, sf, bf, bsteps, bdir, bop, brapid, target, rate, rapid, op, steps_per_mm, max_rate,
+                      acceleration, junction_deviation):
+    """planner.c plan_buffer_line. Returns False for a block of zero steps (dropped; the position stays)."""
+    b = si[I_HEAD]
+    target_steps = np.zeros(3, np.int64)
+    unit_vec = np.zeros(3, np.float32)
+    sec = 0
+    dirb = 0
+    pos = (si[I_POS_X], si[I_POS_Y], si[I_POS_Z])
+    for i in range(3):
+        target_steps[i] = _lround(np.float32(target[i] * steps_per_mm[i]))
+        d = target_steps[i] - pos[i]
+        bsteps[b, i] = abs(d)
+        if bsteps[b, i] > sec:
+            sec = bsteps[b, i]
+        delta_mm = np.float32(np.float32(d) / steps_per_mm[i])
+        unit_vec[i] = delta_mm
+        if delta_mm < 0.0:
+            dirb |= 1 << i
+    if sec == 0:
+        return False
+    bdir[b] = dirb
+    bop[b] = op
+    brapid[b] = rapid
+    bf[b, B_MM] = _convert_delta_vector_to_unit_vector(unit_vec)
+    bf[b, B_ACC] = _limit_value_by_axis_maximum(acceleration, unit_vec)
+    bf[b, B_RAPID] = _limit_value_by_axis_maximum(max_rate, unit_vec)
+    if rapid:
+        bf[b, B_PROG] = bf[b, B_RAPID]
+    else:
+        bf[b, B_PROG] = rate
+    if si[I_HEAD] == si[I_TAIL]:
+        bf[b, B_ENTRY2] = 0.0
+        bf[b, B_MAXJUNC2] = 0.0
+    else:
+        cos_theta = np.float32(0.0)
+        junction_unit_vec = np.zeros(3, np.float32)
+        for i in range(3):
+            cos_theta = np.float32(cos_theta - np.float32(sf[F_PUX + i] * unit_vec[i]))
+            junction_unit_vec[i] = np.float32(unit_vec[i] - sf[F_PUX + i])
+        if cos_theta > 0.999999:
+            bf[b, B_MAXJUNC2] = 0.0
+        elif cos_theta < -0.999999:
+            bf[b, B_MAXJUNC2] = np.float32(SOME_LARGE_VALUE)
+        else:
+            _convert_delta_vector_to_unit_vector(junction_unit_vec)
+            junction_acc = _limit_value_by_axis_maximum(acceleration, junction_unit_vec)
+            sin_theta_d2 = np.float32(math.sqrt(0.5 * (1.0 - np.float64(cos_theta))))
+            v2 = np.float64(np.float32(junction_acc * junction_deviation) * sin_theta_d2) / (1.0 - np.float64(sin_theta_d2))
+            bf[b, B_MAXJUNC2] = np.float32(max(0.0, v2))
+    nominal = _nominal_speed(bf, b, brapid)
+    prev_nominal = sf[F_PREV_NOMINAL]
+    if nominal > prev_nominal:
+        bf[b, B_MAXENTRY2] = np.float32(prev_nominal * prev_nominal)
+    else:
+        bf[b, B_MAXENTRY2] = np.float32(nominal * nominal)
+    if bf[b, B_MAXENTRY2] > bf[b, B_MAXJUNC2]:
+        bf[b, B_MAXENTRY2] = bf[b, B_MAXJUNC2]
+    sf[F_PREV_NOMINAL] = nominal
+    for i in range(3):
+        sf[F_PUX + i] = unit_vec[i]
+    si[I_POS_X] = target_steps[0]
+    si[I_POS_Y] = target_steps[1]
+    si[I_POS_Z] = target_steps[2]
+    si[I_HEAD] = si[I_NEXT_HEAD]
+    si[I_NEXT_HEAD] = _next(si[I_HEAD], BLOCK_BUFFER_SIZE)
+    _planner_recalculate(si, sf, bf)
+    return True
+
+
+@numba.njit(cache=True)
+def _lround(x):
+    """C lround: half away from zero."""
+    v = np.float64(x)
+    if v >= 0.0:
+        return np.int64(math.floor(v + 0.5))
+    return -np.int64(math.floor(-v + 0.5))
+
+
+@numba.njit(cache=True)
+def _st_prep_buffer(si, sf, bf, bsteps, bdir, bop, brapid, st_steps, st_sec, st_dir, st_op, seg_n, seg_cycles,
+                    seg_block, seg_amass, window_base, op_info):
+    """stepper.c st_prep_buffer, normal operation (no feed hold, parking or overrides): fill the segment ring
+    with 10 ms segments of the block at the planner's tail."""
+    while si[I_SEG_TAIL] != si[I_SEG_NEXT_HEAD]:
+        if si[I_PL_BLOCK] < 0:
+            if si[I_HEAD] == si[I_TAIL]:
+                return
+            pb = si[I_TAIL]
+            si[I_PL_BLOCK] = pb
+            loaded = False
+            if si[I_RECALC] & PREP_FLAG_RECALCULATE:
+                si[I_RECALC] = 0
+            else:
+                loaded = True
+                sbi = _next(si[I_ST_BLOCK_INDEX], ST_BLOCK_BUFFER_SIZE)
+                si[I_ST_BLOCK_INDEX] = sbi
+                st_dir[sbi] = bdir[pb]
+                sec = 0
+                for i in range(3):
+                    st_steps[sbi, i] = bsteps[pb, i] << MAX_AMASS_LEVEL
+                    if bsteps[pb, i] > sec:
+                        sec = bsteps[pb, i]
+                st_sec[sbi] = sec << MAX_AMASS_LEVEL
+                st_op[sbi] = bop[pb]
+                sf[F_STEPS_REM] = np.float32(sec)
+                sf[F_STEP_PER_MM] = np.float32(sf[F_STEPS_REM] / bf[pb, B_MM])
+                sf[F_REQ_MM] = np.float32(REQ_MM_INCREMENT_SCALAR / np.float64(sf[F_STEP_PER_MM]))
+                sf[F_DT_REM] = 0.0
+                sf[F_CUR_V] = np.float32(math.sqrt(np.float64(bf[pb, B_ENTRY2])))
+            # the velocity profile of the block (or of what is left of it)
+            sf[F_MM_COMPLETE] = 0.0
+            acc = bf[pb, B_ACC]
+            mm = bf[pb, B_MM]
+            entry2 = bf[pb, B_ENTRY2]
+            inv_2_accel = np.float32(0.5 / np.float64(acc))
+            si[I_RAMP] = RAMP_ACCEL
+            sf[F_ACC_UNTIL] = mm
+            nb = _next(pb, BLOCK_BUFFER_SIZE)
+            exit2 = np.float32(0.0) if nb == si[I_HEAD] else bf[nb, B_ENTRY2]
+            sf[F_EXIT_V] = np.float32(math.sqrt(np.float64(exit2)))
+            nominal = _nominal_speed(bf, pb, brapid)
+            nominal2 = np.float32(nominal * nominal)
+            intersect = np.float32(0.5 * np.float64(np.float32(mm + np.float32(inv_2_accel * np.float32(entry2 - exit2)))))
+            if entry2 > nominal2:
+                sf[F_ACC_UNTIL] = np.float32(mm - np.float32(inv_2_accel * np.float32(entry2 - nominal2)))
+                if sf[F_ACC_UNTIL] <= 0.0:
+                    si[I_RAMP] = RAMP_DECEL
+                    sf[F_EXIT_V] = np.float32(math.sqrt(np.float64(np.float32(entry2 - np.float32(np.float32(2) * acc) * mm))))
+                    si[I_RECALC] |= PREP_FLAG_DECEL_OVERRIDE
+                else:
+                    sf[F_DEC_AFTER] = np.float32(inv_2_accel * np.float32(nominal2 - exit2))
+                    sf[F_MAX_V] = nominal
+                    si[I_RAMP] = RAMP_DECEL_OVERRIDE
+            elif intersect > 0.0:
+                if intersect < mm:
+                    sf[F_DEC_AFTER] = np.float32(inv_2_accel * np.float32(nominal2 - exit2))
+                    if sf[F_DEC_AFTER] < intersect:
+                        sf[F_MAX_V] = nominal
+                        if entry2 == nominal2:
+                            si[I_RAMP] = RAMP_CRUISE
+                        else:
+                            sf[F_ACC_UNTIL] = np.float32(sf[F_ACC_UNTIL] - np.float32(inv_2_accel * np.float32(nominal2 - entry2)))
+                    else:
+                        sf[F_ACC_UNTIL] = intersect
+                        sf[F_DEC_AFTER] = intersect
+                        sf[F_MAX_V] = np.float32(math.sqrt(2.0 * np.float64(acc) * np.float64(intersect) + np.float64(exit2)))
+                else:
+                    si[I_RAMP] = RAMP_DECEL
+            else:
+                sf[F_ACC_UNTIL] = 0.0
+                sf[F_MAX_V] = sf[F_EXIT_V]
+            if loaded:
+                row = bop[pb] - window_base
+                op_info[row, 0] = sf[F_CUR_V]
+                if si[I_RAMP] == RAMP_DECEL or si[I_RAMP] == RAMP_DECEL_OVERRIDE:
+                    op_info[row, 1] = sf[F_CUR_V]     # deceleration only: the peak is the entry
+                else:
+                    op_info[row, 1] = sf[F_MAX_V]
+                op_info[row, 2] = sf[F_EXIT_V]
+                op_info[row, 3] = nominal
+                op_info[row, 4] = acc
+                op_info[row, 5] = mm
+        pb = si[I_PL_BLOCK]
+        seg = si[I_SEG_HEAD]
+        seg_block[seg] = si[I_ST_BLOCK_INDEX]
+        acc = bf[pb, B_ACC]
+        dt_max = np.float32(DT_SEGMENT)
+        dt = np.float32(0.0)
+        time_var = dt_max
+        mm_remaining = bf[pb, B_MM]
+        minimum_mm = np.float32(mm_remaining - sf[F_REQ_MM])
+        if minimum_mm < 0.0:
+            minimum_mm = np.float32(0.0)
+        while True:
+            ramp = si[I_RAMP]
+            if ramp == RAMP_DECEL_OVERRIDE:
+                speed_var = np.float32(acc * time_var)
+                if np.float32(sf[F_CUR_V] - sf[F_MAX_V]) <= speed_var:
+                    mm_remaining = sf[F_ACC_UNTIL]
+                    time_var = np.float32(2.0 * np.float64(np.float32(bf[pb, B_MM] - mm_remaining))
+                                          / np.float64(np.float32(sf[F_CUR_V] + sf[F_MAX_V])))
+                    si[I_RAMP] = RAMP_CRUISE
+                    sf[F_CUR_V] = sf[F_MAX_V]
+                else:
+                    mm_remaining = np.float32(np.float64(mm_remaining) - np.float64(time_var) * (
+                        np.float64(sf[F_CUR_V]) - 0.5 * np.float64(speed_var)))
+                    sf[F_CUR_V] = np.float32(sf[F_CUR_V] - speed_var)
+            elif ramp == RAMP_ACCEL:
+                speed_var = np.float32(acc * time_var)
+                mm_remaining = np.float32(np.float64(mm_remaining) - np.float64(time_var) * (
+                    np.float64(sf[F_CUR_V]) + 0.5 * np.float64(speed_var)))
+                if mm_remaining < sf[F_ACC_UNTIL]:
+                    mm_remaining = sf[F_ACC_UNTIL]
+                    time_var = np.float32(2.0 * np.float64(np.float32(bf[pb, B_MM] - mm_remaining))
+                                          / np.float64(np.float32(sf[F_CUR_V] + sf[F_MAX_V])))
+                    if mm_remaining == sf[F_DEC_AFTER]:
+                        si[I_RAMP] = RAMP_DECEL
+                    else:
+                        si[I_RAMP] = RAMP_CRUISE
+                    sf[F_CUR_V] = sf[F_MAX_V]
+                else:
+                    sf[F_CUR_V] = np.float32(sf[F_CUR_V] + speed_var)
+            elif ramp == RAMP_CRUISE:
+                mm_var = np.float32(mm_remaining - np.float32(sf[F_MAX_V] * time_var))
+                if mm_var < sf[F_DEC_AFTER]:
+                    time_var = np.float32(np.float32(mm_remaining - sf[F_DEC_AFTER]) / sf[F_MAX_V])
+                    mm_remaining = sf[F_DEC_AFTER]
+                    si[I_RAMP] = RAMP_DECEL
+                else:
+                    mm_remaining = mm_var
+            else:
+                speed_var = np.float32(acc * time_var)
+                done = False
+                if sf[F_CUR_V] > speed_var:
+                    mm_var = np.float32(np.float64(mm_remaining) - np.float64(time_var) * (
+                        np.float64(sf[F_CUR_V]) - 0.5 * np.float64(speed_var)))
+                    if mm_var > sf[F_MM_COMPLETE]:
+                        mm_remaining = mm_var
+                        sf[F_CUR_V] = np.float32(sf[F_CUR_V] - speed_var)
+                        done = True
+                if not done:
+                    time_var = np.float32(2.0 * np.float64(np.float32(mm_remaining - sf[F_MM_COMPLETE]))
+                                          / np.float64(np.float32(sf[F_CUR_V] + sf[F_EXIT_V])))
+                    mm_remaining = sf[F_MM_COMPLETE]
+                    sf[F_CUR_V] = sf[F_EXIT_V]
+            dt = np.float32(dt + time_var)
+            if dt < dt_max:
+                time_var = np.float32(dt_max - dt)
+            else:
+                if mm_remaining > minimum_mm:
+                    dt_max = np.float32(np.float64(dt_max) + DT_SEGMENT)
+                    time_var = np.float32(dt_max - dt)
+                else:
+                    break
+            if not (mm_remaining > sf[F_MM_COMPLETE]):
+                break
+        step_dist_remaining = np.float32(sf[F_STEP_PER_MM] * mm_remaining)
+        n_steps_remaining = np.float32(math.ceil(np.float64(step_dist_remaining)))
+        last_n_steps_remaining = np.float32(math.ceil(np.float64(sf[F_STEPS_REM])))
+        n_step = np.int64(np.float32(last_n_steps_remaining - n_steps_remaining))
+        dt = np.float32(dt + sf[F_DT_REM])
+        inv_rate = np.float32(dt / np.float32(last_n_steps_remaining - step_dist_remaining))
+        cycles = np.int64(math.ceil(np.float64(np.float32(np.float32(CYCLES_PER_MINUTE) * inv_rate))))
+        amass = 0
+        if cycles >= AMASS_LEVEL1:
+            if cycles < AMASS_LEVEL2:
+                amass = 1
+            elif cycles < AMASS_LEVEL3:
+                amass = 2
+            else:
+                amass = 3
+            cycles >>= amass
+            n_step = (n_step << amass) & 0xFFFF
+        seg_cycles[seg] = cycles if cycles < 65536 else 0xFFFF
+        seg_n[seg] = n_step
+        seg_amass[seg] = amass
+        si[I_SEG_HEAD] = si[I_SEG_NEXT_HEAD]
+        si[I_SEG_NEXT_HEAD] = _next(si[I_SEG_NEXT_HEAD], SEGMENT_BUFFER_SIZE)
+        bf[pb, B_MM] = mm_remaining
+        sf[F_STEPS_REM] = n_steps_remaining
+        sf[F_DT_REM] = np.float32(np.float32(n_steps_remaining - step_dist_remaining) * inv_rate)
+        if mm_remaining == sf[F_MM_COMPLETE]:
+            if mm_remaining > 0.0:
+                return
+            si[I_PL_BLOCK] = -1
+            # plan_discard_current_block
+            if si[I_HEAD] != si[I_TAIL]:
+                bi = _next(si[I_TAIL], BLOCK_BUFFER_SIZE)
+                if si[I_TAIL] == si[I_PLANNED]:
+                    si[I_PLANNED] = bi
+                si[I_TAIL] = bi
+
+
+@numba.njit(cache=True)
+def _isr(si, st_steps, st_sec, st_dir, st_op, seg_n, seg_cycles, seg_block, seg_amass, window_base, op_end_tick,
+         step_t, step_dir, n_out):
+    """stepper.c ISR(TIMER1_COMPA_vect) at tick si[I_TICK]: pulse the bits decided last time, load a segment
+    when none is running (or go idle when there is none), then decide the next pulse by Bresenham."""
+    tick = si[I_TICK]
+    out = si[I_OUTBITS]
+    if out:
+        op_end_tick[st_op[si[I_EXEC_BLOCK]] - window_base] = tick
+        si[I_LAST_PULSE] = tick
+        for ax in range(3):
+            if out & (1 << ax):
+                k = n_out[ax]
+                if k < step_t.shape[1]:
+                    step_t[ax, k] = tick
+                    step_dir[ax, k] = -1 if (si[I_DIRBITS] >> ax) & 1 else 1
+                n_out[ax] = k + 1
+    si[I_OUTBITS] = 0
+    if si[I_EXEC_SEG] < 0:
+        if si[I_SEG_HEAD] != si[I_SEG_TAIL]:
+            seg = si[I_SEG_TAIL]
+            si[I_EXEC_SEG] = seg
+            si[I_OCR] = seg_cycles[seg]
+            si[I_STEP_COUNT] = seg_n[seg]
+            if si[I_EXEC_BLOCK] != seg_block[seg]:
+                si[I_EXEC_BLOCK] = seg_block[seg]
+                half = st_sec[seg_block[seg]] >> 1
+                si[I_CX] = half
+                si[I_CY] = half
+                si[I_CZ] = half
+            eb = si[I_EXEC_BLOCK]
+            si[I_DIRBITS] = st_dir[eb]
+            a = seg_amass[seg]
+            si[I_SX] = st_steps[eb, 0] >> a
+            si[I_SY] = st_steps[eb, 1] >> a
+            si[I_SZ] = st_steps[eb, 2] >> a
+        else:
+            si[I_RUNNING] = 0          # st_go_idle; Timer1 keeps counting with the last OCR1A
+            si[I_LAST_MATCH] = tick
+            si[I_TICK] = tick + si[I_IDLE_LOCK]    # $1: delay_ms inside the interrupt
+            return
+    eb = si[I_EXEC_BLOCK]
+    sec = st_sec[eb]
+    bits = 0
+    si[I_CX] += si[I_SX]
+    if si[I_CX] > sec:
+        bits |= 1
+        si[I_CX] -= sec
+    si[I_CY] += si[I_SY]
+    if si[I_CY] > sec:
+        bits |= 2
+        si[I_CY] -= sec
+    si[I_CZ] += si[I_SZ]
+    if si[I_CZ] > sec:
+        bits |= 4
+        si[I_CZ] -= sec
+    si[I_OUTBITS] = bits
+    si[I_STEP_COUNT] = (si[I_STEP_COUNT] - 1) & 0xFFFF
+    if si[I_STEP_COUNT] == 0:
+        si[I_EXEC_SEG] = -1
+        si[I_SEG_TAIL] = _next(si[I_SEG_TAIL], SEGMENT_BUFFER_SIZE)
+    si[I_LAST_MATCH] = tick
+    phase = si[I_PHASE]
+    if phase < 0:                      # fired by a compare match: TCNT1 restarts from 0
+        si[I_NEXT_ISR] = tick + si[I_OCR] + 1
+    elif phase <= si[I_OCR]:           # fired at once by a pending flag, TCNT1 = phase
+        si[I_NEXT_ISR] = tick + si[I_OCR] - phase
+    else:                              # TCNT1 above the new OCR1A: up to 0xFFFF, over, and up again
+        si[I_NEXT_ISR] = tick + 65536 - phase + si[I_OCR]
+    si[I_PHASE] = -1
+
+
+@numba.njit(cache=True)
+def grbl_feed_kernel(si, sf, bf, bsteps, bdir, bop, brapid, st_steps, st_sec, st_dir, st_op, seg_n, seg_cycles,
+                     seg_block, seg_amass, op_kind, op_target, op_rate, op_rapid, op_dwell_ticks, op_base, final,
+                     steps_per_mm, max_rate, acceleration, junction_deviation, window_base, op_end_tick, op_info,
+                     step_t, step_dir, n_out):
+    """Run grbl's main loop over a batch of operations (global indices op_base …), resuming from the state in
+    the arrays (grbl's globals, :class:`GrblState`); with ``final`` the program then ends (auto cycle start,
+    the motion runs out). An OP_LINE op is a straight move to op_target at op_rate mm/min (or a rapid); an
+    OP_SYNC op waits for the motion to stop, then dwells op_dwell_ticks.
+    Outputs, indexed by global op − window_base: op_end_tick (absolute tick of the op's last step pulse, or
+    of the end of a sync; −1 none) and op_info (entry, peak, exit speed mm/min, acceleration mm/min²,
+    length mm of the block as the segment generator first profiled it); step pulses into step_t / step_dir
+    (absolute ticks, per axis up to their width; n_out counts every pulse)."""
+    nops = op_kind.shape[0]
+    for j in range(nops + (1 if final else 0)):
+        k = op_base + j
+        if j < nops and op_kind[j] == OP_LINE:
+            # mc_line: wait for room, starting the cycle when the buffer is full
+            while si[I_TAIL] == si[I_NEXT_HEAD]:
+                if si[I_CYCLE] == 0:
+                    _cycle_start(si, sf, bf, bsteps, bdir, bop, brapid, st_steps, st_sec, st_dir, st_op, seg_n,
+                                 seg_cycles, seg_block, seg_amass, window_base, op_info)
+                _prep_then_wait(si, sf, bf, bsteps, bdir, bop, brapid, st_steps, st_sec, st_dir, st_op, seg_n,
+                                seg_cycles, seg_block, seg_amass, window_base, op_end_tick, op_info, step_t,
+                                step_dir, n_out, True)
+            _plan_buffer_line(si, sf, bf, bsteps, bdir, bop, brapid, op_target[j], op_rate[j], op_rapid[j], k,
+                              steps_per_mm, max_rate, acceleration, junction_deviation)
+            if si[I_CYCLE]:
+                _st_prep_buffer(si, sf, bf, bsteps, bdir, bop, brapid, st_steps, st_sec, st_dir, st_op, seg_n,
+                                seg_cycles, seg_block, seg_amass, window_base, op_info)
+        else:
+            # protocol_buffer_synchronize (a sync, or the end of the program)
+            if si[I_HEAD] != si[I_TAIL] and si[I_CYCLE] == 0:
+                _cycle_start(si, sf, bf, bsteps, bdir, bop, brapid, st_steps, st_sec, st_dir, st_op, seg_n,
+                             seg_cycles, seg_block, seg_amass, window_base, op_info)
+            while si[I_CYCLE]:
+                _prep_then_wait(si, sf, bf, bsteps, bdir, bop, brapid, st_steps, st_sec, st_dir, st_op, seg_n,
+                                seg_cycles, seg_block, seg_amass, window_base, op_end_tick, op_info, step_t,
+                                step_dir, n_out, False)
+                if si[I_RUNNING] == 0:
+                    si[I_CYCLE] = 0
+            if j < nops:
+                # a sync without dwell ends with the last step (the few empty interrupts of the last segment
+                # after it count to the next motion); a dwell ends where it ends
+                if op_dwell_ticks[j] > 0:
+                    si[I_TICK] += op_dwell_ticks[j]
+                    op_end_tick[k - window_base] = si[I_TICK]
+                else:
+                    op_end_tick[k - window_base] = si[I_LAST_PULSE]
+        si[I_NEXT_OP] = k + 1 if j < nops else k
+
+
+@numba.njit(cache=True)
+def _cycle_start(si, sf, bf, bsteps, bdir, bop, brapid, st_steps, st_sec, st_dir, st_op, seg_n, seg_cycles,
+                 seg_block, seg_amass, window_base, op_info):
+    """protocol_exec_rt_system on EXEC_CYCLE_START: prepare segments, then st_wake_up (enable the interrupt of
+    the free-running Timer1)."""
+    si[I_CYCLE] = 1
+    _st_prep_buffer(si, sf, bf, bsteps, bdir, bop, brapid, st_steps, st_sec, st_dir, st_op, seg_n, seg_cycles,
+                    seg_block, seg_amass, window_base, op_info)
+    tick = si[I_TICK]
+    if not si[I_STARTED]:
+        si[I_STARTED] = 1
+        si[I_T0] = tick
+    si[I_RUNNING] = 1
+    si[I_OUTBITS] = 0
+    last = si[I_LAST_MATCH]
+    period = si[I_OCR] + 1
+    if last < 0:
+        si[I_NEXT_ISR] = tick        # after reset OCR1A = 0: a match every tick, TCNT1 = 0
+        si[I_PHASE] = 0
+    else:
+        # Timer1 ran on from the last interrupt with the last OCR1A: the first interrupt of the cycle is its
+        # next compare match (measured on the reference: up to one old period, 4 ms, after the start)
+        si[I_NEXT_ISR] = last + period * ((tick - last) // period + 1)
+        si[I_PHASE] = -1
+
+
+@numba.njit(cache=True)
+def _prep_then_wait(si, sf, bf, bsteps, bdir, bop, brapid, st_steps, st_sec, st_dir, st_op, seg_n, seg_cycles,
+                    seg_block, seg_amass, window_base, op_end_tick, op_info, step_t, step_dir, n_out, need_full):
+    """grbl-sim's lock-step st_prep_buffer: grbl's own, then, while the stepper runs and grbl waits (planner
+    full, or a sync), the clock runs to the next stepper interrupt."""
+    _st_prep_buffer(si, sf, bf, bsteps, bdir, bop, brapid, st_steps, st_sec, st_dir, st_op, seg_n, seg_cycles,
+                    seg_block, seg_amass, window_base, op_info)
+    if si[I_RUNNING] and (not need_full or si[I_TAIL] == si[I_NEXT_HEAD]):
+        # Until a segment completes nothing changes for the main loop (the segment ring stays as full as it
+        # was, so st_prep_buffer has nothing to do and no block leaves the planner): run the interrupts of
+        # the current segment in one go, exactly as one interrupt per main-loop pass would.
+        while True:
+            si[I_TICK] = si[I_NEXT_ISR]
+            _isr(si, st_steps, st_sec, st_dir, st_op, seg_n, seg_cycles, seg_block, seg_amass, window_base,
+                 op_end_tick, step_t, step_dir, n_out)
+            if si[I_EXEC_SEG] < 0 or si[I_RUNNING] == 0:
+                break
+
+
+# --------------------------------------------------------------------------- MOVE rows in, times out
+class GrblState:
+    """grbl's globals between two batches of a stream: the planner ring, the segment generator, the segment
+    and stepper-block rings, the stepper interrupt and Timer1, the clock (ticks of 62.5 ns)."""
+
+    def __init__(self, settings: "GrblSettings"):
+        self.settings = settings
+        self.si = np.zeros(N_SI, np.int64)
+        self.sf = np.zeros(N_SF, np.float32)
+        self.bf = np.zeros((BLOCK_BUFFER_SIZE, N_BF), np.float32)
+        self.bsteps = np.zeros((BLOCK_BUFFER_SIZE, 3), np.int64)
+        self.bdir = np.zeros(BLOCK_BUFFER_SIZE, np.int64)
+        self.bop = np.zeros(BLOCK_BUFFER_SIZE, np.int64)
+        self.brapid = np.zeros(BLOCK_BUFFER_SIZE, np.bool_)
+        self.st_steps = np.zeros((ST_BLOCK_BUFFER_SIZE, 3), np.int64)
+        self.st_sec = np.zeros(ST_BLOCK_BUFFER_SIZE, np.int64)
+        self.st_dir = np.zeros(ST_BLOCK_BUFFER_SIZE, np.int64)
+        self.st_op = np.zeros(ST_BLOCK_BUFFER_SIZE, np.int64)
+        self.seg = np.zeros((4, SEGMENT_BUFFER_SIZE), np.int64)     # n_step, cycles_per_tick, st block, amass
+        si = self.si
+        si[I_NEXT_HEAD] = 1
+        si[I_PL_BLOCK] = -1
+        si[I_EXEC_SEG] = -1
+        si[I_SEG_NEXT_HEAD] = 1
+        si[I_LAST_MATCH] = -1
+        si[I_IDLE_LOCK] = settings.idle_lock_ticks
+
+    def feed(self, op_kind, op_target, op_rate, op_rapid, op_dwell_ticks, final, window_base, op_end_tick, op_info,
+             step_t, step_dir, n_out) -> None:
+        """Run the next operations (their global indices continue from the last call)."""
+        s, g = self.settings, self.seg
+        grbl_feed_kernel(self.si, self.sf, self.bf, self.bsteps, self.bdir, self.bop, self.brapid, self.st_steps,
+                         self.st_sec, self.st_dir, self.st_op, g[0], g[1], g[2], g[3], op_kind, op_target, op_rate,
+                         op_rapid, op_dwell_ticks, int(self.si[I_NEXT_OP]), final, s.steps_per_mm, s.max_rate,
+                         s.acceleration, s.junction_deviation, window_base, op_end_tick, op_info, step_t, step_dir,
+                         n_out)
+
+    def first_open_op(self) -> int:
+        """The first operation whose last step pulse has not been issued yet (all before it are final)."""
+        si = self.si
+        cands = [int(si[I_NEXT_OP])]
+        if si[I_HEAD] != si[I_TAIL]:
+            cands.append(int(self.bop[si[I_TAIL]]))
+        if si[I_SEG_HEAD] != si[I_SEG_TAIL]:
+            cands.append(int(self.st_op[self.seg[2, si[I_SEG_TAIL]]]))
+        if si[I_EXEC_SEG] >= 0 or si[I_OUTBITS]:
+            cands.append(int(self.st_op[si[I_EXEC_BLOCK]]))
+        return min(cands)
+
+    @property
+    def t0(self) -> int:
+        """Tick of the first cycle start (time zero), 0 before it."""
+        return int(self.si[I_T0]) if self.si[I_STARTED] else int(self.si[I_TICK])
+
+
+class GrblRun:
+    """What :func:`run` returns: per MOVE row, the time of its last step pulse (s from the first cycle start;
+    nan for a row that made no step: a dropped sub-step move, a wait before any motion), the program's total
+    (the last step, s) and, when asked for, every step pulse per axis (s, direction ±1)."""
+
+    def __init__(self, row_end_s, total_s, steps):
+        self.row_end_s = row_end_s
+        self.total_s = total_s
+        self.steps = steps
+
+
+def operations(moves: np.ndarray):
+    """MOVE rows → grbl's operations: (kind, target mm float32 (n, 3), rate mm/min float32, rapid, dwell ticks,
+    MOVE row of each op). Motion rows are lines (arcs arrive as chords); dwells and waits are syncs; E-only
+    rows have no grbl meaning and are skipped."""
+    kind = moves["kind"]
+    is_line = (kind <= 1)
+    is_sync = (kind == KIND_DWELL) | (kind == KIND_WAIT)
+    keep = np.nonzero(is_line | is_sync)[0]
+    m = moves[keep]
+    n = len(m)
+    op_kind = np.where((m["kind"] == KIND_DWELL) | (m["kind"] == KIND_WAIT), OP_SYNC, OP_LINE).astype(np.int64)
+    target = np.empty((n, 3), np.float32)
+    # arc chords are grbl's floats already (arcs_grbl.py); a line's target is the number in the file as grbl
+    # reads it
+    parsed = (m["flags"] & FLAG_ARC) == 0
+    for k, axis in enumerate(("x1", "y1", "z1")):
+        col = m[axis]
+        target[:, k] = col
+        target[parsed, k] = grbl_floats(col[parsed])
+    feed = m["feed_v"]
+    rapid = ((m["flags"] & FLAG_RAPID) != 0) | ~np.isfinite(feed)
+    rate = np.where(rapid, 0.0, feed * 60.0).astype(np.float32)
+    # mc_dwell: ceil(1000/DWELL_TIME_STEP × P) steps of DWELL_TIME_STEP ms (protocol.c delay_sec)
+    p = (np.float32(1000 // DWELL_TIME_STEP_MS) * m["dwell_t"].astype(np.float32)).astype(np.float64)
+    dwell_ticks = np.where(m["kind"] == KIND_DWELL, np.ceil(p), 0).astype(np.int64) * DWELL_TICKS
+    return op_kind, target, rate, rapid.astype(np.bool_), dwell_ticks, keep
+
+
+def run(moves: np.ndarray, settings: GrblSettings, steps_capacity: int = 0) -> GrblRun:
+    """Run grbl 1.1 on MOVE rows (a whole program; see the module docstring for what is modelled).
+    ``steps_capacity``: how many step pulses per axis to keep (0: none)."""
+    op_kind, target, rate, rapid, dwell_ticks, rows = operations(moves)
+    op_end = np.full(len(op_kind), -1, np.int64)
+    op_info = np.zeros((len(op_kind), N_INFO), np.float32)
+    step_t = np.zeros((3, steps_capacity), np.int64)
+    step_dir = np.zeros((3, steps_capacity), np.int8)
+    n_out = np.zeros(3, np.int64)
+    state = GrblState(settings)
+    state.feed(op_kind, target, rate, rapid, dwell_ticks, True, 0, op_end, op_info, step_t, step_dir, n_out)
+    t0 = state.t0
+    row_end = np.full(len(moves), np.nan)
+    lines = (op_end >= 0) & (op_kind == OP_LINE)
+    row_end[rows[lines]] = (op_end[lines] - t0) / F_CPU
+    last = int(op_end[lines].max()) - t0 if lines.any() else 0
+    steps = None
+    if steps_capacity:
+        steps = {}
+        for ax, name in enumerate("xyz"):
+            k = min(int(n_out[ax]), steps_capacity)
+            steps[f"stepper_{name}"] = ((step_t[ax, :k] - t0) / F_CPU, step_dir[ax, :k].copy())
+    return GrblRun(row_end, last / F_CPU, steps)
+
+
+# --------------------------------------------------------------------------- the StreamPlanner mode
+def _plan_rows(moves, op_of_row, op_kind, op_end, op_info, op_rapid, clock_s, t0):
+    """PLAN rows of complete MOVE rows. A row ends at its last step pulse (a sync at the end of its dwell);
+    rows without a step end where the previous one did. Speeds and phases are the block's profile as grbl's
+    segment generator planned it, laid on the row's own length and stretched in time to the firmware's
+    duration (its timer rounds every step period up: +0.004 … +0.12 %), so that the pieces are continuous
+    in position and their times are the firmware's."""
+    from ..schema import LIMIT_ACCEL, LIMIT_AXIS, LIMIT_FEED, LIMIT_NONE, PLAN_DTYPE
+
+    n = len(moves)
+    plan = np.zeros(n, dtype=PLAN_DTYPE)
+    has_op = op_of_row >= 0
+    k = np.where(has_op, op_of_row, 0)
+    end_tick = np.where(has_op, op_end[k] if len(op_end) else -1, -1)
+    end_s = np.where(end_tick >= 0, (end_tick - t0) / F_CPU, -np.inf)
+    end_s = np.maximum.accumulate(np.maximum(end_s, clock_s)) if n else end_s
+    start_s = np.concatenate([[clock_s], end_s[:-1]]) if n else end_s
+    duration = end_s - start_s
+    plan["t_start"] = start_s
+    plan["duration"] = duration
+    plan["limit"] = LIMIT_NONE
+    info = op_info[k] if len(op_info) else np.zeros((n, N_INFO), np.float32)
+    line = has_op & (op_kind[k] == OP_LINE if len(op_kind) else False) & (duration > 0) & (moves["move_d"] > 0)
+    i = np.nonzero(line)[0]
+    if i.size:
+        v0, vp, v1 = (info[i, c].astype(np.float64) / 60.0 for c in (0, 1, 2))
+        nominal = info[i, 3].astype(np.float64) / 60.0
+        a = info[i, 4].astype(np.float64) / 3600.0
+        d = moves["move_d"][i]
+        da = np.maximum(vp * vp - v0 * v0, 0.0) / (2 * a)
+        dd = np.maximum(vp * vp - v1 * v1, 0.0) / (2 * a)
+        short = da + dd > d             # the step-rounded length differs from the row's: the peak on the row
+        if short.any():
+            vps = np.maximum(np.maximum(v0, v1), np.sqrt(np.maximum((2 * a * d + v0 * v0 + v1 * v1) / 2, 0.0)))
+            das = np.maximum(vps * vps - v0 * v0, 0.0) / (2 * a)
+            dds = np.maximum(d - das, 0.0)
+            vp = np.where(short, vps, vp)
+            v1 = np.where(short, np.sqrt(np.maximum(vps * vps - 2 * a * dds, 0.0)), v1)
+            da = np.where(short, das, da)
+            dd = np.where(short, dds, dd)
+        ta, td = (vp - v0) / a, (vp - v1) / a
+        tc = np.where(vp > 0, np.maximum(d - da - dd, 0.0) / np.where(vp > 0, vp, 1.0), 0.0)
+        t_plan = ta + tc + td
+        f = np.where(t_plan > 0, duration[i] / np.where(t_plan > 0, t_plan, 1.0), 1.0)
+        plan["start_v"][i], plan["cruise_v"][i], plan["end_v"][i] = v0 / f, vp / f, v1 / f
+        plan["accel"][i] = plan["decel"][i] = a / (f * f)
+        plan["accel_t"][i], plan["cruise_t"][i], plan["decel_t"][i] = ta * f, tc * f, td * f
+        feed = moves["feed_v"][i]
+        at_nominal = vp >= nominal * (1 - 1e-6)
+        capped = op_rapid[k[i]] | (np.isfinite(feed) & (nominal < feed * (1 - 1e-6)))
+        plan["limit"][i] = np.where(at_nominal, np.where(capped, LIMIT_AXIS, LIMIT_FEED), LIMIT_ACCEL)
+    t_end = float(end_s[-1]) if n else clock_s
+    return plan, t_end
+
+
+def make_stream_mode(base_cls):
+    """The StreamPlanner mode of machines with ``firmware = "grbl-1.1"`` (``base_cls``: planner.stream._Mode):
+    every batch runs grbl on, and the rows whose last step pulse is out are final."""
+    from .prepare import PREP_DTYPE
+
+    class GrblMode(base_cls):
+        name = "grbl-1.1"
+        own_prepare = True
+
+        def __init__(self, sp):
+            super().__init__(sp)
+            self.state = GrblState(GrblSettings.from_machine(sp.machine))
+            self.fed = 0                                   # pending rows already given to grbl
+            self.row_op = np.zeros(0, np.int64)            # per pending row: its op (global index), −1 none
+            self.op_base = 0                               # global index of the first op kept below
+            self.op_kind = np.zeros(0, np.int64)
+            self.op_rapid = np.zeros(0, np.bool_)
+            self.op_end = np.zeros(0, np.int64)
+            self.op_info = np.zeros((0, N_INFO), np.float32)
+            self.n_out = np.zeros(3, np.int64)
+            self.no_steps = np.zeros((3, 0), np.int64)
+            self.no_dirs = np.zeros((3, 0), np.int8)
+
+        def prepare(self, moves_chunk, limits):
+            from ..errors import GcodeError
+
+            e_moves = np.nonzero(moves_chunk["e1"] != moves_chunk["e0"])[0]
+            if e_moves.size:     # gcode.c: E is no grbl word (error:20), the whole line is rejected
+                line = int(moves_chunk["line"][e_moves[0]])
+                raise GcodeError("grbl 1.1 has no E axis: it rejects this line (error:20, unsupported command)",
+                                 line=line)
+            return np.zeros(len(moves_chunk), dtype=PREP_DTYPE)
+
+        def plan(self, final: bool):
+            sp = self.sp
+            new = sp._moves[self.fed:]
+            kind, target, rate, rapid, dwell, rows = operations(new)
+            first = self.op_base + len(self.op_kind)
+            ops = np.full(len(new), -1, np.int64)
+            ops[rows] = first + np.arange(len(rows))
+            self.row_op = np.concatenate([self.row_op, ops])
+            self.op_kind = np.concatenate([self.op_kind, kind])
+            self.op_rapid = np.concatenate([self.op_rapid, rapid])
+            self.op_end = np.concatenate([self.op_end, np.full(len(kind), -1, np.int64)])
+            self.op_info = np.concatenate([self.op_info, np.zeros((len(kind), N_INFO), np.float32)])
+            self.state.feed(kind, target, rate, rapid, dwell, final, self.op_base, self.op_end, self.op_info,
+                            self.no_steps, self.no_dirs, self.n_out)
+            self.fed = len(sp._moves)
+            if final:
+                n_rows = len(sp._moves)
+            else:
+                open_op = self.state.first_open_op()
+                later = np.nonzero(self.row_op >= open_op)[0]
+                n_rows = int(later[0]) if later.size else len(sp._moves)
+            if n_rows == 0:
+                return 0, None, sp._clock, None
+            local = np.where(self.row_op[:n_rows] >= 0, self.row_op[:n_rows] - self.op_base, -1)
+            plan, t_end = _plan_rows(sp._moves[:n_rows], local, self.op_kind, self.op_end, self.op_info,
+                                     self.op_rapid, sp._clock, 0)
+            return n_rows, plan, t_end, None
+
+        def drop(self, n_rows: int) -> None:
+            self.fed -= n_rows
+            gone = self.row_op[:n_rows]
+            self.row_op = self.row_op[n_rows:].copy()
+            used = gone[gone >= 0]
+            if used.size:
+                k = int(used.max()) + 1 - self.op_base
+                self.op_base += k
+                self.op_kind = self.op_kind[k:].copy()
+                self.op_rapid = self.op_rapid[k:].copy()
+                self.op_end = self.op_end[k:].copy()
+                self.op_info = self.op_info[k:].copy()
+
+        def reset(self) -> None:
+            pass
+
+    return GrblMode
