@@ -6,7 +6,8 @@ Two kinds of file, listed below:
 
 * COPY: byte-for-byte copies (configs, JSON figures, programs, per-line CSVs, small step files).
 * PREFIX: step files (``*_exact_steps.npz``) cut to the steps before a time ``truncated_at_s``, which is
-  stored in the file as one more key (a 0-d float64). The arrays keep their names, dtypes and order and
+  stored in the file as one more key (a 0-d float64); QUEUE_PREFIX: Klipper's queue_step commands of such a
+  step file, cut to the commands of those steps (same key). The arrays keep their names, dtypes and order and
   the file stays a compressed npz, so the tests read a prefix exactly as they read the original; where a
   ``truncated_at_s`` key is present they compare only the steps before it (``conftest.steps_window``) and
   still check the full-run counts of times.json. The cut is put in the middle of a pause of at least
@@ -85,6 +86,16 @@ PREFIX = {
     "klipper/extensions/steps/prusaslicer25_cube20_marlin2_delta_exact_steps.npz": 5.0,
 }
 
+# Klipper's queue_step commands (klipper/compression/) -> the step file they compress: the commands are cut where
+# that step file's vendored prefix is cut (every command whose steps all lie in the prefix); the batch
+# windows (flush_time_s, step_gen_time_s) are kept whole
+QUEUE_PREFIX = {
+    "klipper/compression/prusaslicer25_cube20_marlin2_corexy_queue_step.npz":
+        "klipper/steps/prusaslicer25_cube20_marlin2_corexy_exact_steps.npz",
+}
+STEPPERS = ("stepper_x", "stepper_y", "stepper_z", "extruder")
+COMMAND_FIELDS = ("interval", "count", "add", "dir", "clock", "end_reason")
+
 
 def step_arrays(z) -> list[str]:
     """The step-time arrays of a step file (each has a ``<name>_dir`` twin)."""
@@ -114,6 +125,25 @@ def write_prefix(src: Path, dst: Path, about_s: float) -> float:
         keep = z[k] < cut
         out[k], out[k + "_dir"] = z[k][keep], z[k + "_dir"][keep]
     out[KEY] = np.float64(cut)
+    write_npz(dst, out)
+    return cut
+
+
+def write_queue_prefix(src: Path, dst: Path, exact_src: Path, cut: float) -> None:
+    z, exact = np.load(src), np.load(exact_src)
+    if KEY in z.files:
+        raise SystemExit(f"{src}: already has {KEY}")
+    out = {k: z[k] for k in z.files}
+    for s in STEPPERS:
+        n_steps = int(np.count_nonzero(exact[s] < cut))
+        keep = int(np.searchsorted(np.cumsum(z[s + "_count"]), n_steps, side="right"))
+        for f in COMMAND_FIELDS:
+            out[f"{s}_{f}"] = z[f"{s}_{f}"][:keep]
+    out[KEY] = np.float64(cut)
+    write_npz(dst, out)
+
+
+def write_npz(dst: Path, out: dict) -> None:
     # np.savez_compressed's layout (one deflated ``<key>.npy`` per array) with a fixed date, so that a refresh
     # from the same ../shared gives the same bytes
     buf = io.BytesIO()
@@ -124,7 +154,6 @@ def write_prefix(src: Path, dst: Path, about_s: float) -> float:
             with zf.open(info, "w", force_zip64=True) as fh:
                 np.lib.format.write_array(fh, np.asanyarray(v), allow_pickle=False)
     dst.write_bytes(buf.getvalue())
-    return cut
 
 
 def main(argv=None) -> int:
@@ -144,7 +173,12 @@ def main(argv=None) -> int:
         dst.parent.mkdir(parents=True, exist_ok=True)
         cut = write_prefix(ref / rel, dst, about)
         print(f"{rel}: steps before {cut:.6f} s, {dst.stat().st_size // 1024} KB")
-    known = {HERE / r for r in COPY} | {HERE / r for r in PREFIX}
+    for rel, steps in QUEUE_PREFIX.items():
+        dst = HERE / rel
+        cut = float(np.load(HERE / steps)[KEY])
+        write_queue_prefix(ref / rel, dst, ref / steps, cut)
+        print(f"{rel}: commands of the steps before {cut:.6f} s, {dst.stat().st_size // 1024} KB")
+    known = {HERE / r for r in COPY} | {HERE / r for r in PREFIX} | {HERE / r for r in QUEUE_PREFIX}
     extra = [p for p in HERE.rglob("*") if p.is_file() and p.suffix not in (".md", ".py") and p not in known]
     for p in extra:
         print(f"vendor: not listed here, left alone: {p.relative_to(HERE)}", file=sys.stderr)
