@@ -22,7 +22,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from conftest import REFERENCE, REPO
+from conftest import REFERENCE, REPO, SHARED_AVAILABLE, shared_path
 from gcodeplan.config import KlipperCfg, load_klipper_config, load_machine, machine_to_toml
 from gcodeplan.errors import ConfigError
 from gcodeplan.machine import AXES, Axis, Machine
@@ -112,20 +112,41 @@ def ours(path) -> dict[str, dict[str, str]]:
 
 
 # ----------------------------------------------------------------------------- shared and test configs
+# The shared configs by name (under ../shared/reference/), so that a bare clone collects the same tests: there
+# they read the vendored copies (tests/data/reference/), and test_the_shared_configs_are_there keeps this list
+# equal to what ../shared holds.
+SHARED_CONFIGS = ["klipper/cartesian_corpus.cfg", "klipper/corexy_corpus.cfg", "klipper/extensions/delta.cfg",
+                  "klipper/extensions/delta_wide.cfg", "klipper/extensions/pa_cartesian.cfg",
+                  "klipper/extensions/shaper_cartesian.cfg", "klipper/extensions/shaper_corexy.cfg",
+                  "klipper/kinematics/deltesian.cfg", "klipper/kinematics/generic_cartesian.cfg",
+                  "klipper/kinematics/hybrid_corexy.cfg", "klipper/kinematics/hybrid_corexz.cfg",
+                  "klipper/kinematics/polar.cfg", "klipper/kinematics/rotary_delta.cfg",
+                  "klipper/kinematics/winch.cfg"]
+
+
 def _configs():
-    found = sorted(glob.glob(str(REFERENCE / "**" / "*.cfg"), recursive=True))
-    return found + sorted(glob.glob(str(DATA / "*.cfg")))
+    """Test ids that do not depend on where the checkout is: shared/reference/… and tests/data/config/…"""
+    return ([f"shared/reference/{c}" for c in SHARED_CONFIGS]
+            + [f"tests/data/config/{os.path.basename(p)}" for p in sorted(glob.glob(str(DATA / "*.cfg")))])
 
 
-@pytest.mark.parametrize("path", _configs(), ids=lambda p: os.path.relpath(p, REPO.parent))
-def test_every_config_reads_as_klipper_reads_it(path):
+def _config_path(name: str):
+    if name.startswith("shared/"):
+        return shared_path(*name.split("/")[1:])
+    return REPO / name
+
+
+@pytest.mark.parametrize("name", _configs())
+def test_every_config_reads_as_klipper_reads_it(name):
+    path = _config_path(name)
     assert ours(path) == reference_sections(path)
 
 
 def test_the_shared_configs_are_there():
-    if not REFERENCE.exists():
+    if not SHARED_AVAILABLE:
         pytest.skip("../shared not available")
-    assert len(_configs()) >= 7 + 3
+    found = sorted(os.path.relpath(p, REFERENCE) for p in glob.glob(str(REFERENCE / "**" / "*.cfg"), recursive=True))
+    assert found == sorted(SHARED_CONFIGS)
 
 
 def test_save_config_keys_lose_to_the_regular_config():

@@ -20,7 +20,7 @@ import gcodeplan as gp
 from gcodeplan import _jit
 from gcodeplan.pipeline import small_input
 
-from conftest import SHARED
+from conftest import shared_path
 
 REPO = Path(__file__).resolve().parents[1]
 SAMPLES = REPO / "gcode_samples"
@@ -117,20 +117,23 @@ def test_interpreted_kernels_plan_every_sample_bit_for_bit(small_samples):
 
 def test_interpreted_kernels_on_klipper_configs_and_linuxcnc(small_samples, tmp_path):
     """Klipper printer.cfg machines (cartesian, corexy, delta, input shaper, pressure advance: the vendored
-    configs) and LinuxCNC's planner with its mill .ini (when ../shared is there): identical, numba-free."""
+    configs) and LinuxCNC's planner with its mill .ini: identical, numba-free."""
     _jit.activate()
     ref = REPO / "tests" / "data" / "reference" / "klipper"
     cfgs = [ref / "cartesian_corpus.cfg", ref / "corexy_corpus.cfg", ref / "extensions" / "delta.cfg",
             ref / "extensions" / "shaper_corexy.cfg", ref / "extensions" / "pa_cartesian.cfg"]
     printer = [p for p in small_samples if p.endswith(".gcode")]
     cases = [[p, f"cfg:{c}", None, None] for c in cfgs for p in printer[:3]]
-    ini = SHARED / "reference" / "linuxcnc" / "config" / "mill.ini"
-    if ini.exists():       # interpreting LinuxCNC's servo-cycle simulation is slow: the first 60 lines of each
-        for p in small_samples:
-            if p.endswith(".ngc"):
-                short = tmp_path / Path(p).name
-                short.write_text("".join(Path(p).read_text().splitlines(keepends=True)[:60]) + "M2\n")
-                cases.append([str(short), f"ini:{ini}", "linuxcnc", None])
+    # LinuxCNC's mill (vendored in tests/data/reference too, so this never drops out silently); interpreting its
+    # servo-cycle simulation is slow: the first 60 lines of each program
+    ini = shared_path("reference", "linuxcnc", "config", "mill.ini")
+    n_printer = len(cases)
+    for p in small_samples:
+        if p.endswith(".ngc"):
+            short = tmp_path / Path(p).name
+            short.write_text("".join(Path(p).read_text().splitlines(keepends=True)[:60]) + "M2\n")
+            cases.append([str(short), f"ini:{ini}", "linuxcnc", None])
+    assert len(cases) - n_printer >= 2          # the two LinuxCNC samples
     got = _interpreted(cases)
     # the only way out of Python allowed: LinuxCNC's servo-cycle simulation, whose arrays grow with the program's
     # duration, is compiled at once (MAX_INTERPRETED_ELEMENTS); everything before it was interpreted

@@ -96,3 +96,43 @@ def test_marlin_jerk_corner_hand_worked():
     c, s = math.cos(math.radians(30)), math.sin(math.radians(30))
     v = marlin_jerk_junction_v(50.0, 50.0, 1, 0, 0, 0, c, s, 0, 0, *j, 8.0, 8.0)
     assert v == pytest.approx(50 * 8 / 25, rel=1e-9)
+
+
+# A V-turn where X reverses and Y carries on, with safe speeds below the junction speed so that Marlin's
+# safe-speed override (both safe speeds > 0.99·v_j → v_j = the next safe speed) cannot decide: the
+# reversal rule alone sets the speed. Jerk 10 mm/s on X and Y, 100 mm/s both moves, unit directions
+# (±0.6, 0.8) and (∓0.28, 0.96) (0.28² + 0.96² = 1).
+#   X: 60 → −28 mm/s passes through rest, so Marlin counts max(60, 28) = 60 (not the 88 of the difference):
+#      factor 10/60, v_j = 100/6 = 16.667 mm/s;
+#   Y: then 80/6 = 13.33 → 96/6 = 16 mm/s, a coasting jump of 2.67 < 10: no further limit;
+#   safe speeds: 100·min(10/60, 10/80) = 12.5 and 100·min(10/28, 10/96) = 10.417, both < 0.99·16.667.
+# (Counting the difference, 88, would give 100·10/88 = 11.36 mm/s; the smaller magnitude, 28, 35.7 mm/s.)
+JERKS_10 = (10.0, 10.0, 0.4, 2.5)
+V_TURN = [((0.6, 0.8), (-0.28, 0.96)), ((-0.6, 0.8), (0.28, 0.96)),      # the larger speed before the turn
+          ((0.28, 0.96), (-0.6, 0.8)), ((-0.28, 0.96), (0.6, 0.8))]      # the larger speed after it
+
+
+@pytest.mark.parametrize("u_prev, u", V_TURN)
+def test_marlin_jerk_reversal_counts_the_larger_speed_only(u_prev, u):
+    safe_prev = marlin_safe_v(100.0, 100 * u_prev[0], 100 * u_prev[1], 0.0, 0.0, *JERKS_10)
+    safe = marlin_safe_v(100.0, 100 * u[0], 100 * u[1], 0.0, 0.0, *JERKS_10)
+    assert sorted((safe_prev, safe)) == pytest.approx([100 * 10 / 96, 12.5], rel=1e-12)
+    v = marlin_jerk_junction_v(100.0, 100.0, u_prev[0], u_prev[1], 0, 0, u[0], u[1], 0, 0, *JERKS_10,
+                               safe_prev, safe)
+    assert max(safe_prev, safe) < 0.99 * v              # the override does not apply: the rule decides
+    assert v == pytest.approx(100 / 6, rel=1e-12)
+
+
+def test_marlin_jerk_reversal_in_a_plan():
+    """The same V-turn through the classic-jerk planner: the junction runs at 100/6 mm/s."""
+    from conftest import klipper_machine, moves_from_points
+    from gcodeplan.planner import plan_moves
+
+    m = klipper_machine("classic-jerk")
+    for a, j in zip("xyze", JERKS_10):
+        m.axes[a].jerk = j
+    mv = moves_from_points([(0, 0, 0), (60, 80, 0), (32, 176, 0)], feed_v=100.0)
+    p = plan_moves(mv, m.limits_row(), m, "classic-jerk")
+    assert p["start_v"][0] == pytest.approx(12.5, rel=1e-12)       # from rest: the first move's safe speed
+    assert p["end_v"][0] == pytest.approx(100 / 6, rel=1e-12) and p["start_v"][1] == p["end_v"][0]
+    assert p["end_v"][1] == pytest.approx(100 * 10 / 96, rel=1e-12)

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 import gcodeplan as gp
-from conftest import CORPUS, REFERENCE, SAMPLES, shared_path
+from conftest import SAMPLES, shared_path
 from gcodeplan.cli import main
 
 CUBE = SAMPLES / "prusaslicer25_cube20_marlin2.gcode"
@@ -57,7 +57,7 @@ def test_estimate_json_equals_the_cli(capsys):
 def test_line_times_equal_klippers_per_line_csv():
     ref_csv = shared_path("reference", "klipper", "per_line",
                           "prusaslicer25_cube20_marlin2.per_line_end_time.csv.gz")
-    machine = gp.load_machine(klipper_config=str(REFERENCE / "klipper" / "cartesian_corpus.cfg"))
+    machine = gp.load_machine(klipper_config=str(shared_path("reference", "klipper", "cartesian_corpus.cfg")))
     line, end = gp.estimate(str(CUBE), machine).line_times()
     with gzip.open(ref_csv, "rt") as fh:
         rows = list(csv.reader(fh))[1:]

@@ -26,7 +26,7 @@ from gcodeplan.errors import GcodeplanError
 from gcodeplan.gcode.dialect import detect
 from gcodeplan.report.postprocess import dhms, m73_values, post_process
 
-from conftest import CORPUS, SHARED, shared_path
+from conftest import CORPUS, KLIPPER_CORPUS, SHARED, SHARED_AVAILABLE, shared_path
 
 SAMPLE = os.path.join(os.path.dirname(__file__), "..", "gcode_samples", "prusaslicer25_cube20_marlin2.gcode")
 
@@ -254,12 +254,19 @@ def test_cube_sample_all_invariants(tmp_path):
 
 # ---------------------------------------------------------------------------- corpus
 
-def _corpus():
-    return sorted(CORPUS.glob("*.gcode")) if CORPUS.exists() else []
+def test_corpus_list_is_the_shared_corpus():
+    """The corpus tests are parametrized by name (conftest.KLIPPER_CORPUS) so that a bare clone collects the same
+    tests and skips them; with ../shared present the list must be what it holds, so none is left out."""
+    if not SHARED_AVAILABLE:
+        pytest.skip("../shared not available")
+    assert sorted(p.name for p in CORPUS.glob("*.gcode")) == sorted(KLIPPER_CORPUS)
+    per_line = SHARED / "reference" / "klipper" / "per_line"
+    assert sorted(p.name for p in per_line.glob("*.csv.gz")) == sorted(
+        n.replace(".gcode", ".per_line_end_time.csv.gz") for n in KLIPPER_CORPUS)
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("name", [p.name for p in _corpus()] or ["none"])
+@pytest.mark.parametrize("name", KLIPPER_CORPUS)
 def test_post_process_every_corpus_file(tmp_path, name):
     src = shared_path("gcode", name)
     machine = gp.load_machine(klipper_config=str(shared_path("reference", "klipper", "cartesian_corpus.cfg")))
@@ -306,9 +313,7 @@ def test_per_line_csv_equals_klipper_on_the_cube(tmp_path):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("name", [p.name.replace(".per_line_end_time.csv.gz", ".gcode") for p in
-                                  sorted((SHARED / "reference" / "klipper" / "per_line").glob("*.csv.gz"))]
-                         or ["none"])
+@pytest.mark.parametrize("name", KLIPPER_CORPUS)
 def test_per_line_csv_equals_klipper_on_every_corpus_file(tmp_path, name):
     cfg = shared_path("reference", "klipper", "cartesian_corpus.cfg")
     out = tmp_path / "lines.csv"

@@ -281,12 +281,18 @@ def test_bad_input():
 
 
 def replay_mismatches(stepper, cmds, exact, start):
-    """Each Klipper command recomputed from the queue it saw (its end_reason); the ones that differ."""
+    """Each Klipper command recomputed from the queue it saw (its end_reason); the ones that differ.
+
+    On a vendored prefix (a ``truncated_at_s`` key: tests/data/reference/vendor.py) a command whose queue (its
+    direction run) is cut there is still replayed when the search stops before the cut (at a step that does not
+    fit); the replay ends at the first one that reaches the cut, which must be among the last few commands."""
     c = clocks_of(exact[stepper])
     dirs = exact[stepper + "_dir"]
     run_end = direction_run_ends(dirs)
     itv, cnt, add = (cmds[f"{stepper}_{k}"] for k in ("interval", "count", "add"))
     cdir, reason = cmds[stepper + "_dir"], cmds[stepper + "_end_reason"]
+    truncated = "truncated_at_s" in cmds.files
+    assert truncated == ("truncated_at_s" in exact.files)
     last, pos, bad = start, 0, []
     for k in range(len(itv)):
         want = (int(itv[k]), int(cnt[k]), int(add[k]))
@@ -295,12 +301,16 @@ def replay_mismatches(stepper, cmds, exact, start):
             assert want == (c[pos] - last, 1, 0)
         elif reason[k] != -1:                   # −1: the one command Klipper's own clocks do not reproduce
             qend = run_end[pos] if reason[k] in (0, 1) else pos + cnt[k]     # 2: cut at the batch's queue end
-            got = bisect_add(c, pos, qend, last, MAX_ERR, MAX_COUNT)[:3]
+            res = bisect_add(c, pos, qend, last, MAX_ERR, MAX_COUNT)
+            if truncated and res[3] and qend == len(c):
+                assert k >= len(itv) - 3, (k, len(itv))
+                return c, bad
+            got = res[:3]
             if got != want:
                 bad.append((k, pos, qend, last, want))
         last += want[0] * want[1] + want[2] * (want[1] * (want[1] - 1) // 2)
         pos += want[1]
-    assert pos == len(c)
+    assert pos <= len(c) if truncated else pos == len(c)
     return c, bad
 
 
@@ -342,10 +352,12 @@ def test_whole_direction_runs_give_klippers_counts(stem):
     """Every command seeing the whole rest of its direction run: the README's "without batch cuts" counts,
     the same in one piece and in chunks, and every step inside Klipper's 25 µs window."""
     cmds, exact, start = load_reference(stem)
+    # a vendored prefix (tests/data/reference/vendor.py) has not the whole run's counts: the rest is checked
+    truncated = "truncated_at_s" in exact.files
     for stepper, want in zip(STEPPERS, WHOLE_RUN_COUNTS[stem]):
         t, d = exact[stepper], exact[stepper + "_dir"]
         runs = Compressor(start_clock=start).feed(t, d)
-        assert len(runs) == want, stepper
+        assert truncated or len(runs) == want, stepper
         if len(t) == 0:
             continue
         comp = Compressor(start_clock=start, hold_back=True)
@@ -354,8 +366,9 @@ def test_whole_direction_runs_give_klippers_counts(stem):
         assert np.array_equal(np.concatenate(held + [comp.finish()]), runs)
         check_klipper_windows(clocks_of(t), runs, MAX_ERR, start)
         assert np.array_equal(decompress_runs(runs)[1], d)
-        # fewer commands than Klipper sent with its batch cuts (compression/README.md "Summary")
-        assert len(runs) <= len(cmds[stepper + "_count"])
+        # fewer commands than Klipper sent with its batch cuts (compression/README.md "Summary"); a prefix may cut
+        # one direction run that Klipper's commands of it do not include
+        assert len(runs) <= len(cmds[stepper + "_count"]) + truncated
 
 
 def test_steps_command_compresses_whole_direction_runs(tmp_path):

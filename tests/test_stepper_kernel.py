@@ -150,6 +150,29 @@ def test_reversals_inside_a_cubic_piece():
     assert np.sum(d) == round(x(3.0) * 100)
 
 
+def test_a_stop_exactly_on_a_half_step_point_steps_forward_not_back():
+    """The tie rule (kernel docstring): a position that reaches a half-step point exactly and stops there takes
+    the forward step (thresholds n + ½ ≤ u) but not the backward one (thresholds n − ½ > u). Binary-exact
+    numbers (64 steps/mm, half a step = 1/128 mm reached at τ = 1 s) make the tie exact in floating point."""
+    rail = Rail("x", 64.0, (1, 0, 0, 0))
+    half = 1.0 / 128.0
+    # 0 → +½ step: one forward step, at the very end of the piece
+    t, d = generate_steps(_piece(0.0, 1.0, 0.0, half, 0.0), rails=[rail])["x"]
+    assert list(d) == [1] and list(t) == [1.0]
+    # 0 → −½ step: no step (the grid point below is reached, not passed)
+    t, d = generate_steps(_piece(0.0, 1.0, 0.0, -half, 0.0), rails=[rail])["x"]
+    assert len(t) == 0
+    # the same from a parabola that stops at the tie (v = 0 there): x = ½·(1/64)·τ² on τ ∈ [0, 1] ends at 1/128
+    t, d = generate_steps(_piece(0.0, 1.0, 0.0, 0.0, 1.0 / 64.0), rails=[rail])["x"]
+    assert list(d) == [1] and list(t) == [1.0]
+    t, d = generate_steps(_piece(0.0, 1.0, 0.0, 0.0, -1.0 / 64.0), rails=[rail])["x"]
+    assert len(t) == 0
+    # and just past the ties both ways: a step each (the rule is about the tie only)
+    for sign in (1.0, -1.0):
+        t, d = generate_steps(_piece(0.0, 1.0, 0.0, sign * half * (1 + 2 ** -20), 0.0), rails=[rail])["x"]
+        assert list(d) == [int(sign)]
+
+
 def test_jump_between_pieces_reanchors_without_steps():
     rail = Rail("x", 10.0, (1, 0, 0, 0))
     a = _piece(0.0, 1.0, 0.0, 1.03, 0.0)          # 0 → 1.03: steps at 0.05 … 0.95 (10)
