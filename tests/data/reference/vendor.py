@@ -65,7 +65,13 @@ COPY = [
     f"linuxcnc/programs/variants/linuxcnc_{p}_{m}.ngc" for p in ("plasmatest", "arcspiral") for m in ("g61", "g611")
 ] + [f"linuxcnc/per_line/linuxcnc_{p}.csv.gz" for p in (
     "plasmatest_g64", "plasmatest_g61", "plasmatest_g611_speedup8", "arcspiral_g64", "arcspiral_g61",
-    "arcspiral_g611_speedup8")]
+    "arcspiral_g611_speedup8")] + [
+    # grbl 1.1h (grbl-sim): settings, figures, the synthetic programs with every step, per-line ends
+    "grbl/times.json", "grbl/grbl_settings.txt", "grbl/grbl_settings_as_gcodeplan_machine.toml",
+] + [f"grbl/synthetic/{n}.gcode" for n in ("synth_square", "synth_polycircle30", "synth_arcs")] + [
+    f"grbl/steps/{n}_steps.npz" for n in ("synth_square", "synth_polycircle30", "synth_arcs")] + [
+    f"grbl/per_line/{n}.per_line_end_time.csv.gz" for n in (
+        "synth_square", "synth_polycircle30", "synth_arcs", "linuxcnc_plasmatest", "linuxcnc_arcspiral")]
 
 # step file -> keep the steps before about this time (s); the cut moves to the next pause of GAP_S
 PREFIX = {
