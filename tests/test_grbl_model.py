@@ -248,3 +248,28 @@ def test_plan_rows_are_continuous_trapezoids(tmp_path):
     assert np.allclose((pl["accel_t"] + pl["cruise_t"] + pl["decel_t"])[moving], pl["duration"][moving], rtol=1e-9)
     assert np.all(np.diff(pl["t_start"]) >= 0)
     assert pl["t_start"][-1] + pl["duration"][-1] == pytest.approx(entry["total_time_s"], abs=2e-7)
+
+
+@pytest.mark.parametrize("batch_moves", [8192, 7])
+def test_steps_on_the_grbl_machine_are_grbl_s_pulses(tmp_path, batch_moves):
+    """The step stage of a grbl-1.1 machine hands on the stepper interrupt's own pulses (not a stepping of
+    the plan): every pulse of every axis within 2 ticks of grbl-sim's, in any batching."""
+    from gcodeplan import pipeline
+    from gcodeplan.stepper.source import StepSink, rails_from
+
+    entry = json.loads(shared_path("reference", "grbl", "times.json").read_text())["synth_arcs"]
+    m = _settings_machine()
+    rails = rails_from(m)
+    got: dict[int, list] = {}
+    sink = StepSink(rails, lambda si, t, d: got.setdefault(si, []).append((t.copy(), d.copy())), machine=m)
+    pipeline.run(_program(tmp_path, entry), m, sinks=[sink], batch_moves=batch_moves)
+    z = np.load(shared_path("reference", "grbl", "steps", "synth_arcs_steps.npz"))
+    for si, rail in enumerate(rails):
+        if rail.name[-1] not in "xyz":
+            assert si not in got
+            continue
+        t = np.concatenate([c[0] for c in got[si]])
+        d = np.concatenate([c[1] for c in got[si]])
+        ref_t = z[f"stepper_{rail.name[-1]}"]
+        assert len(t) == len(ref_t) and np.array_equal(d, z[f"stepper_{rail.name[-1]}_dir"])
+        assert np.abs(t - ref_t).max() <= 0.25e-6

@@ -207,7 +207,8 @@ class Piece:
     being called: read them in ``add``, not later.
     """
 
-    __slots__ = ("moves", "plan", "first_move", "mode", "own_segments", "limits", "_segments", "_make")
+    __slots__ = ("moves", "plan", "first_move", "mode", "own_segments", "limits", "_segments", "_make",
+                 "firmware_steps")
 
     def __init__(self, moves: np.ndarray, plan: np.ndarray, first_move: int, mode: str | None = None,
                  segments: np.ndarray | None = None, make_segments=None, own_segments: bool = False,
@@ -220,6 +221,8 @@ class Piece:
         self.own_segments = own_segments   # the mode's own pieces (blends, S-curves), not rebuilt trapezoids
         self._segments = segments
         self._make = make_segments
+        # a firmware model's own step pulses of these rows ({axis 0..2: (times s, dirs)}), or None
+        self.firmware_steps = None
 
     @property
     def segments(self) -> np.ndarray:
@@ -307,6 +310,7 @@ class Run:
         for moves, plan in pairs:
             piece = Piece(moves, plan, self.rows, self.planner.mode, make_segments=self.planner.segments_for,
                           own_segments=self.planner.own_segments, limits=self._limits)
+            piece.firmware_steps = self.planner.firmware_steps()
             self.rows += len(moves)
             yield piece
 
@@ -355,6 +359,7 @@ def run(source, machine, *, policy: str | None = None, jerk: float | None = None
     drive = Run(source, machine, policy=policy, jerk=jerk, strict=strict, progress=progress,
                 batch_moves=batch_moves, exclude_objects=exclude_objects)
     drive.small = drive.small and all(getattr(s, "interpretable", True) for s in sinks)
+    drive.planner.want_firmware_steps = any(getattr(s, "wants_firmware_steps", False) for s in sinks)
     pieces = iter(drive)
     with _jit.interpreted(drive.small):
         try:

@@ -932,7 +932,18 @@ def make_stream_mode(base_cls):
 
         def __init__(self, sp):
             super().__init__(sp)
-            self.state = GrblState(GrblSettings.from_machine(sp.machine))
+            from ..errors import ConfigError
+
+            if sp.machine.kinematics != "cartesian":
+                raise ConfigError(f"the grbl-1.1 firmware model steps a cartesian machine, not "
+                                  f"{sp.machine.kinematics!r} (grbl's COREXY build is not modelled)")
+            self.settings = GrblSettings.from_machine(sp.machine)
+            self.state = GrblState(self.settings)
+            self.want_steps = bool(getattr(sp, "want_firmware_steps", False))
+            self.pos_steps = np.zeros(3, np.int64)         # where the last fed line ends, in steps (for sizing)
+            self.bound_steps = np.zeros(3, np.int64)       # pulses the lines fed so far can make, at most
+            self.taken_steps = np.zeros(3, np.int64)       # pulses handed on
+            self.last_steps = None                         # the pulses of the rows of the last emission
             self.fed = 0                                   # pending rows already given to grbl
             self.row_op = np.zeros(0, np.int64)            # per pending row: its op (global index), −1 none
             self.op_base = 0                               # global index of the first op kept below
@@ -966,6 +977,8 @@ def make_stream_mode(base_cls):
             self.op_rapid = np.concatenate([self.op_rapid, rapid])
             self.op_end = np.concatenate([self.op_end, np.full(len(kind), -1, np.int64)])
             self.op_info = np.concatenate([self.op_info, np.zeros((len(kind), N_INFO), np.float32)])
+            if self.want_steps:
+                self._make_room(kind, target)
             self.state.feed(kind, target, rate, rapid, dwell, final, self.op_base, self.op_end, self.op_info,
                             self.no_steps, self.no_dirs, self.n_out)
             self.fed = len(sp._moves)
@@ -980,7 +993,46 @@ def make_stream_mode(base_cls):
             local = np.where(self.row_op[:n_rows] >= 0, self.row_op[:n_rows] - self.op_base, -1)
             plan, t_end = _plan_rows(sp._moves[:n_rows], local, self.op_kind, self.op_end, self.op_info,
                                      self.op_rapid, sp._clock, 0)
+            if self.want_steps:
+                self.last_steps = self._take_steps(None if final else int(round(t_end * F_CPU)))
             return n_rows, plan, t_end, None
+
+        def _make_room(self, kind, target):
+            """Room in the pulse buffers for every step the new lines can make (their step-rounded lengths)."""
+            spm = self.settings.steps_per_mm
+            lines = target[kind == OP_LINE]
+            pos = np.rint((lines * spm).astype(np.float32).astype(np.float64)).astype(np.int64)
+            path = np.concatenate([self.pos_steps[None, :], pos]) if len(pos) else self.pos_steps[None, :]
+            if len(pos):
+                self.pos_steps = pos[-1]
+            # every pulse still to come is of a line fed so far: at most their step-rounded lengths
+            self.bound_steps = self.bound_steps + np.abs(np.diff(path, axis=0)).sum(axis=0) + len(pos)
+            need = self.bound_steps - self.taken_steps + 8
+            width = self.no_steps.shape[1]
+            if need.max() > width:
+                size = int(max(need.max(), 2 * width, 1024))
+                t = np.zeros((3, size), np.int64)
+                d = np.zeros((3, size), np.int8)
+                t[:, :width], d[:, :width] = self.no_steps, self.no_dirs
+                self.no_steps, self.no_dirs = t, d
+
+        def _take_steps(self, until_tick):
+            """The pulses issued up to ``until_tick`` (all with None): {axis index: (times s, dirs)}; the rest
+            stays for the next emission."""
+            out = {}
+            for ax in range(3):
+                n = int(self.n_out[ax])
+                if n > self.no_steps.shape[1]:
+                    raise RuntimeError("grbl model: step buffer overrun (a sizing bug)")
+                t = self.no_steps[ax, :n]
+                k = n if until_tick is None else int(np.searchsorted(t, until_tick, side="right"))
+                out[ax] = (t[:k] / F_CPU, self.no_dirs[ax, :k].copy())
+                rest = n - k
+                self.taken_steps[ax] += k
+                self.no_steps[ax, :rest] = self.no_steps[ax, k:n].copy()
+                self.no_dirs[ax, :rest] = self.no_dirs[ax, k:n].copy()
+                self.n_out[ax] = rest
+            return out
 
         def drop(self, n_rows: int) -> None:
             self.fed -= n_rows

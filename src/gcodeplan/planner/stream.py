@@ -217,6 +217,7 @@ class StreamPlanner:
         self._stop_pending = True                         # a full stop precedes the next move
         self._clock = 0.0
         self._emitted: list[tuple[np.ndarray, np.ndarray, np.ndarray, object]] = []  # last call's pieces
+        self.want_firmware_steps = False                  # a firmware model keeps its own step pulses
 
     # ------------------------------------------------------------------ public
     @property
@@ -264,6 +265,15 @@ class StreamPlanner:
             raise ConfigError("segments_for: blend and S-curve pieces exist only for the (moves, plan) pairs the "
                               "last feed()/finish() returned")
         return to_segments(moves, plan, first_index)
+
+    def firmware_steps(self):
+        """A firmware model's own step pulses for the rows the last feed()/finish() emitted ({axis index 0..2:
+        (times s, dirs)}), when ``want_firmware_steps`` was set before the first feed; else None."""
+        mode = self._mode
+        steps = getattr(mode, "last_steps", None)
+        if mode is not None and steps is not None:
+            mode.last_steps = None
+        return steps
 
     @property
     def pending(self) -> int:

@@ -471,6 +471,12 @@ class StepGenerator:
         self._emit(si, times, dirs)
         self._fill[si] = 0
 
+    def feed_pulses(self, si: int, times: np.ndarray, dirs: np.ndarray) -> None:
+        """Step pulses made elsewhere (a firmware model's stepper interrupt) for stepper ``si``, in time order
+        after everything fed before: counted and handed to the sink as they are."""
+        self._flush(si)
+        self._emit(si, np.ascontiguousarray(times, np.float64), np.ascontiguousarray(dirs, np.int8))
+
     def _emit(self, si: int, times: np.ndarray, dirs: np.ndarray) -> None:
         if len(times):
             self._last_t[si] = kernel.monotone_stats(times, dirs, self._last_t[si], self.stats[si])

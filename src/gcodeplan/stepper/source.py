@@ -84,7 +84,16 @@ class StepSink(Sink):
         self.generator = StepGenerator(self.rails, sink_fn, sds_filter_t=sds_filter_t, settings=settings)
         self._pending = False
 
+    wants_firmware_steps = True   # a firmware model's own pulses (grbl's stepper interrupt) replace stepping
+
     def add(self, piece: Piece) -> None:
+        fw = getattr(piece, "firmware_steps", None)
+        if fw is not None:
+            for si, rail in enumerate(self.rails):
+                axis = "xyz".find(rail.name[-1])
+                if axis >= 0 and axis in fw and len(fw[axis][0]):
+                    self.generator.feed_pulses(si, *fw[axis])
+            return
         reset, self._pending = homing_resets(piece.moves, piece.segments, piece.first_move, self._pending)
         self.generator.feed(piece.segments, reset, moves=piece.moves, limits=piece.limits,
                             first_move=piece.first_move)
