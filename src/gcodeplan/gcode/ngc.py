@@ -624,12 +624,12 @@ class Expander:
     """
 
     def __init__(self, path: str, params: NgcParams | None = None, subroutine_path=(), on_event=None,
-                 max_loop_iterations: int = MAX_LOOP_ITERATIONS):
+                 max_loop_iterations: int | None = None):
         self.path = path
         self.params = params if params is not None else NgcParams()
         self.subroutine_path = [os.fspath(p) for p in subroutine_path]
         self.on_event = on_event
-        self.max_loop_iterations = int(max_loop_iterations)
+        self.max_loop_iterations = int(MAX_LOOP_ITERATIONS if max_loop_iterations is None else max_loop_iterations)
         self.subs: dict[str, _Sub] = {}
         self.main = _Frame([], None, None)
         self.stack: list[_Frame] = [self.main]
@@ -649,13 +649,14 @@ class Expander:
                     f.pc - f.base < len(f.lines))
 
     # ------------------------------------------------------------------ errors
+    def _in_sub(self, msg: str) -> str:
+        if len(self.stack) > 1 and self.stack[-1].sub is not None:
+            msg = f"{msg} (in subroutine {self._label_text(self.stack[-1].sub.name)})"
+        return msg
+
     def _err(self, msg: str, line: _Line, o: _OLine | None = None):
         where = f"{o.label} {o.kw}: " if o is not None else ""
-        if len(self.stack) > 1 and self.stack[-1].sub is not None:
-            sub = self.stack[-1].sub
-            msg = f"{msg} (in subroutine o<{sub.name}>)" if not sub.name.isdigit() else \
-                f"{msg} (in subroutine o{sub.name})"
-        raise GcodeError(where + msg, line.file, line.lineno)
+        raise GcodeError(self._in_sub(where + msg), line.file, line.lineno)
 
     # ------------------------------------------------------------------ input
     def feed(self, lineno: int, text: str):
@@ -711,10 +712,8 @@ class Expander:
             f.pc += 1
             try:
                 yield from self._step(f, line)
-            except _LineError as err:
-                raise GcodeError(str(err), line.file, line.lineno) from None
-            except _Refused as err:
-                raise GcodeError(str(err), line.file, line.lineno) from None
+            except (_LineError, _Refused) as err:
+                raise GcodeError(self._in_sub(str(err)), line.file, line.lineno) from None
 
     def _o_head(self, s: str, line: _Line, reader: _Reader) -> _OLine | None:
         """The O-word of a normalised line (name, keyword, position after the keyword), or None."""
