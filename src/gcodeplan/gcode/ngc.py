@@ -60,6 +60,8 @@ _O_HEAD = re.compile(r"\s*(?:/\s*)?(?:[nN]\s*\d[\d\s]*)?[oO]\s*(?:<|\[|#|[\d\s]+
 _NUM_LITERAL = re.compile(r"[+-]?(?:\d+(?:\.\d*)?|\.\d+)$")
 _ACTIVE_COMMENT = re.compile(r"\(\s*(debug|print|abort)\s*,", re.I)
 _FMT = re.compile(r"%(d|f|lf|\.(\d)f)")
+_BLANKS = re.compile(r"[ \t\r\n]+")
+_NUMBER_TEXT = re.compile(r"[+-]*[0-9.]*")
 
 
 class NgcParams:
@@ -224,6 +226,8 @@ class InterpState:
             return simple[name]
         if name == "_call_level":
             return float(self.expander.call_level if self.expander is not None else 0)
+        if name.startswith(("_hal[", "_ini[")):
+            raise _Refused(f"#<{name}>: HAL pins and .ini values are not available to gcodeplan's programs")
         if name in self._UNSUPPORTED:
             raise _Refused(f"#<{name}> is not modelled by gcodeplan (spindle, coolant, overrides and tool "
                            "selection state are not tracked)")
@@ -245,6 +249,8 @@ def _fmt(v: float) -> str:
 def close_and_downcase(text: str) -> str:
     """LinuxCNC's line normalisation: blanks removed and letters lower-cased outside comments; a
     ``(`` inside a comment or an unclosed comment is an error (:class:`ValueError` with the message)."""
+    if "(" not in text and ";" not in text:
+        return _BLANKS.sub("", text).lower()
     out = []
     i = 0
     n = len(text)
@@ -337,11 +343,7 @@ class _Reader:
         elif "a" <= c <= "z":
             v, i = self.unary(i)
         else:
-            j = i
-            while j < len(s) and s[j] in "+-":
-                j += 1
-            while j < len(s) and (s[j].isdigit() or s[j] == "."):
-                j += 1
+            j = _NUMBER_TEXT.match(s, i).end()      # read_real_number: strspn("+-") then strspn("0-9.")
             txt = s[i:j]
             try:
                 v = float(txt)
@@ -558,12 +560,13 @@ def evaluate(expr: str, params: NgcParams | None = None) -> float:
 
 # ---------------------------------------------------------------------- program structure
 class _Line:
-    __slots__ = ("lineno", "text", "file")
+    __slots__ = ("lineno", "text", "file", "norm")
 
     def __init__(self, lineno: int, text: str, file: str):
         self.lineno = lineno
         self.text = text
         self.file = file
+        self.norm: str | None = None      # close_and_downcase(text), made once (loops run a line again)
 
 
 class _Sub:
@@ -778,10 +781,12 @@ class Expander:
         yield from self._control(f, line, o, reader, s)
 
     def _normalise(self, line: _Line) -> str:
-        try:
-            return close_and_downcase(line.text)
-        except ValueError as err:
-            raise _LineError(str(err)) from None
+        if line.norm is None:
+            try:
+                line.norm = close_and_downcase(line.text)
+            except ValueError as err:
+                raise _LineError(str(err)) from None
+        return line.norm
 
     def _emit(self, f: _Frame, line: _Line, text: str):
         if line.file == self.path:
