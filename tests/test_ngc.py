@@ -409,3 +409,29 @@ def test_memory_is_bounded_outside_loops():
     mv, r = _read(prog)
     assert len(mv) == 4999 and mv["x1"][-1] == 4999.0     # the first, to X0, has no length
     assert len(r.interp.ngc.main.lines) <= 1
+
+
+# ------------------------------------------------------------------ Fanuc-style subprograms (M98 / M99)
+def test_m98_m99_subprograms(tmp_path):
+    """LinuxCNC's Fanuc-style subprograms: #1..#30 shared with the caller, L repeats, L0 skips."""
+    prog = ("O0001 (main)\nG21 G90 F600\n#1 = 0\nM98 P100 L3\nM98 P100 L0\nG1 Y#1\nM98 P200\nM30\n"
+            "O100\n#1 = [#1 + 1]\nG1 X#1\nM99\nO200 (second)\nG1 Z1\nM98 P100\nM99\n")
+    mv, _ = _read(prog, tmp_path=tmp_path)
+    ref, _ = _read("G21 G90 F600\nG1 X1\nG1 X2\nG1 X3\nG1 Y3\nG1 Z1\nG1 X4\nM30")
+    _same_moves(mv, ref)
+    assert list(mv["line"]) == [11, 11, 11, 6, 14, 11]
+
+
+@pytest.mark.parametrize("prog, line, words", [
+    ("G21\nM99\nM30", 2, ["M99 in the main program", "endless"]),
+    ("G21\nM98 P7\nM30", 2, ["M98 P7", "no subprogram O7"]),
+    ("G21\no7 sub\no7 endsub\nM98 P7\nM30", 4, ["M98 P7", "call it with o7 call"]),
+    ("G21\no7 call\nM30\nO7\nM99\n", 2, ["o7 call", "call it with M98 P7"]),
+    ("G21\nM98 P7 X1\nM30\nO7\nM99\n", 2, ["M98 takes P"]),
+])
+def test_m98_errors(tmp_path, prog, line, words):
+    with pytest.raises(GcodeError) as ei:
+        _read(prog, tmp_path=tmp_path)
+    assert ei.value.line == line, str(ei.value)
+    for w in words:
+        assert w in str(ei.value), str(ei.value)

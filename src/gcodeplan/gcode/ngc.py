@@ -57,6 +57,10 @@ OWNED_WRITE_REFUSED = set(range(5210, 5391))
 _KEYWORDS = ("sub", "endsub", "call", "do", "while", "repeat", "if", "elseif", "else", "endif", "break",
              "continue", "endwhile", "endrepeat", "return")          # LinuxCNC's read_o order
 _O_HEAD = re.compile(r"\s*(?:/\s*)?(?:[nN]\s*\d[\d\s]*)?[oO]\s*(?:<|\[|#|[\d\s]+[A-Za-z])")
+# Fanuc-style subprograms: M98 (call) / M99 (return) first on the line, a bare 'O<number>' starts a body
+_M9X_HEAD = re.compile(r"\s*(?:/\s*)?(?:[nN]\s*\d[\d\s]*)?[mM]\s*0*9\s*[89](?![\d.\s]*\d)")
+_M9X_NORM = re.compile(r"/?(?:n\d+)?m0*9([89])(?![\d.])")
+_BARE_O_NORM = re.compile(r"/?(?:n\d+)?o(\d+)(?:$|[(;])")
 _NUM_LITERAL = re.compile(r"[+-]?(?:\d+(?:\.\d*)?|\.\d+)$")
 _ACTIVE_COMMENT = re.compile(r"\(\s*(debug|print|abort)\s*,", re.I)
 _FMT = re.compile(r"%(d|f|lf|\.(\d)f)")
@@ -303,7 +307,7 @@ def needs_expansion(text: str) -> bool:
     code = _code_part(text)
     if "#" in code or "[" in code:
         return True
-    return bool(_O_HEAD.match(code))
+    return bool(_O_HEAD.match(code) or _M9X_HEAD.match(code))
 
 
 # ---------------------------------------------------------------------- expressions
@@ -575,6 +579,7 @@ class _Sub:
         self.file = file
         self.lineno = lineno
         self.body: list[_Line] = []      # the lines after 'sub', its 'endsub' included
+        self.fanuc = False               # an 'O<n>' ... 'M99' subprogram, called by M98
 
 
 class _Label:
@@ -658,7 +663,7 @@ class Expander:
         return msg
 
     def _err(self, msg: str, line: _Line, o: _OLine | None = None):
-        where = f"{o.label} {o.kw}: " if o is not None else ""
+        where = (f"{o.label} {o.kw}".rstrip() + ": ") if o is not None else ""
         raise GcodeError(self._in_sub(where + msg), line.file, line.lineno)
 
     # ------------------------------------------------------------------ input
@@ -766,6 +771,9 @@ class Expander:
         if not is_o:
             if f.skipping is not None:
                 return
+            if ("m" in code or "M" in code) and _M9X_HEAD.match(code):
+                yield from self._fanuc(f, line)
+                return
             yield from self._plain(f, line)
             return
         s = self._normalise(line)
@@ -800,7 +808,8 @@ class Expander:
             if s[i] == "(":
                 i = s.index(")", i) + 1
                 continue
-            self._err(f"unexpected text after the O-word: {s[i:i + 12]!r}", line, o)
+            self._err(f"unexpected text after the O-word: {s[i:i + 12]!r}" if o is not None else
+                      f"unexpected text: {s[i:i + 12]!r}", line, o)
 
     # ---------------------------------------------------------------- O-words
     def _control(self, f: _Frame, line: _Line, o: _OLine, r: _Reader, s: str):
@@ -831,6 +840,8 @@ class Expander:
             self._rest_only_comments(s, i, line, o)
             if f.sub is None:
                 self._err("not inside a subroutine", line, o)
+            if f.sub.fanuc:
+                self._err(f"a Fanuc-style subprogram (O{f.sub.name}, line {f.sub.lineno}) ends with M99", line, o)
             if o.name != f.sub.name:
                 self._err(f"does not match the subroutine o{f.sub.name} being executed "
                           f"(defined at line {f.sub.lineno})", line, o)
@@ -983,15 +994,21 @@ class Expander:
         f.open_loops.pop(key, None)
 
     # ---------------------------------------------------------------- calls
-    def _call(self, f: _Frame, line: _Line, o: _OLine, args: list[float]):
-        sub = self.subs.get(o.name)
+    def _call(self, f: _Frame, line: _Line, o: _OLine, args: list[float] | None, sub: _Sub | None = None):
+        """Run a subroutine (``args`` None: a Fanuc M98 call, #1..#30 shared with the caller)."""
         if sub is None:
-            sub = self._find_sub(o.name, line, o)
+            sub = self.subs.get(o.name)
+            if sub is None:
+                sub = self._find_sub(o.name, line, o)
+            if sub.fanuc:
+                self._err(f"O{sub.name} (line {sub.lineno}) is a Fanuc-style subprogram: call it with M98 P{sub.name}",
+                          line, o)
         if len(self.stack) > MAX_CALL_LEVELS - 1:
             self._err(f"too many nested subroutine calls (at most {MAX_CALL_LEVELS - 1})", line, o)
         p = self.params
         saved = p.numbered[1:SUB_PARAMS + 1]
-        p.numbered[1:SUB_PARAMS + 1] = args + [0.0] * (SUB_PARAMS - len(args))
+        if args is not None:
+            p.numbered[1:SUB_PARAMS + 1] = args + [0.0] * (SUB_PARAMS - len(args))
         p.globals["_value"] = 0.0
         p.globals["_value_returned"] = 0.0
         p.locals.append({})
@@ -1012,7 +1029,92 @@ class Expander:
         finally:
             self.stack.pop()
             p.locals.pop()
-            p.numbered[1:SUB_PARAMS + 1] = saved
+            if args is not None:
+                p.numbered[1:SUB_PARAMS + 1] = saved
+
+    def _fanuc(self, f: _Frame, line: _Line):
+        """LinuxCNC's Fanuc-style subprograms: ``M98 P<n> [L<count>]`` runs the ``O<n>`` ... ``M99`` block that
+        follows later in the file (#1..#30 shared, L0 = not at all); ``M99`` returns from it."""
+        s = self._normalise(line)
+        m = _M9X_NORM.match(s)
+        if m is None:
+            yield from self._plain(f, line)
+            return
+        r = _Reader(s, self.params)
+        if m.group(1) == "9":
+            if f.sub is None:
+                raise _LineError("M99 in the main program: LinuxCNC restarts the program from its first line "
+                                 "(an endless program), which cannot be timed")
+            if not f.sub.fanuc:
+                raise _LineError(f"M99 inside o{f.sub.name} sub: an 'O... sub' ends with 'O... endsub'")
+            self._rest_only_comments(s, m.end(), line, None)
+            f.pc = f.base + len(f.lines)
+            raise _Return()
+        words: dict[str, float] = {}
+        i = m.end()
+        while i < len(s):
+            c = s[i]
+            if c == "(":
+                i = s.index(")", i) + 1
+            elif c == ";":
+                break
+            elif c in "pl":
+                if c in words:
+                    raise _LineError(f"M98: {c.upper()} given twice")
+                words[c], i = r.value(i + 1)
+            else:
+                raise _LineError(f"M98 takes P (subprogram number) and L (repeat count), not {c.upper()!r}")
+        if "p" not in words:
+            raise _LineError("M98 needs P, the subprogram number")
+        r.s = _fmt(words["p"])
+        n, _ = r.integer(0)
+        count = int(math.floor(words.get("l", 1.0) + 0.5))
+        name = str(n)
+        o = _OLine(name, "", 0)
+        o.label = f"M98 P{name}"
+        sub = self.subs.get(name)
+        if sub is None and count > 0:
+            sub = self._scan_for_fanuc(name, line)
+            if sub is None:
+                self._err(f"no subprogram O{name} after this line (LinuxCNC looks for 'O{name}' ... 'M99' "
+                          "later in the file)", line, o)
+            self.subs[name] = sub
+        if sub is not None and not sub.fanuc:
+            self._err(f"o{name} (line {sub.lineno}) is an 'O... sub' subroutine: call it with o{name} call", line, o)
+        for _ in range(count):
+            yield from self._call(f, line, o, None, sub)
+
+    def _scan_for_fanuc(self, name: str, line: _Line) -> _Sub | None:
+        """The ``O<name>`` ... ``M99`` block after ``line`` in the main file (LinuxCNC's forward seek)."""
+        if line.file != self.path or not os.path.isfile(self.path):
+            return None
+        try:
+            with open(self.path, "rb") as fh:
+                text = fh.read().decode("utf-8", "replace")
+        except OSError as err:
+            raise GcodeError(f"cannot read: {err.strerror or err}", self.path) from None
+        sub = None
+        for no, raw in enumerate(text.split("\n"), 1):
+            if no <= line.lineno:
+                continue
+            raw = raw.rstrip("\r")
+            try:
+                s = close_and_downcase(raw)
+            except ValueError:
+                s = ""
+            if sub is None:
+                m = _BARE_O_NORM.match(s)
+                if m and str(int(m.group(1))) == name:
+                    sub = _Sub(name, self.path, no)
+                    sub.fanuc = True
+                continue
+            sub.body.append(_Line(no, raw, self.path))
+            m = _M9X_NORM.match(s)
+            if m and m.group(1) == "9":
+                return sub
+        if sub is not None:
+            raise GcodeError(f"O{name}: no M99 before the end of the file", self.path, sub.lineno)
+        return None
 
     def _find_sub(self, name: str, line: _Line, o: _OLine) -> _Sub:
         """A sub not defined yet: ``<name>.ngc`` in the subroutine path, else later in the main file."""
@@ -1026,6 +1128,10 @@ class Expander:
             if sub is not None:
                 self.subs[name] = sub
                 return sub
+        fanuc = self._scan_for_fanuc(name, line)
+        if fanuc is not None:
+            self._err(f"O{name} (line {fanuc.lineno}) is a Fanuc-style subprogram: call it with M98 P{name}",
+                      line, o)
         where = ", ".join(self.subroutine_path) or "none: no [RS274NGC]SUBROUTINE_PATH"
         self._err(f"unknown subroutine: not defined in this file and no file {fname} in the subroutine "
                   f"path ({where})", line, o)
