@@ -435,3 +435,16 @@ def test_m98_errors(tmp_path, prog, line, words):
     assert ei.value.line == line, str(ei.value)
     for w in words:
         assert w in str(ei.value), str(ei.value)
+
+
+def test_modal_state_parameters():
+    """#<_metric>, #<_absolute>, #<_coord_system>, #<_motion_mode>, #<_plane>, #5220/#5221 as LinuxCNC numbers them."""
+    prog = ("G21 G90 G17 F600\nG10 L2 P2 X3\nG55\nG1 X1\n"
+            "G1 X#<_metric> Y#<_absolute> Z[#<_coord_system> / 100]\n"
+            "G1 X[#<_motion_mode> / 10] Y[#<_plane> / 10] Z#5220\n"
+            "G91\nG1 X[#5241 - #<_incremental>] Y0 Z0\nG90 G18\nG1 X#<_plane> Y#<_imperial> Z#<_ijk_absolute_mode>\nM2")
+    mv, _ = _read(prog)
+    assert (mv["x1"][1] - 3, mv["y1"][1], mv["z1"][1]) == (1.0, 1.0, 5.5)
+    assert (mv["x1"][2] - 3, mv["y1"][2], mv["z1"][2]) == (1.0, 17.0, 2.0)
+    assert mv["x1"][3] - mv["x1"][2] == 2.0          # #5241 (G55 X) = 3, minus #<_incremental> = 1
+    assert (mv["x1"][4] - 3, mv["y1"][4], mv["z1"][4]) == (180.0, 0.0, 0.0)
