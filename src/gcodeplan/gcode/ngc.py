@@ -40,7 +40,6 @@ from __future__ import annotations
 import math
 import os
 import re
-from decimal import Decimal
 
 from ..errors import GcodeError
 
@@ -246,6 +245,8 @@ def _fmt(v: float) -> str:
     """A number as G-code text that reads back as exactly ``v`` (no exponent: E is a word letter)."""
     r = repr(float(v))
     if "e" in r or "E" in r:
+        from decimal import Decimal
+
         r = format(Decimal(r), "f")
     return r
 
