@@ -315,6 +315,8 @@ def test_call_before_a_definition_after_m2(tmp_path):
     ("G21\no1 repeat [2]\no1 break\no1 endrepeat\nM2", 3, ["o1 break", "no matching while/do"]),
     ("G21\n(ABORT, tool #1 missing)\nM2", 2, ["(ABORT, tool 0.000000 missing)"]),
     ("G21\no1 if [1] G1 X1\no1 endif\nM2", 2, ["o1 if", "unexpected text"]),
+    ("G21\no1 while [0]\no1 endwhile\no1 endwhile\nM2", 4, ["o1 endwhile", "outside its loop"]),
+    ("G21\n(note) o1 if [1]\nM2", 2, ["O-word must start the line"]),
 ])
 def test_errors_name_file_line_and_o_word(tmp_path, prog, line, words):
     with pytest.raises(GcodeError) as ei:
@@ -469,3 +471,58 @@ def test_random_arithmetic_matches_python():
     for _ in range(300):
         e = expr(3)
         assert evaluate(e) == eval(e.replace("[", "(").replace("]", ")")), e
+
+
+def test_random_structured_programs_never_traceback(monkeypatch):
+    """Random nests of if/elseif/else, while, do-while, repeat, break/continue (some misplaced), subs and calls:
+    each program runs or stops with a GcodeError naming a line, never another exception."""
+    import random
+
+    monkeypatch.setattr(ngc, "MAX_LOOP_ITERATIONS", 30)
+    rnd = random.Random(7)
+    counter = [0]
+
+    def block(depth):
+        out = []
+        for _ in range(rnd.randint(1, 4)):
+            r = rnd.random()
+            if depth and r < 0.5:
+                counter[0] += 1
+                k = counter[0]
+                cond = rnd.choice(["[#1 LT 3]", "[#2 GT 1]", "[1]", "[0]", "[#1 MOD 2 EQ 0]"])
+                body = block(depth - 1)
+                if rnd.random() < 0.2:
+                    body.append(f"o{rnd.choice([k, k - 1, 99])} {rnd.choice(['break', 'continue', 'endif', 'endwhile'])}")
+                kind = rnd.choice(["if", "while", "repeat", "do"])
+                if kind == "if":
+                    out += [f"o{k} if {cond}"] + body + [f"o{k} elseif [#1 EQ 1]"] + block(depth - 1) + \
+                        [f"o{k} else"] + block(depth - 1) + [f"o{k} endif"]
+                elif kind == "while":
+                    out += [f"o{k} while {cond}"] + body + ["#1 = [#1 + 1]", f"o{k} endwhile"]
+                elif kind == "repeat":
+                    out += [f"o{k} repeat [{rnd.randint(0, 3)}]"] + body + [f"o{k} endrepeat"]
+                else:
+                    out += [f"o{k} do"] + body + ["#2 = [#2 + 1]", f"o{k} while {cond}"]
+            elif r < 0.6:
+                out.append(f"o<s{rnd.randint(1, 3)}> call [#1] [2]")
+            else:
+                out.append(rnd.choice(["G1 X[#1 + 1] F600", "G1 Y#2", "#1 = [#1 + 1]", "#<l> = #1", "G1 Z#<l>",
+                                       "(debug, #1 #<l>)", "M0"]))
+        return out
+
+    ran = failed = 0
+    for _ in range(60):
+        counter[0] = 0
+        prog = ["G21 G90"]
+        for k in (1, 2, 3):
+            if rnd.random() < 0.7:
+                counter[0] += 10
+                prog += [f"o<s{k}> sub"] + block(1) + [f"o<s{k}> endsub"]
+        prog += block(3) + ["M2"]
+        try:
+            read_moves(prog, _mill())
+            ran += 1
+        except GcodeError as err:
+            assert err.line is not None
+            failed += 1
+    assert ran > 5 and failed > 5

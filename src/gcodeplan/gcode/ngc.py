@@ -780,6 +780,10 @@ class Expander:
         s = self._normalise(line)
         reader.s = s
         o = self._o_head(s, line, reader)
+        if o is None:                    # '(comment) o100 ...': the O-word does not start the line
+            if f.skipping is None:
+                yield from self._plain(f, line)
+            return
         if o.kw == "":
             if f.skipping is None:
                 yield self._emit(f, line, line.text)
@@ -912,6 +916,7 @@ class Expander:
         if kw == "while":
             if lab is not None and lab.kind == "do":
                 # the end of a do-while loop
+                self._check_open(f, key, lab, line, o)
                 f.skipping = None
                 if test != 0.0 and not f.doing_break:
                     self._loop_back(f, lab, line, o)
@@ -947,6 +952,7 @@ class Expander:
                 self._err("no matching while/do (undefined O-word label)", line, o)
             if lab.kind not in ("while", "do"):
                 self._err(f"no matching while/do label (found '{lab.kind}' at line {lab.lineno})", line, o)
+            self._check_open(f, key, lab, line, o)
             if kw == "continue" and f.skipping == key:
                 return
             self._skip(f, key, line)
@@ -961,6 +967,7 @@ class Expander:
                 self._err(f"no matching '{want}' (undefined O-word label)", line, o)
             if lab.kind != want:
                 self._err(f"no matching '{want}' label (found '{lab.kind}' at line {lab.lineno})", line, o)
+            self._check_open(f, key, lab, line, o)
             if f.skipping == key:
                 f.skipping = None
                 if f.doing_continue:
@@ -975,6 +982,10 @@ class Expander:
             self._loop_back(f, lab, line, o)
             return
         self._err(f"'{kw}' not handled", line, o)
+
+    def _check_open(self, f: _Frame, key: str, lab: _Label, line: _Line, o: _OLine) -> None:
+        if key not in f.open_loops:
+            self._err(f"outside its loop: the {lab.kind} at line {lab.lineno} has already ended", line, o)
 
     def _skip(self, f: _Frame, key: str, line: _Line) -> None:
         f.skipping = key
