@@ -196,6 +196,9 @@ o20 endrepeat
 o30 repeat [0]
   G1 X99
 o30 endrepeat
+o31 repeat [0.5]
+  G1 X98
+o31 endrepeat
 M2""", """G21 G90 F600
 G1 X1
 G1 X3

@@ -940,7 +940,7 @@ class Expander:
                 lab = labels[key] = _Label("repeat", here, line.lineno)
             f.open_loops[key] = lab.pc
             if lab.count == -1:
-                lab.count = int(math.floor(test + 0.5))
+                lab.count = int(round(test))      # LinuxCNC round_to_int: nearbyint, halves to even
             if lab.count > 0:
                 lab.count -= 1
             else:
@@ -1080,7 +1080,7 @@ class Expander:
             raise _LineError("M98 needs P, the subprogram number")
         r.s = _fmt(words["p"])
         n, _ = r.integer(0)
-        count = int(math.floor(words.get("l", 1.0) + 0.5))
+        count = int(round(words.get("l", 1.0)))       # round_to_int: nearbyint, halves to even
         name = str(n)
         o = _OLine(name, "", 0)
         o.label = f"M98 P{name}"
