@@ -529,3 +529,13 @@ def test_random_structured_programs_never_traceback(monkeypatch):
             assert err.line is not None
             failed += 1
     assert ran > 5 and failed > 5
+
+
+def test_return_with_the_label_of_an_enclosing_if():
+    """LinuxCNC's nc_files/retval.ngc: 'o1010 return [..]' inside 'o1010 if' returns from o1000, with its value."""
+    prog = ("G21 G90 F600\no1000 sub\no1010 if [#1 GT 0]\no1010    return [123*[#1]]\no1010 endif\n"
+            "o1020 if [#1 LT 0]\no1020    return\no1020 endif\no1000 endsub [4712]\n"
+            "o1000 call [0]\nG1 X[#<_value> / 1000]\no1000 call [2]\nG1 X[#<_value> / 1000]\n"
+            "o1000 call [-1]\nG1 Y[#<_value> + #<_value_returned> + 1]\nM2")
+    mv, _ = _read(prog)
+    assert list(mv["x1"]) == [4.712, 0.246, 0.246] and mv["y1"][2] == 1.0

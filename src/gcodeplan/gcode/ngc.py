@@ -788,8 +788,10 @@ class Expander:
             if f.skipping is None:
                 yield self._emit(f, line, line.text)
             return
-        key = o.name                     # local labels are per frame; subs are global
-        if f.skipping is not None and key != f.skipping and o.kw not in ("sub",):
+        key = o.name
+        # while skipping, only the label skipped to counts; sub/endsub/call/return names are global in LinuxCNC
+        # (never equal to a local if/loop label: 'o1010 return' inside a false 'o1010 if' is skipped)
+        if f.skipping is not None and o.kw != "sub" and (o.kw in ("endsub", "call", "return") or key != f.skipping):
             return
         yield from self._control(f, line, o, reader, s)
 
@@ -847,7 +849,8 @@ class Expander:
                 self._err("not inside a subroutine", line, o)
             if f.sub.fanuc:
                 self._err(f"a Fanuc-style subprogram (O{f.sub.name}, line {f.sub.lineno}) ends with M99", line, o)
-            if o.name != f.sub.name:
+            if kw == "endsub" and o.name != f.sub.name:
+                # ('return' may carry any label: LinuxCNC's own examples use an enclosing if's, o1010 return)
                 self._err(f"does not match the subroutine o{f.sub.name} being executed "
                           f"(defined at line {f.sub.lineno})", line, o)
             g = self.params.globals
