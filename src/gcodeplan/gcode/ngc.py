@@ -82,8 +82,9 @@ class NgcParams:
         self.numbered[5599] = 1.0          # DEBUG output on
 
     # ------------------------------------------------------------------ .var file
-    def load_var(self, path: str) -> None:
-        """Read a LinuxCNC parameter file (``number value`` per line; other lines skipped, as LinuxCNC)."""
+    def load_var(self, path: str) -> "NgcParams":
+        """Read a LinuxCNC parameter file (``number value`` per line; other lines skipped, as LinuxCNC);
+        returns the table (``NgcParams().load_var(path).get(5161)``: G28 home X as stored)."""
         try:
             with open(path, encoding="utf-8", errors="replace") as fh:
                 for line in fh:
@@ -98,6 +99,7 @@ class NgcParams:
                         self.numbered[k] = v
         except OSError as err:
             raise GcodeError(f"cannot read parameter file: {err.strerror or err}", path) from None
+        return self
 
     # ------------------------------------------------------------------ access
     def get(self, index: int) -> float:
@@ -109,9 +111,11 @@ class NgcParams:
         return self.numbered[index]
 
     def set(self, index: int, value: float) -> None:
+        """Store ``#index`` (the caller has checked the range and read-only numbers)."""
         self.numbered[index] = value
 
     def exists(self, name: str) -> bool:
+        """``EXISTS[#<name>]``: assigned in the current scope (local) or globally, or predefined."""
         if name.startswith("_"):
             return name in self.globals or (self.state is not None and self.state.knows(name))
         return name in self.locals[-1]
@@ -127,6 +131,7 @@ class NgcParams:
         return self.locals[-1].get(name)
 
     def set_named(self, name: str, value: float) -> None:
+        """Store ``#<name>``: global when the name starts with ``_``, else local to the current call level."""
         (self.globals if name.startswith("_") else self.locals[-1])[name] = value
 
 
@@ -153,6 +158,7 @@ class InterpState:
         self.expander = expander
 
     def knows(self, name: str) -> bool:
+        """True for a predefined name (answered, or refused with a message)."""
         return name in self._NAMES or name in self._UNSUPPORTED
 
     def _pos(self, axis: int, relative: bool) -> float:
@@ -163,6 +169,7 @@ class InterpState:
         return x / float(st[S.S_UNIT])
 
     def numbered(self, i: int) -> float | None:
+        """The interpreter's value of ``#i`` in program units, None when the table's own value applies."""
         from . import scan as S
 
         it = self.interp
@@ -188,7 +195,8 @@ class InterpState:
             return float(it.work[k][axis]) / unit
         return None
 
-    def named(self, name: str) -> float:
+    def named(self, name: str) -> float | None:
+        """The value of the predefined ``#<name>``; None when unknown; raises for a name not modelled."""
         from . import scan as S
 
         it = self.interp
@@ -647,6 +655,7 @@ class Expander:
     # ------------------------------------------------------------------ state
     @property
     def call_level(self) -> int:
+        """Subroutine nesting now (``#<_call_level>``): 0 in the main program."""
         return len(self.stack) - 1
 
     @property
