@@ -539,3 +539,14 @@ def test_return_with_the_label_of_an_enclosing_if():
             "o1000 call [-1]\nG1 Y[#<_value> + #<_value_returned> + 1]\nM2")
     mv, _ = _read(prog)
     assert list(mv["x1"]) == [4.712, 0.246, 0.246] and mv["y1"][2] == 1.0
+
+
+def test_parameter_file_values(tmp_path):
+    """[RS274NGC]PARAMETER_FILE is read (LinuxCNC's .var: 'number value' lines): #5161 is the stored G28 X."""
+    (tmp_path / "mill.var").write_text("5161\t12.5\n5162 -3\nnot a line\n5220 1.0\n")
+    ini = tmp_path / "m.ini"
+    ini.write_text(shared_path(*REF2, "config", "mill.ini").read_text())     # PARAMETER_FILE = mill.var
+    m = load_linuxcnc_ini(str(ini))
+    mv, _ = _read("G21 G90 F600\nG1 X#5161 Y#5162\nM2", m)
+    assert (mv["x1"][0], mv["y1"][0]) == (12.5, -3.0)
+    assert NgcParams().load_var(str(tmp_path / "mill.var")).get(5161) == 12.5
