@@ -432,6 +432,10 @@ class LineTimes(Sink):
             return np.zeros(0, np.int64), np.zeros(0, np.float64)
         line = np.concatenate(self._lines)
         end = np.concatenate(self._ends)
+        if line.size > 1 and np.any(line[1:] < line[:-1]):
+            # lines run more than once (RS274NGC subroutines and loops, gcode/ngc.py): each line's last end
+            order = np.lexsort((end, line))
+            line, end = line[order], end[order]
         # a line whose moves straddle two pieces appears twice: keep its last end
         last = np.r_[line[1:] != line[:-1], True]
         return line[last], end[last]

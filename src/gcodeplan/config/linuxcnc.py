@@ -168,5 +168,14 @@ def load_linuxcnc_ini(path: str) -> Machine:
     m = Machine(name=name_raw[0] if name_raw else os.path.basename(ini.path), kinematics="cartesian",
                 flavor="linuxcnc", max_velocity=vmax * scale if vmax < 1e98 else math.inf,
                 max_accel=amax * scale if amax < 1e98 else math.inf, junction_policy="linuxcnc", axes=axes)
+    # RS274NGC: where 'o<name> call' finds <name>.ngc (gcode/ngc.py), the parameter file
+    from ..gcode.ngc import subroutine_dirs
+
+    sub_path, prefix, var = (ini.get("RS274NGC", "SUBROUTINE_PATH"), ini.get("DISPLAY", "PROGRAM_PREFIX"),
+                             ini.get("RS274NGC", "PARAMETER_FILE"))
+    settings.subroutine_path = subroutine_dirs(ini.path, sub_path[0] if sub_path else None,
+                                               prefix[0] if prefix else None)
+    settings.parameter_file = (os.path.join(os.path.dirname(os.path.abspath(ini.path)), var[0])
+                               if var else None)
     m.linuxcnc = settings
     return m

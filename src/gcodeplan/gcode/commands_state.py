@@ -158,7 +158,7 @@ class StateCommands:
             self._wait(f"M{mc}", m.heat_wait_time if mc in (109, 190, 191) else 0.0)
         elif mc == 400:
             self._wait("M400")
-        elif mc in (0, 1):
+        elif mc in (0, 1, 60):     # M60: LinuxCNC's pallet-change pause, a pause like M0
             used.update(params)
             self.event(f"M{mc} pause")
             self._wait(f"M{mc}")

@@ -32,6 +32,7 @@ from . import scan as S
 from .lexing import (CHECKSUM_RE, EXT_RE, FREE_TEXT_M, FREE_TEXT_RE, HMS_RE, M486_RE, M486_WORD_RE, MAX_EVENTS,
                      MAX_WARNINGS, OBJECT_COMMENT_RE, PLACEHOLDER_RE, QUIET_G, QUIET_M, S3D_LAYER_RE, SEP_OK, WORD_RE,
                      Word, parse_number)
+from .ngc import expand_line, needs_expansion
 from .objects import KlipperExclude, ObjectTable
 
 from .commands_motion import MotionCommands
@@ -124,6 +125,9 @@ class Interpreter(StateCommands, MotionCommands):
         self.header_layer_count: int | None = None
         self.slicer_estimate_s: float | None = None
         self.line = 0
+        # RS274NGC program language (gcode/ngc.py): made by the first line that needs it
+        self.ngc = None
+        self._ngc_on = m.flavor == "linuxcnc"
 
     # ------------------------------------------------------------------ helpers
     @property
@@ -329,6 +333,13 @@ class Interpreter(StateCommands, MotionCommands):
         if self.ist[S.I_STOPPED]:
             return
         text = raw.decode("utf-8", "replace").strip()
+        if self._ngc_on and (self.ngc is not None or needs_expansion(text)):
+            expand_line(self, text, lineno)     # O-words, parameters, expressions: gcode/ngc.py
+            return
+        self._handle_text(raw, text)
+
+    def _handle_text(self, raw: bytes, text: str) -> None:
+        """Interpret one line's text (``raw``: its bytes, for whole-line comments)."""
         if not text:
             return
         if text[0] == ";":
@@ -558,7 +569,7 @@ class Interpreter(StateCommands, MotionCommands):
 
     def _known(self, letter: str, num: int) -> bool:
         if letter == "M":
-            return num in (0, 1, 2, 30, 3, 4, 5, 6, 82, 83, 109, 190, 191, 116, 400, 201, 203, 204, 205, 220, 221)
+            return num in (0, 1, 2, 30, 60, 3, 4, 5, 6, 82, 83, 109, 190, 191, 116, 400, 201, 203, 204, 205, 220, 221)
         return num in (0, 1, 2, 3, 4, 10, 11, 17, 18, 19, 20, 21, 28, 43, 49, 53, 54, 55, 56, 57, 58, 59,
                        61, 64, 73, 80, 81, 82, 83, 85, 86, 89, 90, 91, 92, 93, 94, 98, 99)
 

@@ -173,6 +173,8 @@ class GcodeReader:
         try:
             for data, pos, end in self._chunks():
                 yield from self._scan(data, pos, end)
+            if self.interp.ngc is not None:
+                self.interp.ngc.end()    # an O-word block left open (gcode/ngc.py)
         except GcodeError:
             self.source.check_rest()   # a corrupt gzip member explains a garbage line better than the line does
             raise
@@ -209,6 +211,8 @@ class GcodeReader:
         if getattr(self, "_tail", b""):
             tail, self._tail = self._tail, b""
             out = self.feed(tail + b"\n")
+        if self.interp.ngc is not None:
+            self.interp.ngc.end()
         self._complete_summary()
         return out
 
