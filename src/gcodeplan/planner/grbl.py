@@ -651,6 +651,74 @@ def _isr(si, st_steps, st_sec, st_dir, st_op, seg_n, seg_cycles, seg_block, seg_
 
 
 @numba.njit(cache=True)
+def _rest_of_segment(si, st_sec, st_op, window_base, op_end_tick, step_t, step_dir, n_out):
+    """The interrupts of the running segment after the one that loaded it, in closed form: they come every
+    OCR1A + 1 ticks, and each axis' Bresenham counter c (1 ≤ c ≤ sec) makes its i-th step at the
+    m_i = ⌈(i·sec + 1 − c)/s⌉-th increment (an increment adds s, a step takes sec off once the counter exceeds
+    sec). A step decided at an interrupt is pulsed at the next one; the last interrupt's pulses wait for the
+    next segment's first interrupt. Equal, interrupt for interrupt, to running :func:`_isr` that many times."""
+    r = si[I_STEP_COUNT]               # increments left, the first at si[I_NEXT_ISR]
+    period = si[I_OCR] + 1
+    t1 = si[I_NEXT_ISR]
+    eb = si[I_EXEC_BLOCK]
+    sec = st_sec[eb]
+    row = st_op[eb] - window_base
+    last = -1
+    out = si[I_OUTBITS]                # decided at the loading interrupt: pulsed at t1
+    if out:
+        last = t1
+        for ax in range(3):
+            if out & (1 << ax):
+                k = n_out[ax]
+                if k < step_t.shape[1]:
+                    step_t[ax, k] = t1
+                    step_dir[ax, k] = -1 if (si[I_DIRBITS] >> ax) & 1 else 1
+                n_out[ax] = k + 1
+    pending = 0
+    for ax in range(3):
+        s = si[I_SX + ax]
+        c = si[I_CX + ax]
+        if s == 0:
+            continue
+        n_steps = (c + r * s - 1) // sec
+        if n_steps >= 1:
+            sign = -1 if (si[I_DIRBITS] >> ax) & 1 else 1
+            if step_t.shape[1] > 0:
+                for i in range(1, n_steps + 1):
+                    m = (i * sec + 1 - c + s - 1) // s
+                    if m < r:
+                        k = n_out[ax]
+                        if k < step_t.shape[1]:
+                            step_t[ax, k] = t1 + m * period
+                            step_dir[ax, k] = sign
+                        n_out[ax] = k + 1
+            m_last = (n_steps * sec + 1 - c + s - 1) // s
+            if m_last < r:
+                if step_t.shape[1] == 0:
+                    n_out[ax] += n_steps
+                t = t1 + m_last * period
+                if t > last:
+                    last = t
+            else:
+                pending |= 1 << ax
+                if step_t.shape[1] == 0:
+                    n_out[ax] += n_steps - 1
+        si[I_CX + ax] = c + r * s - n_steps * sec
+    if last >= 0:
+        op_end_tick[row] = last
+        si[I_LAST_PULSE] = last
+    t_end = t1 + (r - 1) * period      # the segment's last interrupt
+    si[I_OUTBITS] = pending
+    si[I_STEP_COUNT] = 0
+    si[I_EXEC_SEG] = -1
+    si[I_SEG_TAIL] = _next(si[I_SEG_TAIL], SEGMENT_BUFFER_SIZE)
+    si[I_TICK] = t_end
+    si[I_LAST_MATCH] = t_end
+    si[I_NEXT_ISR] = t_end + period
+    si[I_PHASE] = -1
+
+
+@numba.njit(cache=True)
 def grbl_feed_kernel(si, sf, bf, bsteps, bdir, bop, brapid, st_steps, st_sec, st_dir, st_op, seg_n, seg_cycles,
                      seg_block, seg_amass, op_kind, op_target, op_rate, op_rapid, op_dwell_ticks, op_base, final,
                      steps_per_mm, max_rate, acceleration, junction_deviation, window_base, op_end_tick, op_info,
@@ -739,12 +807,11 @@ def _prep_then_wait(si, sf, bf, bsteps, bdir, bop, brapid, st_steps, st_sec, st_
         # Until a segment completes nothing changes for the main loop (the segment ring stays as full as it
         # was, so st_prep_buffer has nothing to do and no block leaves the planner): run the interrupts of
         # the current segment in one go, exactly as one interrupt per main-loop pass would.
-        while True:
-            si[I_TICK] = si[I_NEXT_ISR]
-            _isr(si, st_steps, st_sec, st_dir, st_op, seg_n, seg_cycles, seg_block, seg_amass, window_base,
-                 op_end_tick, step_t, step_dir, n_out)
-            if si[I_EXEC_SEG] < 0 or si[I_RUNNING] == 0:
-                break
+        si[I_TICK] = si[I_NEXT_ISR]
+        _isr(si, st_steps, st_sec, st_dir, st_op, seg_n, seg_cycles, seg_block, seg_amass, window_base,
+             op_end_tick, step_t, step_dir, n_out)
+        if si[I_RUNNING] and si[I_EXEC_SEG] >= 0:
+            _rest_of_segment(si, st_sec, st_op, window_base, op_end_tick, step_t, step_dir, n_out)
 
 
 # --------------------------------------------------------------------------- MOVE rows in, times out
