@@ -21,6 +21,7 @@ from __future__ import annotations
 import gzip
 import io
 import os
+import re
 import stat
 import sys
 import zlib
@@ -29,6 +30,7 @@ from collections.abc import Iterable
 from ..errors import GcodeError
 
 GZIP_MAGIC = b"\x1f\x8b"
+_LONE_CR = re.compile(rb"\r(?!\n)")
 _SNIFF_BYTES = 4
 STDIN_NAME = "<stdin>"
 LINES_NAME = "<lines>"
@@ -379,4 +381,43 @@ def source_name(source) -> str:
     return LINES_NAME
 
 
-__all__ = ["Source", "open_source", "source_name", "GZIP_MAGIC", "STDIN_NAME", "LINES_NAME", "STREAM_NAME"]
+# ------------------------------------------------------------------ line ends
+def cr_line_ends(buf: bytearray, lo: int, hi: int, final: bool) -> None:
+    """Turn, in place, every CR of ``buf[lo:hi]`` that ends a line by itself (old Mac files) into LF.
+
+    Marlin's and RepRapFirmware's line readers end a line at CR or LF, and slicers and editors read a
+    file with CR-only line ends as lines; CRLF stays one line end (its CR is a blank to the parser).
+    A CR at ``hi - 1`` is left alone unless ``final``: the LF that would make it a CRLF may come with the
+    next read. Cost on files without lone CRs: one search for CR (two counts on CRLF files)."""
+    i = buf.find(b"\r", lo, hi)
+    if i < 0:
+        return
+    n_cr = buf.count(b"\r", i, hi)
+    n_crlf = buf.count(b"\r\n", i, hi)
+    pending = not final and buf[hi - 1] == 13
+    if n_cr == n_crlf + (1 if pending else 0):
+        return
+    end = hi - 1 if pending else hi
+    buf[i:end] = _LONE_CR.sub(b"\n", bytes(buf[i:end]))       # same length: LF for CR
+
+
+def iter_lines(stream, chunk_bytes: int = 1 << 20):
+    """The lines of a binary ``stream``, each with its own line end (LF, CRLF or a lone CR; the last line
+    may have none): the lines the reader numbers (:func:`cr_line_ends`), for passes that copy the text."""
+    rest = b""
+    while True:
+        chunk = stream.read(chunk_bytes)
+        if not chunk:
+            if rest:
+                yield from rest.splitlines(keepends=True)
+            return
+        lines = (rest + chunk).splitlines(keepends=True)
+        # the last piece may be a line not yet ended, or a CR whose LF comes with the next read
+        rest = lines.pop() if lines else b""
+        if rest.endswith(b"\n"):
+            lines.append(rest)
+            rest = b""
+        yield from lines
+
+
+__all__ = ["cr_line_ends", "iter_lines", "Source", "open_source", "source_name", "GZIP_MAGIC", "STDIN_NAME", "LINES_NAME", "STREAM_NAME"]
