@@ -519,7 +519,7 @@ class Interpreter(StateCommands, MotionCommands):
             try_words_error = err
         if words is None:
             # an unknown M/G command with free text (M117 Hello 1.2.3) is not ours to validate
-            m = re.match(r"([MmGg])\s*(\d+)", code)
+            m = re.match(r"([MmGg])\s*(\d{1,9})(?!\d)", code)     # longer: not a command number
             if m:
                 name = f"{m.group(1).upper()}{int(m.group(2))}"
                 num = int(m.group(2))
