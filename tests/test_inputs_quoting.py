@@ -67,3 +67,30 @@ def test_paths_and_short_quotes_are_kept_whole():
     assert str(GcodeplanError("number out of range: X1e400")) == "number out of range: X1e400"
     long = GcodeplanError(" ".join(["G1"] * 2000))             # many short words: the whole is bounded
     assert len(str(long)) == 1001 and str(long).endswith("…")
+
+
+# ------------------------------------------------------------------ [include] of a file that is not a config
+def test_an_included_file_is_named_by_path_and_line_never_quoted(tmp_path):
+    from gcodeplan.config import load_klipper_config
+
+    secret = tmp_path / "shadow"
+    secret.write_text("root:$6$SECRETHASH:20228:0:99999:7:::\n")
+    cfg = tmp_path / "printer.cfg"
+    cfg.write_text(f"[include {secret}]\n")
+    with pytest.raises(ConfigError) as err:
+        load_klipper_config(str(cfg))
+    assert (err.value.file, err.value.line) == (str(secret), 1)
+    assert "SECRETHASH" not in str(err.value) and "root" not in err.value.message
+    secret.write_text("[stepper_x]\nstep_pin: PA1\n  \nnot a key value SECRETWORD\n")
+    with pytest.raises(ConfigError) as err:
+        load_klipper_config(str(cfg))
+    assert (err.value.file, err.value.line) == (str(secret), 4) and "SECRETWORD" not in str(err.value)
+
+
+def test_the_users_own_config_is_still_quoted(tmp_path):
+    from gcodeplan.config import load_klipper_config
+
+    cfg = tmp_path / "printer.cfg"
+    cfg.write_text("max_velocity 300\n")
+    with pytest.raises(ConfigError, match=r"printer\.cfg:1: 'max_velocity 300' is outside any \[section\]"):
+        load_klipper_config(str(cfg))
