@@ -225,6 +225,7 @@ class GcodeReader:
             for data, pos, end in self._chunks():
                 yield from self._scan(data, pos, end)
         except GcodeError:
+            self.source.check_unchanged()   # a file rewritten while read explains a broken line best
             self.source.check_rest()   # a corrupt gzip member explains a garbage line better than the line does
             raise
         finally:
