@@ -30,7 +30,6 @@ from __future__ import annotations
 import gzip
 import io
 import os
-import re
 import stat
 import sys
 import tempfile
@@ -41,7 +40,6 @@ from collections.abc import Iterable
 from ..errors import GcodeError
 
 GZIP_MAGIC = b"\x1f\x8b"
-_LONE_CR = re.compile(rb"\r(?!\n)")
 _SNIFF_BYTES = 4
 STDIN_NAME = "<stdin>"
 LINES_NAME = "<lines>"
@@ -588,8 +586,15 @@ def cr_line_ends(buf: bytearray, lo: int, hi: int, final: bool) -> None:
     pending = not final and buf[hi - 1] == 13
     if n_cr == n_crlf + (1 if pending else 0):
         return
+    import numpy as np
+
     end = hi - 1 if pending else hi
-    buf[i:end] = _LONE_CR.sub(b"\n", bytes(buf[i:end]))       # same length: LF for CR
+    # in place on the buffer's memory (a regex substitution made ~2 objects per line: +95 MB on 50 MB)
+    arr = np.frombuffer(buf, np.uint8, count=end - i, offset=i)
+    lone = arr == 13
+    lone[:-1] &= arr[1:] != 10           # the last byte: a CR there is lone (a waiting one was left out)
+    arr[lone] = 10
+    del arr, lone
 
 
 def iter_lines(stream, chunk_bytes: int = 1 << 20):
