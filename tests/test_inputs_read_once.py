@@ -11,14 +11,12 @@ from __future__ import annotations
 
 import base64
 import gzip
-import json
 import os
 import re
 import subprocess
 import sys
 import threading
 
-import numpy as np
 import pytest
 
 from conftest import SAMPLES
@@ -53,7 +51,7 @@ def feed_fifo(path, data: bytes, times: int = 1):
 def spools_left():
     import tempfile
 
-    return [n for n in os.listdir(tempfile.gettempdir()) if n.startswith(f"gcodeplan-") and n.endswith(".spool")]
+    return [n for n in os.listdir(tempfile.gettempdir()) if n.startswith("gcodeplan-") and n.endswith(".spool")]
 
 
 # ------------------------------------------------------------------ FIFOs and <(…)
@@ -121,7 +119,7 @@ def test_view_and_report_read_a_fifo_once_and_keep_the_text(tmp_path, command):
     text = _page_texts(got.read_text())
     assert len(text) > 100_000 and text == _page_texts(ref.read_text())
     assert b"G1 X" in text
-    assert not [n for n in spools_left() if n.startswith(f"gcodeplan-")
+    assert not [n for n in spools_left() if n.startswith("gcodeplan-")
                 and not os.path.exists(f"/proc/{n.split('-')[1]}")]
 
 
