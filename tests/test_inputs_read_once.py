@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import base64
 import gzip
+import io
 import os
 import re
 import subprocess
@@ -276,3 +277,55 @@ def test_view_refuses_texts_from_another_version(tmp_path, monkeypatch):
     monkeypatch.setattr(pipeline, "run", run_then_change)
     with pytest.raises(GcodeError, match="changed between two passes"):
         build_viewer(p, Machine(flavor="klipper"))
+
+
+def test_a_signal_while_spooling_standard_input_leaves_no_copy(tmp_path):
+    """SIGTERM while ``view -`` copies a pipe that is still open: exit 143, one line, the copy removed."""
+    import signal
+    import time
+
+    spool_dir = tmp_path / "tmp"
+    spool_dir.mkdir()
+    proc = subprocess.Popen([sys.executable, "-m", "gcodeplan.cli", "view", "-", "-o", str(tmp_path / "v.html")],
+                            stdin=subprocess.PIPE, stderr=subprocess.PIPE, stdout=subprocess.PIPE,
+                            env={**ENV, "TMPDIR": str(spool_dir)})
+    proc.stdin.write(CUBE.read_bytes()[:100_000])
+    proc.stdin.flush()
+    deadline = time.monotonic() + 120
+    while not list(spool_dir.iterdir()) and time.monotonic() < deadline:     # the copy has started
+        time.sleep(0.05)
+    assert [p.suffix for p in spool_dir.iterdir()] == [".spool"]
+    proc.send_signal(signal.SIGTERM)
+    _, err = proc.communicate(timeout=60)
+    proc.stdin.close()
+    assert proc.returncode == 128 + signal.SIGTERM
+    assert err.decode().count("\n") == 1
+    assert list(spool_dir.iterdir()) == [] and not (tmp_path / "v.html").exists()
+
+
+def test_a_full_temporary_directory_is_one_line(tmp_path, monkeypatch):
+    from gcodeplan.gcode.sources import spooled
+
+    if not os.path.exists("/dev/full"):
+        pytest.skip("no /dev/full")
+    import tempfile
+
+    class Full(io.RawIOBase):
+        def readable(self):
+            return True
+
+        def readinto(self, b):
+            b[:1] = b"G"
+            return 1
+
+    real = tempfile.mkstemp
+
+    def mkstemp_on_full(*a, **kw):
+        fd, name = real(*a, **kw)
+        os.dup2(os.open("/dev/full", os.O_WRONLY), fd)     # writes fail with ENOSPC
+        return fd, name
+
+    monkeypatch.setattr(tempfile, "mkstemp", mkstemp_on_full)
+    with pytest.raises(GcodeError, match=r"cannot keep a copy of the input in .*No space left"):
+        with spooled(Full()):
+            pass
