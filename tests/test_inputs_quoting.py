@@ -94,3 +94,9 @@ def test_the_users_own_config_is_still_quoted(tmp_path):
     cfg.write_text("max_velocity 300\n")
     with pytest.raises(ConfigError, match=r"printer\.cfg:1: 'max_velocity 300' is outside any \[section\]"):
         load_klipper_config(str(cfg))
+
+
+def test_unknown_command_names_are_counted_under_40_characters():
+    data = b"G28\n" + b"A" * N + b"_X\n" + b"A" * N + b"_Y\n"
+    _, r = read_moves(io.BytesIO(data), Machine(flavor="klipper"))
+    assert r.summary.unknown_commands == {"A" * 40 + "…": 2}

@@ -25,7 +25,7 @@ import re
 
 import numpy as np
 
-from ..errors import GcodeError
+from ..errors import GcodeError, quote
 from ..machine import Machine
 from ..schema import KIND_EXTRUDE_ONLY, KIND_WAIT, LIMITS_DTYPE
 from . import scan as S
@@ -145,6 +145,7 @@ class Interpreter(StateCommands, MotionCommands):
     def unknown_command(self, name: str) -> None:
         if self.strict:
             self.error(f"unknown command {name}")
+        name = quote(name)      # counted under at most 40 characters: a 1 MiB name is not kept whole
         self.unknown[name] = self.unknown.get(name, 0) + 1
 
     def ignore(self, name: str) -> None:
