@@ -129,3 +129,34 @@ def test_cr_line_ends_and_iter_lines_agree_with_splitlines():
     pending = bytearray(b"x\ry\r")
     cr_line_ends(pending, 0, len(pending), False)
     assert bytes(pending) == b"x\ny\r"             # the last CR waits for the next read
+
+
+def _page_texts(html: str) -> bytes:
+    import base64
+    import re
+
+    import zstandard
+
+    blocks = re.findall(r'id="gpv-text-\d+">([^<]*)<', html)
+    return b"".join(zstandard.ZstdDecompressor().decompress(base64.b64decode(b)) for b in blocks)
+
+
+def test_the_viewer_shows_the_lines_of_a_cr_only_file(cube_cr):
+    from gcodeplan.report.viewer import build_viewer
+
+    m = Machine(flavor="klipper")
+    ref = _page_texts(build_viewer(CUBE, m))
+    got = _page_texts(build_viewer(cube_cr, m))
+    assert len(ref) > 100_000 and got == ref
+
+
+def test_post_process_keeps_cr_only_line_ends(cube_cr, tmp_path):
+    from gcodeplan.report.postprocess import post_process
+
+    ref, out = tmp_path / "ref.gcode", tmp_path / "out.gcode"
+    r_ref = post_process(CUBE, ref)
+    r_out = post_process(cube_cr, out)
+    data = out.read_bytes()
+    assert b"\n" not in data                          # the file's own line ends, inserted lines too
+    assert data.replace(b"\r", b"\n") == ref.read_bytes()
+    assert r_out.m73 == r_ref.m73 and len(r_out.m73) > 50

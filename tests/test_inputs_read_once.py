@@ -329,3 +329,12 @@ def test_a_full_temporary_directory_is_one_line(tmp_path, monkeypatch):
     with pytest.raises(GcodeError, match=r"cannot keep a copy of the input in .*No space left"):
         with spooled(Full()):
             pass
+
+
+def test_report_reads_standard_input_once(tmp_path):
+    ref, got = tmp_path / "ref.html", tmp_path / "got.html"
+    assert cli("report", CUBE, "-o", ref, "--slowest=0").returncode == 0
+    with open(CUBE, "rb") as fh:
+        out = cli("report", "-", "-o", got, "--slowest=0", stdin=fh)
+    assert out.returncode == 0, out.stderr
+    assert _page_texts(got.read_text()) == _page_texts(ref.read_text()) != b""
