@@ -15,7 +15,8 @@ from .common import add_machine_arguments, add_plan_arguments, check_plan_argume
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("file", metavar="FILE",
-                   help="G-code file, rewritten in place (atomically: temporary file + rename, permissions kept)")
+                   help="G-code file, rewritten in place (atomically: temporary file + rename, permissions kept); "
+                        "'-' (standard input) or a pipe is read once and needs -o")
     p.add_argument("-o", "--output", metavar="OUT", help="write the result here instead of in place")
     add_machine_arguments(p)
     add_plan_arguments(p)
@@ -35,7 +36,9 @@ def run(args) -> int:
     check_plan_arguments(args)
     machine = machine_from_args(args)
     # PrusaSlicer >= 2.6 tells the final name of the file it is writing (the path it gives is a temporary one)
-    shown = os.environ.get("SLIC3R_PP_OUTPUT_NAME") or args.file
+    from ..gcode.sources import source_name
+
+    shown = os.environ.get("SLIC3R_PP_OUTPUT_NAME") or source_name(args.file)
     bar, progress = progress_bar(args.file, args.quiet)
     try:
         res = post_process(args.file, args.output, machine, args.policy, args.jerk, strict=args.strict,

@@ -148,7 +148,8 @@ def _tables(est, d: dict) -> list[str]:
 
 def build_report(path: str, machine, policy: str | None = None, jerk: float | None = None, strict: bool = False,
                  slowest: int = 2, size_in=plots.FIGSIZE_IN) -> str:
-    """Plan ``path`` once and return the HTML page."""
+    """Plan ``path`` once and return the HTML page (the viewer reads the lines' texts again: ``path`` must be
+    readable twice, a regular file or :func:`gcodeplan.gcode.sources.spooled`'s copy)."""
     from .estimate import Estimate, print_text
     from ..report.summary import TimeSummary
     from ..report.viewer import ViewerSink, viewer_data, viewer_fragment
@@ -168,9 +169,10 @@ def build_report(path: str, machine, policy: str | None = None, jerk: float | No
 
     reader = stream_plan(path, machine, policy, jerk, strict, fold)
     view.finish(reader, policy)
-    est = Estimate(path, reader.summary, time, list(reader.layer_z), list(reader.features), policy, machine.name)
+    est = Estimate(reader.path, reader.summary, time, list(reader.layer_z), list(reader.features), policy,
+                   machine.name)
     d = est.to_json()
-    name = os.path.basename(path)
+    name = os.path.basename(reader.path)
     parts = _tables(est, d)
     if view.rows:
         parts.insert(0, html.section("Explore the plan", viewer_fragment(viewer_data(view, path, machine.name, policy))))
@@ -222,7 +224,10 @@ def run(args) -> int:
     parent = os.path.dirname(os.path.abspath(out))
     if not os.path.isdir(parent):
         raise GcodeplanError(f"cannot write {out}: no such directory {parent}")
-    page = build_report(args.file, machine, args.policy, args.jerk, args.strict, args.slowest, size_in)
+    from ..gcode.sources import spooled
+
+    with spooled(args.file) as src:       # read twice (the plan, then the viewer's line texts): '-', FIFOs copied
+        page = build_report(src, machine, args.policy, args.jerk, args.strict, args.slowest, size_in)
     from ..report.output import atomic_output
 
     try:

@@ -167,10 +167,17 @@ class KlipperCfg:
                                       "gcodeplan does not read it", file, n)
                 self.sections.setdefault(section, {})
                 continue
+            # an included file may be anything ([include /etc/shadow]): its lines are never quoted, only
+            # its path and the line number (the user's own file is quoted, to show what is wrong)
+            included = len(visiting) > 1
             if section is None:
+                if included:
+                    raise ConfigError("not a Klipper config line (a line outside any [section])", file, n)
                 raise ConfigError(f"'{content}' is outside any [section]", file, n)
             sep = _OPTION_SEP.search(content)
             if sep is None or not content[:sep.start()].strip():
+                if included:
+                    raise ConfigError("not a Klipper config line (expected 'key: value')", file, n)
                 raise ConfigError(f"[{section}]: expected 'key: value', got {content!r}", file, n)
             key = content[:sep.start()].strip().lower()
             key_indent = indent

@@ -25,7 +25,7 @@ import re
 
 import numpy as np
 
-from ..errors import GcodeError
+from ..errors import GcodeError, quote
 from ..machine import Machine
 from ..schema import KIND_EXTRUDE_ONLY, KIND_WAIT, LIMITS_DTYPE
 from . import scan as S
@@ -149,6 +149,7 @@ class Interpreter(StateCommands, MotionCommands):
     def unknown_command(self, name: str) -> None:
         if self.strict:
             self.error(f"unknown command {name}")
+        name = quote(name)      # counted under at most 40 characters: a 1 MiB name is not kept whole
         self.unknown[name] = self.unknown.get(name, 0) + 1
 
     def ignore(self, name: str) -> None:
@@ -530,7 +531,7 @@ class Interpreter(StateCommands, MotionCommands):
             try_words_error = err
         if words is None:
             # an unknown M/G command with free text (M117 Hello 1.2.3) is not ours to validate
-            m = re.match(r"([MmGg])\s*(\d+)", code)
+            m = re.match(r"([MmGg])\s*(\d{1,9})(?!\d)", code)     # longer: not a command number
             if m:
                 name = f"{m.group(1).upper()}{int(m.group(2))}"
                 num = int(m.group(2))

@@ -5,6 +5,8 @@ import math
 import re
 from dataclasses import dataclass
 
+from ..errors import quote
+
 
 
 
@@ -17,7 +19,7 @@ SEP_OK = re.compile(r"(?:\s|[A-Za-z]|$)")
 EXT_RE = re.compile(r"([A-Za-z_][A-Za-z0-9_]*)(.*)$", re.S)
 KV_RE = re.compile(r"\s*([A-Za-z_][A-Za-z0-9_]*)\s*=\s*(\"[^\"]*\"|'[^']*'|\S*)")
 PLACEHOLDER_RE = re.compile(r"\{[^}]*\}?")
-CHECKSUM_RE = re.compile(r"\*\s*(\d+)\s*$")
+CHECKSUM_RE = re.compile(r"\*\s*(\d{1,9})\s*$")   # longer: malformed (int() refuses > 4300 digits)
 S3D_LAYER_RE = re.compile(r"\s*layer\s+(-?\d+)(?:\s*,\s*Z\s*=\s*(" + NUM + r"))?", re.I)
 HMS_RE = re.compile(r"(?:(\d+)d)?\s*(?:(\d+)h)?\s*(?:(\d+)m)?\s*(?:(\d+)s)?")
 
@@ -44,7 +46,7 @@ def parse_number(text: str, letter: str, interp) -> float:
     """A word's number (finite, else an error naming the word)."""
     v = float(text)
     if not math.isfinite(v):
-        interp.error(f"number out of range: {letter}{text}")
+        interp.error(f"number out of range: {letter}{quote(text)}")
     return v
 
 

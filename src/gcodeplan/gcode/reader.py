@@ -5,6 +5,12 @@ G-code recognised by their first bytes: :mod:`.sources`) is read in binary chunk
 newline; the numba scanner interprets the common lines and returns to :class:`~.interp.Interpreter` for
 the rest, one line at a time. Memory is bounded by the chunk size and the batch size, whatever the file
 size.
+
+A line ends at LF, CRLF or a lone CR (old Mac files), as Marlin's and RepRapFirmware's line readers and
+the slicers have it (:func:`.sources.cr_line_ends`). A line may be at most :data:`MAX_LINE_BYTES` (1 MiB)
+long: interpreting a line costs up to ~85 times its length in Python objects, and a line without end on a
+pipe would otherwise grow the buffer until memory runs out; a longer line is a :class:`GcodeError` naming
+it. Real G-code lines are far shorter (a slicer's longest, a thumbnail or an object polygon, is a few kB).
 """
 from __future__ import annotations
 
@@ -18,12 +24,40 @@ from ..machine import Machine
 from ..schema import KIND_NAMES, MOVE_DTYPE, rows_with_headroom
 from . import scan as S
 from .interp import Interpreter
-from .sources import open_source
+from .sources import cr_line_ends, open_source
 from .summary import ParseSummary
 
 CHUNK_BYTES = 8 << 20
+MAX_LINE_BYTES = 1 << 20     # longest line read (bytes, its line end excluded): see the module docstring
 _BOM = b"\xef\xbb\xbf"
 _LAYER_MARKS = (b"\n;LAYER_CHANGE", b"\n;LAYER:", b"\n; layer ")
+
+
+def _long_line(buf, lo: int, hi: int) -> tuple[int, int]:
+    """(start, length) of the first line of ``buf[lo:hi]`` (lines start at ``lo``) longer than
+    :data:`MAX_LINE_BYTES`, or (-1, 0). A line that long holds a whole window of half that size starting on
+    the grid stepped here, so a few searches per chunk find it: windows with a newline end at once."""
+    w = MAX_LINE_BYTES // 2
+    p = lo
+    while p + w <= hi:
+        if buf.find(b"\n", p, p + w) >= 0:
+            p += w
+            continue
+        s = buf.rfind(b"\n", lo, p)
+        s = lo if s < 0 else s + 1
+        e = buf.find(b"\n", p + w, hi)
+        e = hi if e < 0 else e
+        n = e - s - (1 if e > s and buf[e - 1] == 13 else 0)     # a CRLF's CR is line end, not line
+        if n > MAX_LINE_BYTES:
+            return s, n
+        p = e + 1
+    return -1, 0
+
+
+def _too_long(path: str, line: int, length: int | None) -> GcodeError:
+    size = f"{length} bytes" if length is not None else "more than 1 MiB"
+    return GcodeError(f"line too long ({size}; gcodeplan reads lines of at most {MAX_LINE_BYTES} bytes, "
+                      f"far above any real G-code line): is this a G-code file?", path, line)
 
 
 def _check_text(path: str, head: bytes, first_line: int = 0) -> None:
@@ -127,6 +161,9 @@ class GcodeReader:
         first = True
         while True:
             if filled == len(store):
+                # the buffer holds one unfinished line (every earlier one was handed out): bound it
+                if filled - start > MAX_LINE_BYTES:
+                    raise _too_long(self.path, int(self.interp.ist[S.I_LINE]) + 1, None)
                 bigger = bytearray(2 * len(store))
                 bigger[:filled] = store
                 store = bigger
@@ -141,6 +178,9 @@ class GcodeReader:
             except OSError as err:
                 raise GcodeError(f"cannot read: {err.strerror or err}", self.path) from None
             self.bytes_read = src.bytes_in
+            # CR-only line ends become LF (the CR of a CRLF stays): one line end each, as firmware reads them;
+            # a CR left by the last read may have been waiting for its LF
+            cr_line_ends(store, max(start, filled - 1), filled + got, got == 0)
             if first:
                 first = False
                 if store.startswith(_BOM):
@@ -152,16 +192,27 @@ class GcodeReader:
             filled += got
             if got == 0:
                 if filled > start:
-                    yield store, start, filled
+                    yield from self._checked(store, start, filled)
                 return
             cut = store.rfind(b"\n", start, filled)
             if cut < 0:
                 continue
-            yield store, start, cut + 1
+            yield from self._checked(store, start, cut + 1)
             rest = filled - (cut + 1)
             store[0:rest] = store[cut + 1:filled]
             filled = rest
             start = 0
+
+    def _checked(self, store, start: int, end: int):
+        """``(store, start, end)``, or the lines before the first one too long and then its error (after
+        those lines were interpreted, so that the line count and any earlier error are right)."""
+        bad, length = _long_line(store, start, end)
+        if bad < 0:
+            yield store, start, end
+            return
+        if bad > start:
+            yield store, start, bad
+        raise _too_long(self.path, int(self.interp.ist[S.I_LINE]) + 1, length)
 
     def batches(self):
         """MOVE arrays in file order, each at most ``batch_moves`` rows."""
@@ -176,6 +227,7 @@ class GcodeReader:
             if self.interp.ngc is not None:
                 self.interp.ngc.end()    # an O-word block left open (gcode/ngc.py)
         except GcodeError:
+            self.source.check_unchanged()   # a file rewritten while read explains a broken line best
             self.source.check_rest()   # a corrupt gzip member explains a garbage line better than the line does
             raise
         finally:
@@ -196,9 +248,15 @@ class GcodeReader:
             self._tail = b""
             self._out = np.empty(self.batch_moves, dtype=MOVE_DTYPE)
             self._n = 0
-        data = self._tail + bytes(data)
+        data = bytearray(self._tail + bytes(data))
+        cr_line_ends(data, 0, len(data), False)      # a last CR waits in the tail for a possible LF
         cut = data.rfind(b"\n") + 1
-        self._tail = data[cut:]
+        bad, length = _long_line(data, 0, cut)
+        if bad >= 0 or len(data) - cut > MAX_LINE_BYTES:
+            line = int(self.interp.ist[S.I_LINE]) + 1 + (data.count(b"\n", 0, bad) if bad >= 0 else
+                                                         data.count(b"\n"))
+            raise _too_long(self.path, line, length if bad >= 0 else None)
+        self._tail = bytes(data[cut:])
         out = list(self._scan(data, 0, cut)) if cut else []
         if self._n:
             out.append(self._finish(self._out[:self._n].copy(), self._n))

@@ -15,6 +15,15 @@ Files and binary streams are recognised by their first bytes, not their names: g
 when known (``bytes_total``, for progress bars) and how many input bytes have been consumed so far
 (``bytes_in``: compressed bytes for gzip and binary G-code, so a bar over ``bytes_total`` still ends at
 100 %).
+
+A regular file opened by path is checked when its end is reached: the same size, modification time and
+inode as when it was opened, every byte of that size read, and the path still naming it. A file replaced,
+truncated or rewritten while it was read is a :class:`GcodeError` naming it, never a plan of two versions
+of it. A pass that reads the file again (``view``'s line texts, ``post-process``'s copy) opens it with
+the first pass's :attr:`Source.identity`, so the two passes read the same bytes.
+
+Inputs that cannot be read twice (standard input, a FIFO, ``<(…)``, file objects, iterables) are copied
+once to a temporary file by :func:`spooled`, for the commands that need two passes.
 """
 from __future__ import annotations
 
@@ -23,7 +32,9 @@ import io
 import os
 import stat
 import sys
+import tempfile
 import zlib
+from contextlib import contextmanager
 from collections.abc import Iterable
 
 from ..errors import GcodeError
@@ -38,13 +49,56 @@ STREAM_NAME = "<stream>"
 class _Input(io.RawIOBase):
     """A binary input that counts the bytes taken from it and can give back the few it sniffed."""
 
-    def __init__(self, fh, name: str):
+    def __init__(self, fh, name: str, path: str | None = None):
         super().__init__()
         self._fh = fh
         self._name = name
         self._head = b""
         self.count = 0                # bytes taken from the underlying object
         self._readinto = getattr(fh, "readinto", None)
+        self._path = path
+        self.st0 = None               # os.stat_result of a regular file opened by path, when opened
+        self._checked = False
+        if path is not None:
+            try:
+                st = os.fstat(fh.fileno())
+                if stat.S_ISREG(st.st_mode):
+                    self.st0, self._pos0 = st, fh.tell()
+            except (AttributeError, OSError, ValueError, io.UnsupportedOperation):
+                pass
+
+    def changed(self, at_end: bool) -> str | None:
+        """Why the regular file is not the one opened any more (None: it is, or it is no regular file).
+        ``at_end``: the end was reached, so every byte of the size it had must have been read."""
+        st0 = self.st0
+        if st0 is None:
+            return None
+        try:
+            st = os.fstat(self._fh.fileno())
+        except (OSError, ValueError):
+            return None
+        if st.st_size != st0.st_size:
+            return f"its size went from {st0.st_size} to {st.st_size} bytes"
+        if st.st_mtime_ns != st0.st_mtime_ns:
+            return "it was written to"
+        if at_end and self.count != st0.st_size - self._pos0:
+            return f"{self.count} of its {st0.st_size - self._pos0} bytes could be read"
+        try:
+            now = os.stat(self._path)
+        except FileNotFoundError:
+            return "it was removed"
+        except OSError:
+            return None
+        if (now.st_dev, now.st_ino) != (st.st_dev, st.st_ino):
+            return "another file was put in its place"
+        return None
+
+    def check_unchanged(self, at_end: bool = False) -> None:
+        """Raise :class:`GcodeError` naming the file if it changed since it was opened (see :meth:`changed`)."""
+        why = self.changed(at_end)
+        if why is not None:
+            raise GcodeError(f"the file changed while it was read ({why}): run gcodeplan again once it is "
+                             "complete", self._name)
 
     def readable(self) -> bool:
         return True
@@ -61,6 +115,9 @@ class _Input(io.RawIOBase):
                 b[:got] = data
         except OSError as err:
             raise GcodeError(f"cannot read: {err.strerror or err}", self._name) from None
+        if got == 0 and len(b) and not self._checked and self.st0 is not None:
+            self._checked = True      # the end of a regular file: is it still the file that was opened?
+            self.check_unchanged(at_end=True)
         got = got or 0                # a non-blocking stream may answer None: treat as nothing yet
         self.count += got
         return got
@@ -228,6 +285,21 @@ class Source:
         self._closers = list(closers)
 
     @property
+    def identity(self) -> tuple | None:
+        """(device, inode, size in bytes, modification time in ns) of a regular file opened by path, as
+        it was when opened; None for anything else. :func:`open_source` takes it back to make sure a
+        second pass reads the same file."""
+        st = getattr(self._counter, "st0", None)
+        return None if st is None else (st.st_dev, st.st_ino, st.st_size, st.st_mtime_ns)
+
+    def check_unchanged(self) -> None:
+        """Raise :class:`GcodeError` if the regular file read has changed since it was opened (called when a
+        line fails: a truncated or rewritten file explains a broken line better than the line does)."""
+        check = getattr(self._counter, "check_unchanged", None)
+        if check is not None:
+            check()
+
+    @property
     def bytes_in(self) -> int:
         """Input bytes consumed so far (compressed bytes for gzip / binary G-code)."""
         return self._counter.count
@@ -326,14 +398,22 @@ def _with_bgcode(src: Source, bg) -> Source:
     return src
 
 
-def open_source(source) -> Source:
+def open_source(source, *, identity: tuple | None = None) -> Source:
     """Open ``source`` (path, ``"-"``, file object or iterable of lines) for reading G-code.
 
     Raises :class:`GcodeError` naming the source when it cannot be read or its container is corrupt
     (a missing file, a bad binary G-code header or metadata block); :class:`TypeError` for an object
     that is none of these (a ``bytes`` object is not a source: wrap it in :class:`io.BytesIO`).
+    ``identity``: a first pass's :attr:`Source.identity`; the path must still name that very file, unchanged.
     """
     if isinstance(source, (str, os.PathLike)):
+        if isinstance(source, SpooledPath):
+            fh = _open_path(source.path)
+            try:
+                return _binary(_Input(fh, source.name, source.path), source.name, _size_of(fh), [fh])
+            except BaseException:
+                fh.close()
+                raise
         path = os.fsdecode(source)
         if path == "-":
             if sys.stdin is None:
@@ -346,7 +426,13 @@ def open_source(source) -> Source:
         fh = _open_path(path)
         try:
             size = _size_of(fh)
-            raw = _Input(fh, path)
+            raw = _Input(fh, path, path)
+            if identity is not None:
+                st = raw.st0
+                now = None if st is None else (st.st_dev, st.st_ino, st.st_size, st.st_mtime_ns)
+                if now != identity:
+                    raise GcodeError("the file changed between two passes over it (replaced or written to): run "
+                                     "gcodeplan again once it is complete", path)
             return _binary(raw, path, size, [fh])
         except BaseException:
             fh.close()
@@ -370,6 +456,8 @@ def open_source(source) -> Source:
 
 def source_name(source) -> str:
     """The display name :func:`open_source` would give ``source``, without opening it."""
+    if isinstance(source, SpooledPath):
+        return source.name
     if isinstance(source, (str, os.PathLike)):
         path = os.fsdecode(source)
         return STDIN_NAME if path == "-" else path
@@ -379,4 +467,153 @@ def source_name(source) -> str:
     return LINES_NAME
 
 
-__all__ = ["Source", "open_source", "source_name", "GZIP_MAGIC", "STDIN_NAME", "LINES_NAME", "STREAM_NAME"]
+# ------------------------------------------------------------------ inputs read twice
+class SpooledPath(os.PathLike):
+    """The temporary copy :func:`spooled` made of a source that cannot be read twice: opened by its path
+    (``os.fspath``), named in messages as the source (``name``, also ``str()``)."""
+
+    def __init__(self, path: str, name: str):
+        self.path = path
+        self.name = name
+
+    def __fspath__(self) -> str:
+        return self.path
+
+    def __str__(self) -> str:
+        return self.name
+
+    def __repr__(self) -> str:
+        return f"SpooledPath({self.path!r}, name={self.name!r})"
+
+
+def _raw_input(source):
+    """(binary stream with ``readinto`` giving the source's bytes as they are, file to close or None)."""
+    if isinstance(source, (str, os.PathLike)):
+        path = os.fsdecode(source)
+        if path == "-":
+            if sys.stdin is None:
+                raise GcodeError("no standard input to read", STDIN_NAME)
+            fh = sys.stdin.buffer if hasattr(sys.stdin, "buffer") else sys.stdin
+            return (_TextInput(fh, STDIN_NAME) if _is_text(fh) else _Input(fh, STDIN_NAME)), None
+        fh = _open_path(path)
+        return _Input(fh, path, path), fh
+    if hasattr(source, "read"):
+        name = source_name(source)
+        return (_TextInput(source, name) if _is_text(source) else _Input(source, name)), None
+    if isinstance(source, (bytes, bytearray, memoryview)) or not isinstance(source, Iterable):
+        open_source(source)           # the TypeError it gives for what is no source
+    return _LinesInput(source, LINES_NAME), None
+
+
+def rereadable(source) -> bool:
+    """True when ``source`` can be read twice as it is: the path of a regular file (or of something that
+    is not there, for :func:`open_source` to report), or a spool already."""
+    if isinstance(source, SpooledPath):
+        return True
+    if not isinstance(source, (str, os.PathLike)) or os.fsdecode(source) == "-":
+        return False
+    try:
+        st = os.stat(source)
+    except (OSError, ValueError):
+        return True
+    return stat.S_ISREG(st.st_mode) or stat.S_ISDIR(st.st_mode)
+
+
+@contextmanager
+def spooled(source):
+    """``with spooled(source) as src:`` ``src`` can be read twice: ``source`` itself when it is the path of a
+    regular file, else a :class:`SpooledPath`, a copy of its bytes as they are (gzip stays gzip) in a
+    temporary file that is removed when the block ends, on an error or a signal too (the registry of
+    :mod:`gcodeplan.report.output`). Standard input ``-``, a FIFO, ``<(…)``, a character device, file
+    objects and iterables of lines are copied. A full temporary directory is a one-line error."""
+    if rereadable(source):
+        yield source
+        return
+    from ..report.output import register, unregister
+    from ..signals import held
+
+    name = source_name(source)
+    raw, fh = _raw_input(source)
+    tmp = None
+    try:
+        folder = tempfile.gettempdir()
+        try:
+            with held():        # no signal between creating the file and registering it
+                fd, tmp = tempfile.mkstemp(prefix=f"gcodeplan-{os.getpid()}-", suffix=".spool", dir=folder)
+                register(tmp)
+        except OSError as err:
+            raise GcodeError(f"cannot keep a copy of the input in {folder} (it is read twice): "
+                             f"{err.strerror or err}", name) from None
+        buf = bytearray(1 << 20)
+        try:
+            with os.fdopen(fd, "wb") as out, memoryview(buf) as mv:
+                while True:
+                    n = raw.readinto(mv)          # a read error is a GcodeError naming the input
+                    if not n:
+                        break
+                    out.write(mv[:n])
+        except OSError as err:                    # writing: a full or read-only temporary directory
+            raise GcodeError(f"cannot keep a copy of the input in {folder} (it is read twice): "
+                             f"{err.strerror or err}", name) from None
+        if fh is not None:
+            fh.close()
+            fh = None
+        yield SpooledPath(tmp, name)
+    finally:
+        if fh is not None:
+            fh.close()
+        if tmp is not None:
+            try:
+                os.unlink(tmp)
+            except OSError:
+                pass
+            unregister(tmp)
+
+
+# ------------------------------------------------------------------ line ends
+def cr_line_ends(buf: bytearray, lo: int, hi: int, final: bool) -> None:
+    """Turn, in place, every CR of ``buf[lo:hi]`` that ends a line by itself (old Mac files) into LF.
+
+    Marlin's and RepRapFirmware's line readers end a line at CR or LF, and slicers and editors read a
+    file with CR-only line ends as lines; CRLF stays one line end (its CR is a blank to the parser).
+    A CR at ``hi - 1`` is left alone unless ``final``: the LF that would make it a CRLF may come with the
+    next read. Cost on files without lone CRs: one search for CR (two counts on CRLF files)."""
+    i = buf.find(b"\r", lo, hi)
+    if i < 0:
+        return
+    n_cr = buf.count(b"\r", i, hi)
+    n_crlf = buf.count(b"\r\n", i, hi)
+    pending = not final and buf[hi - 1] == 13
+    if n_cr == n_crlf + (1 if pending else 0):
+        return
+    import numpy as np
+
+    end = hi - 1 if pending else hi
+    # in place on the buffer's memory (a regex substitution made ~2 objects per line: +95 MB on 50 MB)
+    arr = np.frombuffer(buf, np.uint8, count=end - i, offset=i)
+    lone = arr == 13
+    lone[:-1] &= arr[1:] != 10           # the last byte: a CR there is lone (a waiting one was left out)
+    arr[lone] = 10
+    del arr, lone
+
+
+def iter_lines(stream, chunk_bytes: int = 1 << 20):
+    """The lines of a binary ``stream``, each with its own line end (LF, CRLF or a lone CR; the last line
+    may have none): the lines the reader numbers (:func:`cr_line_ends`), for passes that copy the text."""
+    rest = b""
+    while True:
+        chunk = stream.read(chunk_bytes)
+        if not chunk:
+            if rest:
+                yield from rest.splitlines(keepends=True)
+            return
+        lines = (rest + chunk).splitlines(keepends=True)
+        # the last piece may be a line not yet ended, or a CR whose LF comes with the next read
+        rest = lines.pop() if lines else b""
+        if rest.endswith(b"\n"):
+            lines.append(rest)
+            rest = b""
+        yield from lines
+
+
+__all__ = ["cr_line_ends", "iter_lines", "spooled", "rereadable", "SpooledPath", "Source", "open_source", "source_name", "GZIP_MAGIC", "STDIN_NAME", "LINES_NAME", "STREAM_NAME"]

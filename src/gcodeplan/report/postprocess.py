@@ -4,7 +4,11 @@
 sink that keeps, per source line, the end time of the last row it made — moves, dwells and modelled
 waits — and the first line of every layer); pass 2 copies it line by line into a temporary file beside
 the target, which then replaces the target in one rename (:func:`gcodeplan.report.output.atomic_output`:
-permissions kept, the original untouched on any error or interruption).
+permissions kept, the original untouched on any error or interruption). Pass 2 reads the very file pass 1
+planned (same inode, size and modification time, checked again at its end: :mod:`gcodeplan.gcode.sources`);
+a file changed in between is an error and nothing is written. An input that cannot be read twice
+(standard input, a FIFO, ``<(…)``) is copied once to a temporary file first; it needs ``out``.
+Lines end at LF, CRLF or a lone CR, as the reader counts them.
 
 What changes (everything else is copied byte for byte, line endings included):
 
@@ -37,6 +41,7 @@ So a second run with the same options gives the same bytes as the first.
 from __future__ import annotations
 
 import math
+import os
 import re
 from dataclasses import dataclass, field
 
@@ -162,25 +167,30 @@ class PostProcessResult:
         return text
 
 
-def _refuse_unsupported(path: str) -> None:
-    if str(path) == "-":
-        raise GcodeplanError("post-process needs a file (it reads it twice and rewrites it), not standard input")
+def _refuse_unsupported(path, in_place: bool) -> None:
+    """``path``: a regular file or a spool (:func:`gcodeplan.gcode.sources.spooled`), read here for 4 bytes."""
+    from ..gcode.sources import SpooledPath, rereadable, source_name
+
+    name = source_name(path)
+    if in_place and (not rereadable(path) or isinstance(path, SpooledPath)):
+        what = "standard input is not a file" if name == "<stdin>" else f"{name} is not a regular file"
+        raise GcodeplanError(f"post-process rewrites a G-code file in place, and {what}: give -o OUT to write "
+                             "the result elsewhere")
     try:
         with open(path, "rb") as fh:
             head = fh.read(4)
     except IsADirectoryError:
-        raise GcodeError("is a directory, not a G-code file", str(path)) from None
+        raise GcodeError("is a directory, not a G-code file", name) from None
     except FileNotFoundError:
-        raise GcodeError("no such file", str(path)) from None
+        raise GcodeError("no such file", name) from None
     except OSError as err:
-        raise GcodeError(f"cannot read: {err.strerror or err}", str(path)) from None
+        raise GcodeError(f"cannot read: {err.strerror or err}", name) from None
     if head == b"GCDE":
         raise GcodeError("binary G-code (.bgcode) cannot be post-processed: turn binary G-code off in the "
                          "slicer (PrusaSlicer: Printer Settings > General > Firmware > Supports binary G-code) "
-                         "or convert it to text first", str(path))
+                         "or convert it to text first", name)
     if head[:2] == b"\x1f\x8b":
-        raise GcodeError("gzip-compressed G-code cannot be post-processed in place: decompress it first",
-                         str(path))
+        raise GcodeError("gzip-compressed G-code cannot be post-processed in place: decompress it first", name)
 
 
 def _schedule(lines: np.ndarray, ends: np.ndarray, layer_starts: list[tuple[int, int]], total: float,
@@ -254,6 +264,8 @@ def _split_eol(line: bytes) -> tuple[bytes, bytes]:
         return line[:-2], b"\r\n"
     if line.endswith(b"\n"):
         return line[:-1], b"\n"
+    if line.endswith(b"\r"):            # an old Mac file's line end
+        return line[:-1], b"\r"
     return line, b""
 
 
@@ -262,17 +274,33 @@ def post_process(path, out=None, machine=None, policy: str | None = None, jerk: 
                  exclude_objects=()) -> PostProcessResult:
     """Rewrite the G-code file ``path`` (or write ``out``) with gcodeplan's times (see the module
     docstring). ``machine``: a Machine, a preset name or TOML path (None = the klipper preset);
-    ``policy``/``jerk``/``strict`` as :func:`gcodeplan.estimate`. Binary G-code, gzip and standard input
-    are refused. Returns a :class:`PostProcessResult` (times in s)."""
+    ``policy``/``jerk``/``strict`` as :func:`gcodeplan.estimate`. Binary G-code and gzip are refused;
+    standard input (``-``) and FIFOs are read once into a temporary copy and need ``out``. Returns a
+    :class:`PostProcessResult` (times in s)."""
+    from ..gcode.sources import spooled
+
+    if not isinstance(path, os.PathLike):
+        path = str(path)
+    if out is None:
+        _refuse_unsupported(path, True)        # before copying a pipe that cannot be rewritten anyway
+    with spooled(path) as src:
+        return _post_process(src, path, out, machine, policy, jerk, strict=strict, m73=m73, layer_info=layer_info,
+                             progress=progress, exclude_objects=exclude_objects)
+
+
+def _post_process(path, given, out, machine, policy, jerk, *, strict, m73, layer_info, progress,
+                  exclude_objects) -> PostProcessResult:
+    """:func:`post_process` on ``path``, a regular file or a spool of ``given`` (the input as named)."""
     from .. import __version__
     from ..api import as_machine
+    from ..gcode.sources import iter_lines, open_source, source_name
     from ..pipeline import run
     from .output import atomic_output
 
     from ..gcode.dialect import reading_machine
 
-    path = str(path)
-    _refuse_unsupported(path)
+    _refuse_unsupported(path, out is None)
+    name = source_name(path)
     machine = as_machine(machine)
     read_machine, note, _ = reading_machine(path, machine)
     flavor = read_machine.flavor            # the flavor the pipeline will read the file with
@@ -289,14 +317,16 @@ def post_process(path, out=None, machine=None, policy: str | None = None, jerk: 
     sink = ProgressSink()
     res = run(path, machine, policy=policy, jerk=jerk, strict=strict, sinks=[sink], progress=progress,
               exclude_objects=exclude_objects)
+    identity = res.reader.source.identity
     lines, ends = sink.arrays()
     total = sink.total_s
     keys, inserts = _schedule(lines, ends, sink.layer_starts, total, len(res.reader.layer_z), m73, layer_info)
     ours = f"; gcodeplan {__version__}: {dhms(total)} = {total:.3f} s ({machine.name}, {res.policy})"
     if cnc:       # an RS274 comment (no nested parentheses), which grbl and LinuxCNC both skip
-        name = machine.name.translate(str.maketrans("()", "[]"))
-        ours = f"(gcodeplan {__version__}: {dhms(total)} = {total:.3f} s, machine {name}, policy {res.policy})"
-    result = PostProcessResult(str(out or path), total, machine.name, res.policy, cnc_flavor=flavor if cnc else None)
+        mname = machine.name.translate(str.maketrans("()", "[]"))
+        ours = f"(gcodeplan {__version__}: {dhms(total)} = {total:.3f} s, machine {mname}, policy {res.policy})"
+    target = str(out) if out is not None else os.fspath(given)
+    result = PostProcessResult(target, total, machine.name, res.policy, cnc_flavor=flavor if cnc else None)
 
     def time_at(n: int) -> float:
         # planned time when source line n is reached: the end of the last line before it that takes time
@@ -305,7 +335,8 @@ def post_process(path, out=None, machine=None, policy: str | None = None, jerk: 
 
     eol = b"\n"
     try:
-        with open(path, "rb") as fin, atomic_output(str(out or path), "wb") as fout:
+        # pass 2 reads the file pass 1 planned, or fails (sources.py: identity at open, checked at the end)
+        with open_source(path, identity=identity) as fin, atomic_output(target, "wb") as fout:
             write = fout.write
             ki = 0
             next_ins = keys[0] if keys else -1
@@ -314,7 +345,7 @@ def post_process(path, out=None, machine=None, policy: str | None = None, jerk: 
             n = dropped_at = 0
             last_eol = b"\n"
             first_eol = None
-            for n, line in enumerate(fin, 1):
+            for n, line in enumerate(iter_lines(fin.stream), 1):
                 if n == next_ins:
                     ins_eol = _split_eol(line)[1] or last_eol
                     for text in inserts[n]:
@@ -349,7 +380,7 @@ def post_process(path, out=None, machine=None, policy: str | None = None, jerk: 
                         line = new + le
                 write(line)
                 out_line += 1
-            ended = line.endswith(b"\n") or dropped_at == n or n == 0
+            ended = line.endswith((b"\n", b"\r")) or dropped_at == n or n == 0
             eol = first_eol or b"\n"
             tail = []
             if next_ins != -1:                    # after the last line: the final M73
@@ -366,7 +397,7 @@ def post_process(path, out=None, machine=None, policy: str | None = None, jerk: 
                     pv, rv = text[5:].split(" R")
                     result.m73.append((out_line, int(pv), int(rv)))
     except OSError as err:
-        raise GcodeError(f"cannot read: {err.strerror or err}", path) from None
+        raise GcodeError(f"cannot read: {err.strerror or err}", name) from None
     return result
 
 

@@ -32,8 +32,6 @@ import io
 import json
 import math
 import os
-import shutil
-import tempfile
 import zlib
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
@@ -42,6 +40,7 @@ import numpy as np
 
 from .. import pipeline
 from ..errors import GcodeplanError
+from ..gcode.sources import cr_line_ends
 from ..schema import KIND_DWELL, KIND_NAMES, KIND_WAIT, LIMIT_NAMES
 
 ASSETS = Path(__file__).with_name("viewer_assets")
@@ -162,6 +161,10 @@ def _pick_lines(stream, wanted: np.ndarray) -> bytes:
         buf = rest + chunk if chunk else rest + b"\n"
         if final and not rest:
             break
+        if buf.find(b"\r") >= 0:        # CR-only line ends count as the reader counts them
+            buf = bytearray(buf)
+            cr_line_ends(buf, 0, len(buf), final)
+            buf = bytes(buf)
         arr = np.frombuffer(buf, np.uint8)
         nl = np.flatnonzero(arr == 10)
         if nl.size == 0:
@@ -216,17 +219,21 @@ def _text_blocks(blob: bytes) -> list[tuple[int, bytes]]:
     return list(zip(counts, frames))
 
 
-def _source_lines(path: str, wanted: np.ndarray) -> bytes:
+def _source_lines(path: str, wanted: np.ndarray, identity: tuple | None = None) -> bytes:
+    """``identity``: the planning pass's (:attr:`gcodeplan.gcode.sources.Source.identity`): the texts must
+    come from the very file that was planned."""
     from ..gcode.sources import open_source
 
-    src = open_source(path)
+    src = open_source(path, identity=identity)
     try:
         stream = io.BufferedReader(src.stream, 1 << 20) if not hasattr(src.stream, "read") else src.stream
         # binary G-code: MOVE line numbers are those of its ASCII conversion, which writes `first_line`
         # lines (metadata, thumbnails) before the G-code the stream yields (gcode/bgcode.py)
         first = int(getattr(src.stream, "first_line", 0) or 0)
         before = int(np.count_nonzero(wanted <= first))
-        return b"\n" * before + _pick_lines(stream, wanted[before:] - first)
+        text = b"\n" * before + _pick_lines(stream, wanted[before:] - first)
+        src.check_unchanged()        # the reading may stop before the end: unchanged up to now
+        return text
     finally:
         src.close()
 
@@ -364,7 +371,8 @@ def viewer_data(sink: ViewerSink, source, machine_name: str = "", policy: str = 
             arrays["seg_a" + ax] = np.ascontiguousarray(segs["a"][:, k])
     # the text of every line that made a row, in line order (the page finds a move's line by bisection)
     wanted = _sorted_unique(line[line > 0])
-    blob = _source_lines(source, wanted) if isinstance(source, (str, os.PathLike)) else b""
+    identity = getattr(getattr(reader, "source", None), "identity", None)
+    blob = _source_lines(source, wanted, identity) if isinstance(source, (str, os.PathLike)) else b""
     blocks = _text_blocks(blob)
     arrays["text_lines_d"] = np.diff(wanted, prepend=0).astype(np.int32)
     dur = np.diff(tq).astype(np.float64) / float(2 ** bits)
@@ -432,41 +440,17 @@ def viewer_page(data: dict, title: str) -> str:
             f"{viewer_fragment(data)}\n</body></html>\n")
 
 
-def _spooled(source) -> tuple[str, str | None]:
-    """A path to read twice: ``source`` itself when it is a path, else a temporary copy of it
-    (standard input, file objects, line iterables). Returns (path, temporary path to remove or None)."""
-    if isinstance(source, (str, os.PathLike)) and os.fspath(source) != "-":
-        return os.fspath(source), None
-    from ..gcode.sources import open_source
-
-    fd, tmp = tempfile.mkstemp(prefix="gcodeplan-view-", suffix=".gcode")
-    try:
-        with os.fdopen(fd, "wb") as out:
-            src = open_source(source)
-            try:
-                stream = src.stream if hasattr(src.stream, "read") else io.BufferedReader(src.stream)
-                shutil.copyfileobj(stream, out, 1 << 20)
-            finally:
-                src.close()
-    except BaseException:
-        os.unlink(tmp)
-        raise
-    return tmp, tmp
-
-
 def build_viewer(source, machine, policy: str | None = None, jerk: float | None = None, strict: bool = False,
                  progress=None, title: str | None = None) -> str:
-    """Plan ``source`` (path, ``-``, file object or line iterable) and return the viewer page (HTML text).
+    """Plan ``source`` (path, ``-``, FIFO, file object or line iterable) and return the viewer page (HTML
+    text). A source that cannot be read twice is copied once to a temporary file (removed at the end).
     Raises :class:`GcodeplanError` for bad input and for a program without moves."""
-    path, tmp = _spooled(source)
-    try:
+    from ..gcode.sources import source_name, spooled
+
+    with spooled(source) as path:
         sink = collect(path, machine, policy, jerk, strict, progress)
         data = viewer_data(sink, path, machine.name, policy or machine.junction_policy)
-        if tmp is not None:
-            data["meta"]["name"] = "<stdin>" if source == "-" else getattr(source, "name", "<stream>")
-    finally:
-        if tmp is not None:
-            os.unlink(tmp)
+    data["meta"]["name"] = os.path.basename(source_name(source))
     name = data["meta"]["name"]
     return viewer_page(data, title or f"gcodeplan view: {name}")
 
