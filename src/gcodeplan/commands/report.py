@@ -97,6 +97,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--slowest", type=int, default=2, metavar="N",
                    help="draw the velocity, axes and path plots of the N slowest layers (default 2)")
     p.add_argument("--size", default="1600x900", metavar="WxH", help="plot size in pixels (default 1600x900)")
+    p.add_argument("--quiet", "-q", action="store_true", help="no progress bar")
 
 
 def _fmt_s(seconds: float) -> str:
@@ -147,7 +148,7 @@ def _tables(est, d: dict) -> list[str]:
 
 
 def build_report(path: str, machine, policy: str | None = None, jerk: float | None = None, strict: bool = False,
-                 slowest: int = 2, size_in=plots.FIGSIZE_IN) -> str:
+                 slowest: int = 2, size_in=plots.FIGSIZE_IN, progress=None) -> str:
     """Plan ``path`` once and return the HTML page."""
     from .estimate import Estimate, print_text
     from ..report.summary import TimeSummary
@@ -166,7 +167,7 @@ def build_report(path: str, machine, policy: str | None = None, jerk: float | No
         view.add_rows(m, p, first, None, segs)
         return False
 
-    reader = stream_plan(path, machine, policy, jerk, strict, fold)
+    reader = stream_plan(path, machine, policy, jerk, strict, fold, progress)
     view.finish(reader, policy)
     est = Estimate(path, reader.summary, time, list(reader.layer_z), list(reader.features), policy, machine.name)
     d = est.to_json()
@@ -222,7 +223,14 @@ def run(args) -> int:
     parent = os.path.dirname(os.path.abspath(out))
     if not os.path.isdir(parent):
         raise GcodeplanError(f"cannot write {out}: no such directory {parent}")
-    page = build_report(args.file, machine, args.policy, args.jerk, args.strict, args.slowest, size_in)
+    from .common import progress_bar
+
+    bar, progress = progress_bar(args.file, getattr(args, "quiet", False))
+    try:
+        page = build_report(args.file, machine, args.policy, args.jerk, args.strict, args.slowest, size_in, progress)
+    finally:
+        if bar is not None:
+            bar.close()
     from ..report.output import atomic_output
 
     try:
