@@ -395,6 +395,8 @@ class Run:
             self._limits = reader.limits
             yield from self._pieces(planner.finish())
             reader.interp.check_excluded()
+            if self.progress is not None:       # all done: all that was read
+                self.progress(max(self._work.last, reader.bytes_read))
         self.finished = True
 
     @property
