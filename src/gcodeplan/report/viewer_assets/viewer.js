@@ -54,7 +54,7 @@
   let T, VS, VC, VE, ACC, DEC, F, X, Y, LINE, KIND, FLAGS, FEAT, LAYER, LIMIT, OBJ, TEXTLINES;
   let SEGOFF = null, SEG = null;
   const J = META.jerk > 0 ? META.jerk : 0;
-  const BLEND = META.mode === 'blend';
+  const BLEND = !!META.segments || META.mode === 'blend';   // rows drawn from their SEGMENT pieces
   let TEND = META.t_end;
 
   async function load() {
