@@ -714,11 +714,15 @@ def plot_layers(times: LayerFeatureTimes, feature_names: list, layer_z: list | N
     ax = axs[0, 0]
     x = np.arange(n_layers)
     bottom = np.zeros(n_layers)
-    cmap = matplotlib.colormaps["tab10" if len(order) <= 10 else "tab20"]
+    # the viewer page's colours (report/palette.py): a feature looks the same in both
+    from .palette import NO_FEATURE_COLOR, OTHER_COLOR, WAITS_COLOR, feature_colors
+
+    colors = dict(zip(names[1:-1], feature_colors(names[1:-1])))
+    colors.update({WAITS_NAME: WAITS_COLOR, UNTAGGED_NAME: NO_FEATURE_COLOR, "other": OTHER_COLOR})
     width = 0.85 if n_layers < 200 else 1.0
     for i, nm in enumerate(order):
         h = np.asarray(uniq[nm], dtype=np.float64)
-        color = "#bbbbbb" if nm == WAITS_NAME else cmap(i % cmap.N)
+        color = colors.get(nm, OTHER_COLOR)
         bars = ax.bar(x, h, bottom=bottom, width=width, color=color, label=nm, linewidth=0)
         for r in bars:
             r.set_gid(f"layer_bars:{nm}")

@@ -42,7 +42,8 @@ import numpy as np
 
 from .. import pipeline
 from ..errors import GcodeplanError
-from ..schema import KIND_DWELL, KIND_NAMES, KIND_WAIT, LIMIT_NAMES
+from ..schema import KIND_DWELL, KIND_NAMES, KIND_PRINT, KIND_WAIT, LIMIT_NAMES
+from .palette import NO_FEATURE_COLOR, WAITS_COLOR, feature_colors
 
 ASSETS = Path(__file__).with_name("viewer_assets")
 
@@ -209,6 +210,7 @@ class ViewerSink(pipeline.Sink):
         self._zlevel_z: list[float] = []
         self._zlevel_cur = -1
         self._max_layer = -1
+        self._printed = False             # any move extruded: a printer's program, not a CNC one
         self.jerk = 0.0
         self.mode: str | None = None
         self.t_end = 0.0
@@ -258,6 +260,7 @@ class ViewerSink(pipeline.Sink):
             used = used[np.r_[True, used[1:] != used[:-1]]]
             sp["line"].add(used)
         kind = m["kind"]
+        self._printed = self._printed or bool(np.any(kind == KIND_PRINT))
         z["kind"].add(kind.astype(np.uint8))
         z["flags"].add(m["flags"].astype(np.uint8))
         feature = m["feature"].astype(np.int16)
@@ -290,9 +293,10 @@ class ViewerSink(pipeline.Sink):
         """Group of each move by Z level, for programs without layers (CNC): the height of the latest feed
         move (to 1 µm), groups numbered in the order the program first cuts at them; moves before the
         first feed move belong to its level."""
-        from ..schema import KIND_PRINT
+        from ..schema import FLAG_RAPID, KIND_PRINT, KIND_TRAVEL
 
-        feed = m["kind"] == KIND_PRINT
+        # the cuts: feed moves (G1/G2/G3, not G0 rapids) of a program that does not extrude
+        feed = (m["kind"] == KIND_PRINT) | ((m["kind"] == KIND_TRAVEL) & ((m["flags"] & FLAG_RAPID) == 0))
         out = np.empty(len(m), np.int64)
         if not feed.any():
             out[:] = self._zlevel_cur
@@ -589,7 +593,9 @@ def viewer_data(sink: ViewerSink, source, machine_name: str = "", policy: str = 
         "t_end": float(np.rint(sink.t_end * float(2 ** bits))) / float(2 ** bits),
         "first_pos": list(sink.first_pos),
         "features": features,
+        "feature_colors": feature_colors(features) + [NO_FEATURE_COLOR, WAITS_COLOR],
         "layer_z": layer_z,
+        "cnc": not sink._printed,
         "group_by": "z" if sink.grouped_by_z else "layer",
         "group_z": list(sink._zlevel_z) if sink.grouped_by_z else [],
         "objects": _object_names(reader) if sink.has_object else None,
