@@ -297,7 +297,7 @@ def draw(what: str, win: plots.Window | None, machine, size_in, layer_times=None
     if what == "axes":
         return plots.plot_axes(win, machine, size_in=size_in)
     if what == "path":
-        return plots.plot_path(win, size_in=size_in)
+        return plots.plot_path(win, size_in=size_in, machine=machine)
     return plots.plot_layers(layer_times, list(reader.features), list(reader.layer_z),
                              title=f"{os.path.basename(reader.path)}: time per layer", size_in=size_in)
 

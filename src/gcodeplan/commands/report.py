@@ -195,7 +195,7 @@ def build_report(path: str, machine, policy: str | None = None, jerk: float | No
             continue
         figs = [(plots.plot_velocity(win, size_in=size_in), "velocity profile"),
                 (plots.plot_axes(win, machine, size_in=size_in), "axes"),
-                (plots.plot_path(win, size_in=size_in), "toolpath coloured by speed")]
+                (plots.plot_path(win, size_in=size_in, machine=machine), "toolpath coloured by speed")]
         parts.append(html.section(
             f"{what.capitalize()}: {_fmt_s(run.time_s)} of motion{note}",
             *(html.figure(plots.png_bytes(f), f"{what}: {cap}", f"{what}: {cap}") for f, cap in figs)))
