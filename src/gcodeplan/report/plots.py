@@ -17,7 +17,6 @@ import io
 import math
 from dataclasses import dataclass, field
 
-import matplotlib
 import numpy as np
 from matplotlib.collections import LineCollection, PolyCollection
 from matplotlib.backends.backend_agg import FigureCanvasAgg

@@ -293,7 +293,7 @@ class ViewerSink(pipeline.Sink):
         """Group of each move by Z level, for programs without layers (CNC): the height of the latest feed
         move (to 1 µm), groups numbered in the order the program first cuts at them; moves before the
         first feed move belong to its level."""
-        from ..schema import FLAG_RAPID, KIND_PRINT, KIND_TRAVEL
+        from ..schema import FLAG_RAPID, KIND_TRAVEL
 
         # the cuts: feed moves (G1/G2/G3, not G0 rapids) of a program that does not extrude
         feed = (m["kind"] == KIND_PRINT) | ((m["kind"] == KIND_TRAVEL) & ((m["flags"] & FLAG_RAPID) == 0))
