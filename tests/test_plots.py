@@ -749,3 +749,19 @@ def test_cnc_plots_say_cutting_moves_and_have_no_e_row(tmp_path):
     labels = [ax.get_ylabel() for ax in fig.axes]
     assert not any(lab.startswith("e ") for lab in labels), labels
     assert any(lab.startswith("z ") for lab in labels)
+
+
+def test_a_piece_turning_at_constant_speed_is_shaded_as_cruise():
+    """LinuxCNC's arc pieces accelerate normal to the path (v ⟂ a): the speed is constant, so the shading
+    says cruise, whatever phase the fit gave the piece; a piece accelerating along its path stays accel."""
+    from gcodeplan.schema import PHASE_ACCEL, PHASE_CRUISE, PHASE_DECEL, SEGMENT_DTYPE
+
+    segs = np.zeros(3, SEGMENT_DTYPE)
+    segs["dt"] = 0.1
+    segs["t0"] = [0.0, 0.1, 0.2]
+    segs["vx"] = [10.0, 10.0, 10.0]
+    segs["ay"] = [5.0, 0.0, 0.0]        # v²/r: a 20 mm circle at 10 mm/s
+    segs["ax"] = [0.0, 1000.0, -1000.0]
+    segs["phase"] = [PHASE_DECEL, PHASE_ACCEL, PHASE_DECEL]
+    out = plots.tangential_phases(segs)
+    assert out["phase"].tolist() == [PHASE_CRUISE, PHASE_ACCEL, PHASE_DECEL]

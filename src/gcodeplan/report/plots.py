@@ -284,7 +284,7 @@ def is_dense(s: "Samples") -> bool:
 
 
 def plot_series(ax, s: "Samples", y: np.ndarray, gid: str, label: str | None = None, color="black", lw=1.0,
-                mean: bool = False):
+                mean: bool = True):
     """Draw one sampled curve: every sample for ordinary windows (a line with gid ``gid``); for
     dense ones the band between the per-column min and max (``minmax_columns``: gid ``gid``,
     filled, light, so that a whole print is not a solid block) and, with ``mean``, the time-weighted
@@ -349,6 +349,28 @@ def phase_bands(segs: np.ndarray, max_bands: int = DENSE_COLUMNS):
         return edges[run][keep], edges[run_end][keep], col_ph[run][keep]
     ends = np.r_[starts[1:], ph.size] - 1
     return t0[starts], t1[ends], ph[starts]
+
+
+def tangential_phases(segs: np.ndarray) -> np.ndarray:
+    """``segs`` with the accel / cruise / decel phase of each piece taken from the sign of its tangential
+    acceleration v·a/|v| at its middle (blend and dwell pieces keep theirs): a piece that turns at constant
+    speed (a LinuxCNC arc's, whose acceleration is normal to the path) is cruising, not decelerating."""
+    from ..schema import PHASE_ACCEL, PHASE_CRUISE, PHASE_DECEL
+
+    if segs.size == 0:
+        return segs
+    mid = 0.5 * segs["dt"]
+    _, vel, acc, _ = eval_segments(segs, np.arange(segs.size), mid)
+    v, a = vel[:, :3], acc[:, :3]
+    speed = np.sqrt((v * v).sum(axis=1))
+    a_t = np.where(speed > 1e-12, (v * a).sum(axis=1) / np.maximum(speed, 1e-300), np.sqrt((a * a).sum(axis=1)))
+    # mostly normal to the path (an arc at constant speed; a fit's rounding along it) is not a ramp
+    tol = np.maximum(0.02 * np.sqrt((a * a).sum(axis=1)), 1e-9 * max(float(np.abs(a).max()), 1.0))
+    new = np.where(a_t > tol, PHASE_ACCEL, np.where(a_t < -tol, PHASE_DECEL, PHASE_CRUISE)).astype(segs["phase"].dtype)
+    keep = (segs["phase"] != PHASE_ACCEL) & (segs["phase"] != PHASE_CRUISE) & (segs["phase"] != PHASE_DECEL)
+    out = segs.copy()
+    out["phase"] = np.where(keep, segs["phase"], new)
+    return out
 
 
 def _shade_phases(ax, bands) -> None:
@@ -426,13 +448,15 @@ def plot_velocity(win: Window, title: str | None = None, size_in=FIGSIZE_IN, dpi
     s = sample_plan(segs)
     speed, a_t, j_t = toolhead_kinematics(s.vel, s.acc, s.jerk, s.side)
     dense = is_dense(s)
-    has_jerk = bool(np.any(j_t != 0.0))     # continuous jerk (S-curves, blends); trapezoids: impulses only
+    # a jerk panel for plans whose acceleration changes continuously: S-curves (jerk pieces) and blends
+    # (turning velocity); trapezoids and LinuxCNC's constant-acceleration pieces only step it
+    has_jerk = bool(np.any(_columns(segs, "j")[:, :3] != 0.0) or np.any(segs["phase"] == PHASE_BLEND))
     fig, axs = new_figure(3 if has_jerk else 2, 1, size_in, dpi, sharex=True)
     ax_v, ax_a = axs[0, 0], axs[1, 0]
     ax_j = axs[2, 0] if has_jerk else None
     panels = [ax for ax in (ax_v, ax_a, ax_j) if ax is not None]
     if not dense:
-        bands = phase_bands(segs)
+        bands = phase_bands(tangential_phases(segs))
         for ax in panels:
             _shade_phases(ax, bands)
     for ax in panels:
@@ -440,9 +464,9 @@ def plot_velocity(win: Window, title: str | None = None, size_in=FIGSIZE_IN, dpi
     plot_series(ax_v, s, speed, "speed", "toolhead speed |v|", color="black" if not dense else "tab:blue",
                 lw=1.0, mean=True)
     plot_series(ax_a, s, a_t, "accel", "tangential acceleration d|v|/dt",
-                color="black" if not dense else "tab:green", lw=1.0)
+                color="black" if not dense else "tab:green", lw=1.0, mean=False)
     if ax_j is not None:
-        plot_series(ax_j, s, j_t, "jerk", "jerk d²|v|/dt²", color="black", lw=1.0)
+        plot_series(ax_j, s, j_t, "jerk", "jerk d²|v|/dt²", color="black", lw=1.0, mean=False)
 
     # requested feed rate, for contrast (rapids / unlimited feeds have no finite request: not drawn)
     moves, plan = win.moves, win.plan
