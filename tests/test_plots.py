@@ -759,7 +759,8 @@ def test_a_piece_turning_at_constant_speed_is_shaded_as_cruise():
     segs = np.zeros(3, SEGMENT_DTYPE)
     segs["dt"] = 0.1
     segs["t0"] = [0.0, 0.1, 0.2]
-    segs["vx"] = [10.0, 10.0, 10.0]
+    segs["vx"] = [10.0, 100.0, 100.0]
+    segs["vy"] = [-0.25, 0.0, 0.0]      # at the piece's middle v ⟂ a (a chord of the circle)
     segs["ay"] = [5.0, 0.0, 0.0]        # v²/r: a 20 mm circle at 10 mm/s
     segs["ax"] = [0.0, 1000.0, -1000.0]
     segs["phase"] = [PHASE_DECEL, PHASE_ACCEL, PHASE_DECEL]
