@@ -564,3 +564,38 @@ def test_viewer_sink_keeps_compressed_columns_not_the_plan(tmp_path):
     tracemalloc.stop()
     assert sink.rows == n_chunk * chunks
     assert held < 12 * sink.rows, f"{held / sink.rows:.1f} bytes a move"
+
+
+def test_a_big_program_gets_a_bounded_page_of_merged_rows(browser, tmp_path, monkeypatch):
+    """Above PAGE_GCODE_BYTES of G-code each page row merges ``thin`` consecutive moves: the page stays about
+    that size whatever the file's; the print's time and the layer bars stay exact."""
+    import re
+
+    import gcodeplan.report.viewer as viewer
+
+    size = CUBE.stat().st_size
+    monkeypatch.setattr(viewer, "PAGE_GCODE_BYTES", (size - 1) // 4)     # just under a quarter: 5 a row
+    assert viewer.thin_for(str(CUBE)) == 5
+    out = tmp_path / "thin.html"
+    assert main(["view", str(CUBE), "-o", str(out), "-q"]) == 0
+    full = tmp_path / "full.html"
+    monkeypatch.setattr(viewer, "PAGE_GCODE_BYTES", 64 << 20)
+    assert main(["view", str(CUBE), "-o", str(full), "-q"]) == 0
+    def data_bytes(path):       # the page's data (arrays and G-code text), without the fixed scripts
+        text = path.read_text()
+        return sum(len(x) for x in re.findall(r'<script type="application/octet-stream" id="gpv-[^"]*"[^>]*>([^<]*)<',
+                                               text))
+
+    assert data_bytes(out) < 0.5 * data_bytes(full)
+    plan = gp.plan(str(CUBE))
+    v = open_page(browser, out)
+    st = v.js("gcodeplanView.state()")
+    assert st["moves"] == -(-len(plan.moves) // 5)
+    assert st["totalTime"] == pytest.approx(plan.total_time_s, abs=1e-9)
+    meta = v.js("JSON.parse(document.getElementById('gpv-meta').textContent)")
+    bars = dict(zip(meta["layer_bars"]["layers"], (sum(r) for r in meta["layer_bars"]["times"])))
+    for layer in (0, 10, 50):
+        sel = plan.moves["layer"] == layer
+        assert bars[layer] == pytest.approx(float(plan.plan["duration"][sel].sum()), abs=1e-5)
+    assert "merges 5 consecutive moves" in v.page.locator("#gpv-sub").inner_text()
+    v.page.close()

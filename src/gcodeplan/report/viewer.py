@@ -192,7 +192,10 @@ class ViewerSink(pipeline.Sink):
     coordinates wait in a temporary file until the page is packed. ``close`` keeps the run's result
     (reader: layers, features)."""
 
-    def __init__(self):
+    def __init__(self, thin: int = 1):
+        self.thin = max(1, int(thin))     # page rows merge this many moves (:func:`thin_for`)
+        self.moves = 0                    # moves seen (rows × thin, but for the last row)
+        self._carry = None                # the moves of an unfinished group of ``thin`` (thinned pages)
         self._z = {name: _Stream(dt) for name, dt in (
             ("vs", "f8"), ("vc", "f8"), ("ve_res", "f8"), ("acc", "f8"), ("dec", "f8"), ("feed", "f4"),
             ("z", "f4"), ("line_d", "i4"), ("kind", "u1"), ("flags", "u1"), ("feature", "i2"),
@@ -231,6 +234,50 @@ class ViewerSink(pipeline.Sink):
             return
         if mode is None:   # callers outside the pipeline: S-curves carry their jerk, blends their pieces
             mode = "scurve" if np.any(p["jerk"] != 0.0) else ("blend" if segs is not None else "trapezoid")
+        self.moves += len(m)
+        if self.thin > 1:
+            # the layer bars from the moves themselves; the rest from rows of ``thin`` moves each
+            self._bars.add(m["layer"].astype(np.int64), m["feature"].astype(np.int16), m["kind"], p["duration"])
+            self.mode = mode or self.mode
+            merged = self._merge(m, p)
+            if merged is not None:
+                self._add_exact(merged[0], merged[1], self.rows, mode, None)
+            return
+        self._add_exact(m, p, first, mode, segs)
+
+    def _merge(self, m: np.ndarray, p: np.ndarray, final: bool = False):
+        """(MOVE, PLAN) rows each standing for ``thin`` consecutive moves (the rest waits for the next call):
+        the first move's start, the last one's end, the highest cruise speed, feed and accelerations, the
+        summed duration; a print row when any of them printed."""
+        if self._carry is not None:
+            m = np.concatenate([self._carry[0], m])
+            p = np.concatenate([self._carry[1], p])
+            self._carry = None
+        k = self.thin
+        full = len(m) if final else len(m) // k * k
+        if full < len(m):
+            self._carry = (m[full:].copy(), p[full:].copy())
+        if full == 0:
+            return None
+        m, p = m[:full], p[:full]
+        starts = np.arange(0, full, k)
+        last = np.r_[starts[1:], full] - 1
+        mm, pp = m[starts].copy(), p[starts].copy()
+        for f in ("x1", "y1", "z1", "e1"):
+            mm[f] = m[f][last]
+        mm["feed_v"] = np.maximum.reduceat(m["feed_v"], starts)
+        printed = np.maximum.reduceat((m["kind"] == KIND_PRINT).astype(np.int8), starts) > 0
+        mm["kind"] = np.where(printed, KIND_PRINT, m["kind"][starts])
+        mm["flags"] = np.bitwise_or.reduceat(m["flags"], starts)
+        mm["move_d"] = np.add.reduceat(m["move_d"], starts)
+        pp["duration"] = np.add.reduceat(p["duration"], starts)
+        pp["end_v"] = p["end_v"][last]
+        for f in ("cruise_v", "accel", "decel"):
+            pp[f] = np.maximum.reduceat(p[f], starts)
+        pp["jerk"] = 0.0                  # rows of several moves are drawn as trapezoids
+        return mm, pp
+
+    def _add_exact(self, m: np.ndarray, p: np.ndarray, first: int, mode: str | None, segs=None) -> None:
         if self.rows == 0:
             self.first_pos = (float(m["x0"][0]), float(m["y0"][0]), float(m["z0"][0]))
             self.has_object = "object" in m.dtype.names
@@ -273,7 +320,8 @@ class ViewerSink(pipeline.Sink):
         if self.has_object:
             z["object"].add(m["object"].astype(np.int32))
         dur = p["duration"]
-        self._bars.add(layer, feature, kind, dur)
+        if self.thin == 1:
+            self._bars.add(layer, feature, kind, dur)
         if self._max_layer < 0 and len(self._zlevels) <= MAX_Z_LEVELS:
             zl = self._z_levels(m)
         else:                         # a print (it has layers), or no plain Z levels: nothing to group
@@ -354,6 +402,15 @@ class ViewerSink(pipeline.Sink):
         moves by Z level instead of showing one 'before the first layer' group."""
         return self._max_layer < 0 and 0 < len(self._zlevels) <= MAX_Z_LEVELS
 
+    def flush(self) -> None:
+        """A thinned page's last, shorter row (the moves of an unfinished group)."""
+        if self._carry is not None:
+            m, p = self._carry
+            self._carry = None
+            merged = self._merge(m, p, final=True)
+            if merged is not None:
+                self._add_exact(merged[0], merged[1], self.rows, self.mode, None)
+
     def line_numbers(self) -> np.ndarray:
         """The sorted distinct source lines that made rows (the lines whose text the page shows)."""
         parts = list(self._spill["line"].chunks())
@@ -361,6 +418,7 @@ class ViewerSink(pipeline.Sink):
 
     def pack(self) -> tuple[dict, dict, int]:
         """(arrays packed for the page, layer bars, time grid bits): reads the spilled columns back."""
+        self.flush()
         bits = _time_bits(self.t_end)
         scale = float(2 ** bits)
         arrays: dict[str, dict] = {}
@@ -557,14 +615,38 @@ def _object_names(reader) -> list[str]:
 def collect(source, machine, policy: str | None = None, jerk: float | None = None, strict: bool = False,
             progress=None) -> ViewerSink:
     """Plan ``source`` once into a :class:`ViewerSink` (raises GcodeplanError on bad input)."""
-    sink = ViewerSink()
+    sink = ViewerSink(thin_for(source))
     pipeline.run(source, machine, policy=policy, jerk=jerk, strict=strict, sinks=[sink], progress=progress)
     return sink
+
+
+#: G-code bytes a page holds every move of; a bigger file's page merges consecutive moves into one row, so
+#: that the page stays under about 30 MB (12.5 bytes a move, ~29 bytes of G-code a move in a print)
+PAGE_GCODE_BYTES = 64 << 20
+
+
+def thin_for(source) -> int:
+    """Moves per page row for ``source``: 1 up to :data:`PAGE_GCODE_BYTES` of G-code, then enough to keep
+    the page about that size (compressed and binary G-code count 3× and 5× their bytes)."""
+    size = pipeline._file_size(source)
+    if size is None:
+        return 1
+    try:
+        with open(source, "rb") as f:
+            head = f.read(4)
+    except OSError:
+        return 1
+    if head[:2] == b"\x1f\x8b":
+        size *= 3
+    elif head == b"GCDE":
+        size *= 5
+    return max(1, math.ceil(size / PAGE_GCODE_BYTES))
 
 
 def viewer_data(sink: ViewerSink, source, machine_name: str = "", policy: str = "") -> dict:
     """Everything the page needs, packed: ``{"meta": {...}, "arrays": {...}, "text": [...]}``.
     ``source``: the path whose lines the inspector shows (read a second time here)."""
+    sink.flush()
     if sink.rows == 0 or sink.reader is None:
         raise GcodeplanError(f"{os.fspath(source) if isinstance(source, (str, os.PathLike)) else source}: "
                              "no moves to show (empty file, or no motion commands)")
@@ -585,9 +667,11 @@ def viewer_data(sink: ViewerSink, source, machine_name: str = "", policy: str = 
         "machine": machine_name,
         "policy": policy or sink.policy,
         "mode": sink.mode or "trapezoid",
-        "segments": sink.mode in SEGMENT_MODES,
-        "jerk": sink.jerk,
+        "segments": sink.mode in SEGMENT_MODES and sink.thin == 1,
+        "jerk": sink.jerk if sink.thin == 1 else 0.0,
         "n": n,
+        "thin": sink.thin,
+        "moves": sink.moves,
         "t_bits": bits,
         "v_bits": SPEED_FRAC_BITS,
         "t_end": float(np.rint(sink.t_end * float(2 ** bits))) / float(2 ** bits),

@@ -863,7 +863,9 @@
     const t_start = performance.now();
     $('gpv-title').textContent = META.name;
     $('gpv-sub').textContent = 'machine ' + META.machine + ', policy ' + META.policy + ', ' + META.mode
-      + (J > 0 ? ' (jerk ' + J + ' mm/s³)' : '') + '; ' + n + ' moves, ' + hms(META.t_end);
+      + (J > 0 ? ' (jerk ' + J + ' mm/s³)' : '') + '; ' + n + ' moves, ' + hms(META.t_end)
+      + (META.thin > 1 ? ' — a big program: each row here merges ' + META.thin + ' consecutive moves (of '
+         + META.moves + '), so that the page stays small; the times and layer bars are exact' : '');
     await load();
     const t_decoded = performance.now();
     buildTree();
