@@ -152,13 +152,13 @@ def build_report(path: str, machine, policy: str | None = None, jerk: float | No
     """Plan ``path`` once and return the HTML page."""
     from .estimate import Estimate, print_text
     from ..report.summary import TimeSummary
-    from ..report.viewer import ViewerSink, viewer_data, viewer_fragment
+    from ..report.viewer import ViewerSink, thin_for, viewer_data, viewer_fragment
 
     policy = policy or machine.junction_policy
     time = TimeSummary()
     per_layer = plots.LayerFeatureTimes()
     keep = SlowestLayers(slowest)
-    view = ViewerSink()   # the interactive viewer, embedded above the tables
+    view = ViewerSink(thin_for(path))   # the interactive viewer, embedded above the tables (bounded)
 
     def fold(m, p, first, segs):
         time.add(m, p)
@@ -173,7 +173,7 @@ def build_report(path: str, machine, policy: str | None = None, jerk: float | No
     d = est.to_json()
     name = os.path.basename(path)
     parts = _tables(est, d)
-    if view.rows:
+    if view.moves:
         parts.insert(0, html.section("Explore the plan", viewer_fragment(viewer_data(view, path, machine.name, policy))))
     parts.append(html.details("the estimate as `gcodeplan estimate` prints it", html.pre(_text(est, print_text))))
     imgs = []
