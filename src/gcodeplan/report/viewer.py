@@ -18,6 +18,11 @@ What the page holds, per MOVE row (one pass of :func:`gcodeplan.pipeline.run` wi
 * float32 where exactness is not needed: XY(Z) end points for the toolpath, the requested feed;
 * small integers: line number (delta-coded), kind, flags, feature, layer, object, what limited the move.
 
+The columns are compressed as the plan streams in (the times and coordinates wait in a temporary file until
+the print's length fixes the time grid), so memory stays bounded by the page, not the program. A program of
+more than :data:`PAGE_GCODE_BYTES` of G-code gets page rows that each merge ``thin`` consecutive moves
+(:func:`thin_for`): the page stays about 30 MB whatever the file's size; times and layer bars stay exact.
+
 Each array is deflated (the coordinates byte-shuffled first); the browser inflates it with its own
 ``DecompressionStream``. The G-code text of the lines that made moves is read in a second
 streaming pass over the source (:func:`_pick_lines`, vectorised per chunk) and stored in zstd blocks of
