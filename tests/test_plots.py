@@ -170,16 +170,21 @@ def test_velocity_plot_speed_is_the_closed_form_trapezoid_at_the_plotted_times()
     assert np.all(np.min(np.abs(t[:, None] - bounds[None, :]), axis=0) < 1e-12)
 
 
-def test_velocity_plot_acceleration_steps_and_jerk_is_zero_with_impulses_marked():
+def test_velocity_plot_of_trapezoids_has_steps_in_acceleration_and_no_jerk_panel():
+    """A trapezoid plan's jerk is zero inside phases and impulses between them: no panel of its own
+    (issue 19: it was noise); the steps are the acceleration curve's, found by ``jerk_steps``."""
     win = corner_window()
     fig = plots.plot_velocity(win)
     t, a = xy(line_by_gid(fig, "accel"))
     assert set(np.round(np.unique(a), 9)) <= {-1000.0, 0.0, 1000.0}
-    _, j = xy(line_by_gid(fig, "jerk"))
-    assert np.all(j == 0.0)
+    assert len(fig.axes) == 2
+    names = {ln.get_gid() for ax in fig.axes for ln in ax.get_lines()}
+    assert not names & {"jerk", "jerk_steps_up", "jerk_steps_down"}
     # impulses: each phase change where the acceleration changes, plus start from / stop at rest
-    up_t, _ = xy(line_by_gid(fig, "jerk_steps_up"))
-    down_t, _ = xy(line_by_gid(fig, "jerk_steps_down"))
+    s = plots.sample_plan(win.segs)
+    speed, a_t, _ = plots.toolhead_kinematics(s.vel, s.acc, s.jerk, s.side)
+    step_t, step_da = plots.jerk_steps(s, a_t, speed)
+    up_t, down_t = step_t[step_da > 1e-6], step_t[step_da < -1e-6]
     expected_up, expected_down = [], []
     for p in win.plan:
         t0 = p["t_start"]
@@ -674,3 +679,90 @@ def test_blend_and_scurve_windows_are_drawn_from_their_planners_segments(policy,
         assert "jerk_steps_up" not in names and "jerk_steps_down" not in names
         _, j = xy(line_by_gid(fig, "jerk"))
         assert np.nanmax(np.abs(j)) <= jerk * (1 + 1e-9)
+
+
+# ----------------------------------------------------------------------------- issue 19
+def _dark_share(fig, ax) -> float:
+    """Share of the pixels inside ``ax`` that are dark (all channels < 0.35): a solid black block is ~1."""
+    fig.canvas.draw()
+    img = np.asarray(fig.canvas.buffer_rgba())[..., :3] / 255.0
+    b = ax.get_window_extent()
+    h = img.shape[0]
+    crop = img[int(h - b.y1) + 2:int(h - b.y0) - 2, int(b.x0) + 2:int(b.x1) - 2]
+    return float(np.mean(np.all(crop < 0.35, axis=-1)))
+
+
+def test_whole_print_velocity_is_an_envelope_with_its_time_weighted_mean():
+    """A window of more moves than pixels: a light min–max band per pixel column and the time-weighted mean
+    speed, whose integral over time is the distance the toolhead covers (trapezoid rule: exact here)."""
+    win = zigzag_window(10_000)
+    fig = plots.plot_velocity(win)
+    ax_v = fig.axes[0]
+    assert _dark_share(fig, ax_v) < 0.05           # was a solid black block
+    t, mean = xy(line_by_gid(fig, "speed_mean"))
+    ok = np.isfinite(mean)
+    lo, hi = win.t_range
+    width = (hi - lo) / plots.DENSE_COLUMNS
+    distance = float(np.sum(mean[ok]) * width)
+    xyz = (win.moves["kind"] <= 1)
+    assert distance == pytest.approx(float(win.moves["move_d"][xyz].sum()), rel=1e-3)
+    assert len(fig.axes) == 2                       # trapezoids: no jerk panel
+    names = {ln.get_gid() for ax in fig.axes for ln in ax.get_lines()}
+    assert "junctions" not in names                 # 10 000 markers are not drawn over each other
+
+
+def test_a_window_late_in_a_print_has_plain_time_ticks():
+    """Times around 18 700 s over a few seconds: the ticks say 18701.5, not 1.5 with a '+1.87e4' offset."""
+    win = corner_window()
+    shift = 18700.0
+    win.plan["t_start"] += shift
+    win.segs["t0"] += shift
+    fig = plots.plot_velocity(win)
+    fig.canvas.draw()
+    for ax in fig.axes:
+        assert ax.xaxis.get_offset_text().get_text() == ""
+        assert ax.yaxis.get_offset_text().get_text() == ""
+    labels = [t.get_text() for t in fig.axes[-1].get_xticklabels() if t.get_text()]
+    assert labels and all(float(x.replace("−", "-")) >= 18699 for x in labels), labels
+
+
+def _cnc_window(tmp_path):
+    from gcodeplan.commands.plot import Selection, load_window
+    from gcodeplan.config import load_machine
+
+    src = tmp_path / "pocket.ngc"
+    src.write_text("G21 G90\nG0 Z5\nG0 X10 Y10\nG1 Z-1 F300\nG1 X30 F1200\nG1 Y30\nG1 X10\nG1 Y10\nG0 Z5\n"
+                   "G0 X0 Y0\nM2\n")
+    machine = load_machine("grbl")
+    win, _ = load_window(str(src), machine, Selection())
+    return win, machine
+
+
+def test_cnc_plots_say_cutting_moves_and_have_no_e_row(tmp_path):
+    win, machine = _cnc_window(tmp_path)
+    fig = plots.plot_path(win, machine=machine)
+    texts = [t.get_text() for t in fig.axes[0].get_legend().get_texts()]
+    assert texts == ["cutting (feed) moves", "rapids (G0, dashed)"]
+    cols = {c.get_gid(): c for c in fig.axes[0].collections}
+    assert len(cols["path_print"].get_segments()) >= 4       # the four sides of the pocket are cuts
+    fig = plots.plot_axes(win, machine)
+    labels = [ax.get_ylabel() for ax in fig.axes]
+    assert not any(lab.startswith("e ") for lab in labels), labels
+    assert any(lab.startswith("z ") for lab in labels)
+
+
+def test_a_piece_turning_at_constant_speed_is_shaded_as_cruise():
+    """LinuxCNC's arc pieces accelerate normal to the path (v ⟂ a): the speed is constant, so the shading
+    says cruise, whatever phase the fit gave the piece; a piece accelerating along its path stays accel."""
+    from gcodeplan.schema import PHASE_ACCEL, PHASE_CRUISE, PHASE_DECEL, SEGMENT_DTYPE
+
+    segs = np.zeros(3, SEGMENT_DTYPE)
+    segs["dt"] = 0.1
+    segs["t0"] = [0.0, 0.1, 0.2]
+    segs["vx"] = [10.0, 100.0, 100.0]
+    segs["vy"] = [-0.25, 0.0, 0.0]      # at the piece's middle v ⟂ a (a chord of the circle)
+    segs["ay"] = [5.0, 0.0, 0.0]        # v²/r: a 20 mm circle at 10 mm/s
+    segs["ax"] = [0.0, 1000.0, -1000.0]
+    segs["phase"] = [PHASE_DECEL, PHASE_ACCEL, PHASE_DECEL]
+    out = plots.tangential_phases(segs)
+    assert out["phase"].tolist() == [PHASE_CRUISE, PHASE_ACCEL, PHASE_DECEL]

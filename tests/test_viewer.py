@@ -377,3 +377,225 @@ def test_view_reads_standard_input(tmp_path):
     assert 'gpv-meta' in out.read_text()
     assert not [p for p in os.listdir(tmp_path) if p != "stdin.html"]
     assert shutil.which("gcodeplan")
+
+
+# ------------------------------------------------------------------------------------------ issue 19
+def test_pan_and_zoom_out_stay_inside_the_print(browser, pages):
+    html, _, plan = pages("cube", CUBE)
+    v = open_page(browser, html)
+    total = plan.total_time_s
+    v.js("([a, b]) => gcodeplanView.zoomTo(a, b)", [total - 30.0, total - 10.0])
+    v.page.locator("#gpv-path").focus()
+    for _ in range(6):
+        v.page.keyboard.press("ArrowRight")
+    st = v.js("gcodeplanView.state()")
+    assert st["t1"] == pytest.approx(total, abs=1e-9) and st["t1"] - st["t0"] == pytest.approx(20.0, abs=1e-6)
+    for _ in range(int(total / 5) + 10):
+        v.page.keyboard.press("ArrowLeft")
+    st = v.js("gcodeplanView.state()")
+    assert st["t0"] == 0 and st["t1"] == pytest.approx(20.0, abs=1e-6)
+    for _ in range(30):
+        v.page.keyboard.press("-")
+    st = v.js("gcodeplanView.state()")
+    assert st["t0"] == 0 and st["t1"] == pytest.approx(total, abs=1e-9)
+    v.page.close()
+
+
+def _tick_labels(v):
+    """(text, left, right) of each time tick label, in CSS px (the axis is drawn on a canvas)."""
+    return [(t["text"], t["x"] - t["w"] / 2, t["x"] + t["w"] / 2) for t in v.js("gcodeplanView.ticks()")]
+
+
+@pytest.mark.parametrize("span", [0.08, 0.004, 3e-5])
+def test_time_tick_labels_never_overlap_and_differ(browser, pages, span):
+    html, _, plan = pages("cube", CUBE)
+    v = open_page(browser, html)
+    v.js("([a, b]) => gcodeplanView.zoomTo(a, b)", [1000.0, 1000.0 + span])
+    ticks = _tick_labels(v)
+    assert len(ticks) >= 3
+    texts = [t for t, _, _ in ticks]
+    assert len(set(texts)) == len(texts), texts        # enough decimals to tell the ticks apart
+    for (_, _, right), (_, left, _) in zip(ticks, ticks[1:]):
+        assert left > right, ticks                       # no two labels overlap
+    v.page.close()
+
+
+def test_legend_lists_each_quantity_once(browser, pages):
+    html, _, _ = pages("cube", CUBE)
+    v = open_page(browser, html)
+    shown = v.js("[...document.querySelectorAll('#gpv-timeline .u-legend .u-series')]"
+                 ".filter(r => getComputedStyle(r).display !== 'none').map(r => r.textContent.trim())")
+    assert len(shown) == 3 and not any("(min)" in s for s in shown), shown
+    v.page.close()
+
+
+def test_page_and_pngs_share_the_feature_colours(browser, pages):
+    from matplotlib.colors import to_hex
+
+    from gcodeplan.commands.plot import load_layer_times
+    from gcodeplan.report import plots
+
+    html, _, plan = pages("cube", CUBE)
+    v = open_page(browser, html)
+    page = v.js("(() => { const el = document.getElementById('gpv-barinfo');"
+                " return [...el.querySelectorAll('.gpv-sw')].map(s => [s.nextSibling.textContent, s.style.background]); })()")
+    v.page.close()
+
+    def rgb(css):
+        import re
+
+        r, g, b = (int(x) for x in re.findall(r"\d+", css)[:3])
+        return f"#{r:02x}{g:02x}{b:02x}"
+
+    page_colors = {name.strip(): rgb(c) for name, c in page}
+    times, reader = load_layer_times(str(CUBE), gp.load_machine("klipper"))
+    fig = plots.plot_layers(times, list(reader.features), list(reader.layer_z))
+    png_colors = {}
+    for cont in fig.axes[0].containers:
+        png_colors[cont.get_label()] = to_hex(cont.patches[0].get_facecolor())
+    common = set(page_colors) & set(png_colors)
+    assert len(common) >= 5, (page_colors, png_colors)
+    assert {k: page_colors[k] for k in common} == {k: png_colors[k] for k in common}
+
+
+def test_toolpath_colour_scale_spans_the_layers_speeds(browser, pages):
+    html, _, plan = pages("cube", CUBE)
+    v = open_page(browser, html)
+    m, p = plan.moves, plan.plan
+    for layer in (0, 10):
+        v.js("l => gcodeplanView.showLayer(l)", layer)
+        legend = v.page.locator("#gpv-legend").inner_text()
+        sel = (m["layer"] == layer) & (m["kind"] == 1) & (np.hypot(m["x1"] - m["x0"], m["y1"] - m["y0"]) > 0)
+        lo, hi = float(p["cruise_v"][sel].min()), float(p["cruise_v"][sel].max())
+        if hi - lo < 0.05 * hi:
+            lo = 0.0
+        import re
+
+        nums = [float(x) for x in re.findall(r"\d+(?:\.\d+)?", legend.split("mm/s")[0])]
+        tol = 0.51 if hi - lo >= 10 else 0.051           # the legend rounds to 0 or 1 decimals
+        assert nums[0] == pytest.approx(lo, abs=tol) and nums[-1] == pytest.approx(hi, abs=tol), legend
+    v.page.close()
+
+
+def _cnc_program(path):
+    """Two pockets at two depths, with rapids between (a CNC program: no extrusion, no layers)."""
+    lines = ["G21 G90", "G0 Z5", "G0 X0 Y0"]
+    for depth in (-1.0, -2.0):
+        lines += [f"G1 Z{depth:.1f} F300", "G1 X20 F1200", "G1 Y20", "G1 X0", "G1 Y0", "G0 Z5"]
+    lines += ["M2"]
+    path.write_text("\n".join(lines) + "\n")
+
+
+def test_cnc_program_is_grouped_by_z_level(browser, tmp_path):
+    src = tmp_path / "pocket.ngc"
+    _cnc_program(src)
+    out = tmp_path / "pocket.html"
+    assert main(["view", str(src), "-o", str(out), "-q", "--machine", "grbl"]) == 0
+    v = open_page(browser, out)
+    st = v.js("gcodeplanView.state()")
+    assert st["layers"] == [0, 1]
+    assert v.page.locator("#gpv-bars-title").inner_text() == "time per Z level, split by feature"
+    v.js("gcodeplanView.showLayer(1)")
+    assert "(z -2.000 mm)" in v.page.locator("#gpv-layer").inner_text()
+    assert st["pathSegments"] >= 4        # the cuts are drawn (not as travel)
+    assert "rapids (G0) dashed" in v.page.locator("#gpv-legend").inner_text()
+    v.page.close()
+
+
+def test_linuxcnc_page_draws_the_plans_speed_and_acceleration(browser, tmp_path):
+    """The page's inspector tells what plan.sample tells (LinuxCNC rows are not trapezoids)."""
+    from gcodeplan.config.linuxcnc import load_linuxcnc_ini
+
+    ini = tmp_path / "mill.ini"
+    ini.write_text("[EMCMOT]\nSERVO_PERIOD = 1000000\n[TRAJ]\nCOORDINATES = X Y Z\nLINEAR_UNITS = mm\n"
+                   "MAX_LINEAR_VELOCITY = 100\n[AXIS_X]\nMAX_VELOCITY = 100\nMAX_ACCELERATION = 1000\n"
+                   "[AXIS_Y]\nMAX_VELOCITY = 100\nMAX_ACCELERATION = 1000\n"
+                   "[AXIS_Z]\nMAX_VELOCITY = 20\nMAX_ACCELERATION = 500\n")
+    src = tmp_path / "zig.ngc"
+    pts = "".join(f"G1 X{2.0 * (k + 1):.1f} Y{(k % 2) * 0.5:.1f}\n" for k in range(40))
+    src.write_text("G21 G90 G64\nG1 F6000\n" + pts + "M2\n")
+    out = tmp_path / "zig.html"
+    assert main(["view", str(src), "-o", str(out), "-q", "--linuxcnc-ini", str(ini)]) == 0
+    plan = gp.plan(str(src), load_linuxcnc_ini(str(ini)))
+    v = open_page(browser, out)
+    t = random_inner_times(plan, 30, seed=5)
+    _, vel, acc, _ = plan.sample(t)
+    speed = np.linalg.norm(vel[:, :3], axis=1)
+    got = v.js("ts => ts.map(t => gcodeplanView.inspectAt(t))", t.tolist())
+    assert np.max(np.abs(np.array([g["speed"] for g in got]) - speed)) <= 1e-6
+    tang = np.einsum("ij,ij->i", vel[:, :3], acc[:, :3]) / np.maximum(speed, 1e-12)
+    assert np.max(np.abs(np.array([g["accel"] for g in got]) - tang)) <= 1e-3
+    assert np.max(np.abs(tang)) > 100           # the program accelerates: not a step function at 0 mm/s²
+    v.page.close()
+
+
+def test_viewer_sink_keeps_compressed_columns_not_the_plan(tmp_path):
+    """The sink compresses as the plan streams in: a 300 000-move program costs a few bytes a move in memory
+    (it held ~85 bytes a move before, and a copy more while packing)."""
+    import tracemalloc
+
+    from gcodeplan.report.viewer import ViewerSink
+    from gcodeplan.schema import MOVE_DTYPE, PLAN_DTYPE
+
+    n_chunk, chunks = 10_000, 30
+    sink = ViewerSink()
+    rng = np.random.default_rng(1)
+    tracemalloc.start()
+    base = tracemalloc.get_traced_memory()[0]
+    for k in range(chunks):
+        m = np.zeros(n_chunk, MOVE_DTYPE)
+        p = np.zeros(n_chunk, PLAN_DTYPE)
+        i = np.arange(k * n_chunk, (k + 1) * n_chunk)
+        m["x1"] = np.round(rng.uniform(0, 200, n_chunk), 3)
+        m["y1"] = np.round(rng.uniform(0, 200, n_chunk), 3)
+        m["kind"] = 1
+        m["line"] = i + 10
+        m["layer"] = i // 5000
+        m["feature"] = i % 3
+        m["feed_v"] = 50.0
+        p["t_start"] = i * 0.05
+        p["duration"] = 0.05
+        p["start_v"] = p["end_v"] = np.round(rng.uniform(0, 10, n_chunk), 2)
+        p["cruise_v"] = 50.0
+        p["accel"] = p["decel"] = 1000.0
+        sink.add_rows(m, p, k * n_chunk, "trapezoid")
+        del m, p
+    held = tracemalloc.get_traced_memory()[0] - base
+    tracemalloc.stop()
+    assert sink.rows == n_chunk * chunks
+    assert held < 12 * sink.rows, f"{held / sink.rows:.1f} bytes a move"
+
+
+def test_a_big_program_gets_a_bounded_page_of_merged_rows(browser, tmp_path, monkeypatch):
+    """Above PAGE_GCODE_BYTES of G-code each page row merges ``thin`` consecutive moves: the page stays about
+    that size whatever the file's; the print's time and the layer bars stay exact."""
+    import re
+
+    import gcodeplan.report.viewer as viewer
+
+    size = CUBE.stat().st_size
+    monkeypatch.setattr(viewer, "PAGE_GCODE_BYTES", (size - 1) // 4)     # just under a quarter: 5 a row
+    assert viewer.thin_for(str(CUBE)) == 5
+    out = tmp_path / "thin.html"
+    assert main(["view", str(CUBE), "-o", str(out), "-q"]) == 0
+    full = tmp_path / "full.html"
+    monkeypatch.setattr(viewer, "PAGE_GCODE_BYTES", 64 << 20)
+    assert main(["view", str(CUBE), "-o", str(full), "-q"]) == 0
+    def data_bytes(path):       # the page's data (arrays and G-code text), without the fixed scripts
+        text = path.read_text()
+        return sum(len(x) for x in re.findall(r'<script type="application/octet-stream" id="gpv-[^"]*"[^>]*>([^<]*)<',
+                                               text))
+
+    assert data_bytes(out) < 0.5 * data_bytes(full)
+    plan = gp.plan(str(CUBE))
+    v = open_page(browser, out)
+    st = v.js("gcodeplanView.state()")
+    assert st["moves"] == -(-len(plan.moves) // 5)
+    assert st["totalTime"] == pytest.approx(plan.total_time_s, abs=1e-9)
+    meta = v.js("JSON.parse(document.getElementById('gpv-meta').textContent)")
+    bars = dict(zip(meta["layer_bars"]["layers"], (sum(r) for r in meta["layer_bars"]["times"])))
+    for layer in (0, 10, 50):
+        sel = plan.moves["layer"] == layer
+        assert bars[layer] == pytest.approx(float(plan.plan["duration"][sel].sum()), abs=1e-5)
+    assert "merges 5 consecutive moves" in v.page.locator("#gpv-sub").inner_text()
+    v.page.close()

@@ -83,7 +83,8 @@ def estimate(source, machine=None, policy: str | None = None, jerk: float | None
     ``est.total_time_s`` (s), ``est.to_json()`` (what ``gcodeplan estimate --json`` prints),
     ``est.line_times()`` ((line, end_time_s) arrays, Klipper's per-line CSV), ``est.to_text()``.
     ``policy``: junction policy name (None = the machine's); ``jerk``: path jerk limit (mm/s³) for
-    S-curves; ``strict``: unknown commands are errors; ``progress(bytes_read)`` as the file is read;
+    S-curves; ``strict``: unknown commands are errors; ``progress(bytes_done)`` as the work advances
+    (the input bytes whose moves are planned: :func:`gcodeplan.pipeline.run`);
     ``exclude_objects``: object names cancelled as Klipper's exclude_object runs them; ``line_times``: False
     keeps no per-line end times (16 bytes per line: 30 MB and a few tenths of a second on a 50 MB file), and
     ``est.line_times()`` then raises.

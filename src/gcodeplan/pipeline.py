@@ -196,6 +196,76 @@ def open_reader(source, machine, *, strict: bool = False, batch_moves: int = 819
     return reader, small
 
 
+class WorkBytes:
+    """How far the *work* has got, in input bytes: the bytes up to the line of the last move that every
+    sink has handled, for progress bars. The reader reads ahead in chunks of megabytes (and in a second
+    thread), so the bytes it has read say little about the work; a MOVE row knows its line, not its byte
+    offset, so lines are turned into bytes with the bytes per line of the chunks read before (the first
+    chunk: of the lines seen in it so far), never past the bytes read."""
+
+    __slots__ = ("marks", "cur_b", "cur_line", "done_line", "line_bytes", "last")
+
+    def __init__(self, line_bytes: float | None = None):
+        self.marks: list[tuple[int, int]] = [(0, 0)]   # (bytes read, last line seen) at each chunk's end
+        self.cur_b = 0
+        self.cur_line = 0
+        self.done_line = 0
+        self.line_bytes = line_bytes    # bytes per line in the first chunk, when known (:func:`line_bytes`)
+        self.last = 0
+
+    def read(self, bytes_read: int, line: int) -> None:
+        """The reader handed over a batch whose last move came from ``line`` after ``bytes_read`` bytes."""
+        if bytes_read != self.cur_b:
+            if self.cur_line > self.marks[-1][1]:
+                self.marks.append((self.cur_b, self.cur_line))
+            self.cur_b = bytes_read
+        self.cur_line = max(self.cur_line, line)
+
+    def done(self, line: int) -> None:
+        """Every sink has handled the moves up to source line ``line``."""
+        self.done_line = max(self.done_line, line)
+
+    def bytes_done(self) -> int:
+        line = self.done_line
+        marks = self.marks
+        k = len(marks) - 1
+        while k > 0 and marks[k][1] >= line:      # a chunk read before: interpolate inside it
+            k -= 1
+        b0, l0 = marks[k]
+        if k + 1 < len(marks):
+            b1, l1 = marks[k + 1]
+            return int(b0 + (line - l0) * (b1 - b0) / max(l1 - l0, 1))
+        if l0 > 0:
+            rate = b0 / l0                         # bytes per line of the chunks before
+        elif self.line_bytes:
+            rate = self.line_bytes
+        else:
+            rate = self.cur_b / max(self.cur_line, 1)
+        self.last = max(self.last, int(min(self.cur_b, b0 + (line - l0) * rate)))
+        return self.last
+
+
+#: bytes read from the start of a file to guess its bytes per line (:func:`line_bytes`)
+LINE_BYTES_PROBE = 1 << 16
+
+
+def line_bytes(source) -> float | None:
+    """Bytes per line of the first :data:`LINE_BYTES_PROBE` bytes of a plain-text regular file (None for
+    anything else: streams are read once, compressed files have other bytes): how :class:`WorkBytes` turns
+    lines into bytes before the reader's first chunk ends."""
+    if _file_size(source) is None:
+        return None
+    try:
+        with open(source, "rb") as f:
+            head = f.read(LINE_BYTES_PROBE)
+    except (OSError, ValueError):
+        return None
+    if head[:2] == b"\x1f\x8b" or head[:4] == b"GCDE":
+        return None
+    lines = head.count(b"\n") or head.count(b"\r")
+    return len(head) / lines if lines else None
+
+
 class Piece:
     """One final stretch of the plan, in program order.
 
@@ -305,6 +375,7 @@ class Run:
         self.finished = False
         self.threaded = not self.small and read_ahead_input(source)
         self._limits = None
+        self._work = WorkBytes(line_bytes(source) if progress is not None else None)
 
     def _pieces(self, pairs: Iterable[tuple[np.ndarray, np.ndarray]]):
         for moves, plan in pairs:
@@ -313,6 +384,10 @@ class Run:
             piece.firmware_steps = self.planner.firmware_steps()
             self.rows += len(moves)
             yield piece
+            if len(moves):          # resumed: every sink has handled this piece
+                self._work.done(int(moves["line"][-1]))
+                if self.progress is not None:
+                    self.progress(self._work.bytes_done())
 
     def _batches(self):
         """(MOVE batch, LIMITS so far, bytes read so far) from the reader, in a second thread for big files."""
@@ -328,12 +403,15 @@ class Run:
         with located(reader.path), _jit.interpreted(self.small):
             for moves, limits, bytes_read in self._batches():
                 self._limits = limits
+                if len(moves):
+                    self._work.read(bytes_read, int(moves["line"][-1]))
+                # the pieces are the sinks' work: they have done it when the generator resumes in _pieces
                 yield from self._pieces(planner.feed(moves, limits))
-                if self.progress is not None:
-                    self.progress(bytes_read)
             self._limits = reader.limits
             yield from self._pieces(planner.finish())
             reader.interp.check_excluded()
+            if self.progress is not None:       # all done: all that was read
+                self.progress(max(self._work.last, reader.bytes_read))
         self.finished = True
 
     @property
@@ -349,7 +427,8 @@ def run(source, machine, *, policy: str | None = None, jerk: float | None = None
 
     ``policy``: junction policy name (None = the machine's); ``jerk``: mm/s³ for S-curves (None =
     trapezoids unless the machine sets max_jerk); ``strict``: unknown commands are errors;
-    ``progress(bytes_read)`` after every parser batch; ``exclude_objects``: names of objects cancelled
+    ``progress(bytes_done)`` after every piece the sinks have handled, with the input bytes whose moves are
+    done (:class:`WorkBytes`: the work's progress, not the reading's); ``exclude_objects``: names of objects cancelled
     (Klipper's exclude_object; a name the file never labels is an error); ``batch_moves``: MOVE rows per
     reader batch. Errors name the file and line (:class:`gcodeplan.errors.GcodeplanError`). Reading stops
     early once every sink said it is done.

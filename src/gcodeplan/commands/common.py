@@ -90,8 +90,10 @@ def machine_from_args(args):
 
 
 def progress_bar(source, quiet: bool):
-    """A bytes progress bar on stderr, only on a terminal, only for runs over a second, only when the
-    source's size is known. Returns (bar or None, callback(bytes_read) or None)."""
+    """A progress bar of the work on stderr, only on a terminal, only for runs over a second, only when the
+    source's size is known: ``callback(bytes_done)`` takes the input bytes whose moves every sink has
+    handled (:class:`gcodeplan.pipeline.WorkBytes`), as ``pipeline.run(progress=...)`` gives them.
+    Returns (bar or None, callback or None); close the bar when done (it then leaves no line behind)."""
     if quiet or not sys.stderr.isatty() or not isinstance(source, (str, os.PathLike)) or str(source) == "-":
         return None, None
     try:
@@ -100,6 +102,18 @@ def progress_bar(source, quiet: bool):
         return None, None
     from tqdm import tqdm
 
-    bar = tqdm(total=total, unit="B", unit_scale=True, delay=1.0, desc=os.path.basename(str(source)),
-               file=sys.stderr, leave=False)
-    return bar, (lambda done: bar.update(min(done, total) - bar.n))
+    bar = tqdm(total=total, unit="B", unit_scale=True, delay=progress_delay_s(),
+               desc=os.path.basename(str(source)), file=sys.stderr, leave=False)
+    return bar, (lambda done: bar.update(max(0, min(done, total) - bar.n)))
+
+
+#: a run shows its progress bar once it has taken this long (s): short runs print no bar at all
+PROGRESS_DELAY_S = 1.0
+
+
+def progress_delay_s() -> float:
+    """:data:`PROGRESS_DELAY_S`, or ``GCODEPLAN_PROGRESS_DELAY`` (s) when set: tests show the bar at once."""
+    try:
+        return max(0.0, float(os.environ.get("GCODEPLAN_PROGRESS_DELAY", PROGRESS_DELAY_S)))
+    except ValueError:
+        return PROGRESS_DELAY_S

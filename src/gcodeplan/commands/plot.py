@@ -90,14 +90,16 @@ def _policy_jerk(machine, policy: str | None, jerk: float | None):
     return policy, jerk
 
 
-def stream_plan(path: str, machine, policy: str | None, jerk: float | None, strict: bool, on_chunk):
+def stream_plan(path: str, machine, policy: str | None, jerk: float | None, strict: bool, on_chunk,
+                progress=None):
     """Plan ``path`` from its start and call ``on_chunk(moves, plan, first_index)`` for each planned
     piece in order (``first_index`` = global row of ``moves[0]``); stop early when it returns True.
 
     ``on_chunk(moves, plan, first_index, segs)``: ``segs`` are the planner's own SEGMENT rows of the
     piece for blend and S-curve plans (they cannot be rebuilt from PLAN rows; global move indices), None
     for trapezoid plans (the caller makes them for what it keeps with ``segments_for``), so a caller
-    keeps only the pieces it wants and memory stays bounded. Returns the reader.
+    keeps only the pieces it wants and memory stays bounded. ``progress(bytes_done)``: as
+    :func:`gcodeplan.pipeline.run`. Returns the reader.
     """
     from .. import pipeline
 
@@ -109,7 +111,7 @@ def stream_plan(path: str, machine, policy: str | None, jerk: float | None, stri
         return on_chunk(piece.moves, piece.plan, piece.first_move, segs)
 
     return pipeline.run(path, machine, policy=policy, jerk=jerk, strict=strict,
-                        sinks=[pipeline.FunctionSink(hand_over)]).reader
+                        sinks=[pipeline.FunctionSink(hand_over)], progress=progress).reader
 
 
 def segments_for(moves: np.ndarray, plan: np.ndarray, first_index: int, own_segs: list | None = None):
@@ -212,16 +214,16 @@ def _clip_segments(segs: np.ndarray, sel: Selection) -> np.ndarray:
 
 
 def load_window(path: str, machine, sel: Selection, policy: str | None = None, jerk: float | None = None,
-                strict: bool = False) -> tuple[plots.Window, object]:
+                strict: bool = False, progress=None) -> tuple[plots.Window, object]:
     """Plan ``path`` from its start and return the selected window (with its segments) and the reader."""
     collect = WindowCollector(sel)
-    reader = stream_plan(path, machine, policy, jerk, strict, collect)
+    reader = stream_plan(path, machine, policy, jerk, strict, collect, progress)
     label = f"{os.path.basename(path)} ({sel.describe()})"
     return collect.window(reader.limits, label, reader.features), reader
 
 
 def load_layer_times(path: str, machine, policy: str | None = None, jerk: float | None = None,
-                     strict: bool = False) -> tuple[plots.LayerFeatureTimes, object]:
+                     strict: bool = False, progress=None) -> tuple[plots.LayerFeatureTimes, object]:
     """Plan the whole file and return its time per (layer, feature) and the reader."""
     times = plots.LayerFeatureTimes()
 
@@ -229,7 +231,7 @@ def load_layer_times(path: str, machine, policy: str | None = None, jerk: float 
         times.add(m, p)
         return False
 
-    reader = stream_plan(path, machine, policy, jerk, strict, fold)
+    reader = stream_plan(path, machine, policy, jerk, strict, fold, progress)
     return times, reader
 
 
@@ -249,6 +251,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     win.add_argument("--layer", type=int, metavar="N", help="layer index N (0 = first layer)")
     add_plan_arguments(p)
     p.add_argument("--size", default="1600x900", metavar="WxH", help="picture size in pixels (default 1600x900)")
+    p.add_argument("--quiet", "-q", action="store_true", help="no progress bar")
 
 
 def parse_size(text: str) -> tuple[float, float]:
@@ -294,7 +297,7 @@ def draw(what: str, win: plots.Window | None, machine, size_in, layer_times=None
     if what == "axes":
         return plots.plot_axes(win, machine, size_in=size_in)
     if what == "path":
-        return plots.plot_path(win, size_in=size_in)
+        return plots.plot_path(win, size_in=size_in, machine=machine)
     return plots.plot_layers(layer_times, list(reader.features), list(reader.layer_z),
                              title=f"{os.path.basename(reader.path)}: time per layer", size_in=size_in)
 
@@ -306,14 +309,22 @@ def run(args) -> int:
     machine = machine_from_args(args)
     size_in = parse_size(args.size)
     out, fmt = output_path(args)
-    if args.what == "layers":
-        if any(v is not None for v in (args.t_from, args.t_to, args.lines, args.layer)):
-            raise GcodeplanError("--what layers draws every layer: drop --from/--to, --lines and --layer")
-        times, reader = load_layer_times(args.file, machine, args.policy, args.jerk, args.strict)
-        fig = draw("layers", None, machine, size_in, times, reader)
-    else:
-        win, _ = load_window(args.file, machine, selection_from_args(args), args.policy, args.jerk, args.strict)
-        fig = draw(args.what, win, machine, size_in)
+    from .common import progress_bar
+
+    if args.what == "layers" and any(v is not None for v in (args.t_from, args.t_to, args.lines, args.layer)):
+        raise GcodeplanError("--what layers draws every layer: drop --from/--to, --lines and --layer")
+    sel = selection_from_args(args) if args.what != "layers" else None
+    bar, progress = progress_bar(args.file, getattr(args, "quiet", False))
+    try:
+        if args.what == "layers":
+            times, reader = load_layer_times(args.file, machine, args.policy, args.jerk, args.strict, progress)
+            fig = draw("layers", None, machine, size_in, times, reader)
+        else:
+            win, _ = load_window(args.file, machine, sel, args.policy, args.jerk, args.strict, progress)
+            fig = draw(args.what, win, machine, size_in)
+    finally:
+        if bar is not None:
+            bar.close()
     from ..report.output import atomic_output
 
     try:

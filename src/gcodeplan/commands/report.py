@@ -97,6 +97,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--slowest", type=int, default=2, metavar="N",
                    help="draw the velocity, axes and path plots of the N slowest layers (default 2)")
     p.add_argument("--size", default="1600x900", metavar="WxH", help="plot size in pixels (default 1600x900)")
+    p.add_argument("--quiet", "-q", action="store_true", help="no progress bar")
 
 
 def _fmt_s(seconds: float) -> str:
@@ -147,18 +148,23 @@ def _tables(est, d: dict) -> list[str]:
 
 
 def build_report(path: str, machine, policy: str | None = None, jerk: float | None = None, strict: bool = False,
+<<<<<<< HEAD
                  slowest: int = 2, size_in=plots.FIGSIZE_IN) -> str:
     """Plan ``path`` once and return the HTML page (the viewer reads the lines' texts again: ``path`` must be
     readable twice, a regular file or :func:`gcodeplan.gcode.sources.spooled`'s copy)."""
+=======
+                 slowest: int = 2, size_in=plots.FIGSIZE_IN, progress=None) -> str:
+    """Plan ``path`` once and return the HTML page."""
+>>>>>>> h-viz
     from .estimate import Estimate, print_text
     from ..report.summary import TimeSummary
-    from ..report.viewer import ViewerSink, viewer_data, viewer_fragment
+    from ..report.viewer import ViewerSink, thin_for, viewer_data, viewer_fragment
 
     policy = policy or machine.junction_policy
     time = TimeSummary()
     per_layer = plots.LayerFeatureTimes()
     keep = SlowestLayers(slowest)
-    view = ViewerSink()   # the interactive viewer, embedded above the tables
+    view = ViewerSink(thin_for(path))   # the interactive viewer, embedded above the tables (bounded)
 
     def fold(m, p, first, segs):
         time.add(m, p)
@@ -167,14 +173,14 @@ def build_report(path: str, machine, policy: str | None = None, jerk: float | No
         view.add_rows(m, p, first, None, segs)
         return False
 
-    reader = stream_plan(path, machine, policy, jerk, strict, fold)
+    reader = stream_plan(path, machine, policy, jerk, strict, fold, progress)
     view.finish(reader, policy)
     est = Estimate(reader.path, reader.summary, time, list(reader.layer_z), list(reader.features), policy,
                    machine.name)
     d = est.to_json()
     name = os.path.basename(reader.path)
     parts = _tables(est, d)
-    if view.rows:
+    if view.moves:
         parts.insert(0, html.section("Explore the plan", viewer_fragment(viewer_data(view, path, machine.name, policy))))
     parts.append(html.details("the estimate as `gcodeplan estimate` prints it", html.pre(_text(est, print_text))))
     imgs = []
@@ -196,7 +202,7 @@ def build_report(path: str, machine, policy: str | None = None, jerk: float | No
             continue
         figs = [(plots.plot_velocity(win, size_in=size_in), "velocity profile"),
                 (plots.plot_axes(win, machine, size_in=size_in), "axes"),
-                (plots.plot_path(win, size_in=size_in), "toolpath coloured by speed")]
+                (plots.plot_path(win, size_in=size_in, machine=machine), "toolpath coloured by speed")]
         parts.append(html.section(
             f"{what.capitalize()}: {_fmt_s(run.time_s)} of motion{note}",
             *(html.figure(plots.png_bytes(f), f"{what}: {cap}", f"{what}: {cap}") for f, cap in figs)))
@@ -224,10 +230,21 @@ def run(args) -> int:
     parent = os.path.dirname(os.path.abspath(out))
     if not os.path.isdir(parent):
         raise GcodeplanError(f"cannot write {out}: no such directory {parent}")
+<<<<<<< HEAD
     from ..gcode.sources import spooled
 
     with spooled(args.file) as src:       # read twice (the plan, then the viewer's line texts): '-', FIFOs copied
         page = build_report(src, machine, args.policy, args.jerk, args.strict, args.slowest, size_in)
+=======
+    from .common import progress_bar
+
+    bar, progress = progress_bar(args.file, getattr(args, "quiet", False))
+    try:
+        page = build_report(args.file, machine, args.policy, args.jerk, args.strict, args.slowest, size_in, progress)
+    finally:
+        if bar is not None:
+            bar.close()
+>>>>>>> h-viz
     from ..report.output import atomic_output
 
     try:

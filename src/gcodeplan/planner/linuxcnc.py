@@ -777,10 +777,11 @@ def plan_rows(run: LinuxcncRun, t_clock: float = 0.0) -> np.ndarray:
         k0 = np.searchsorted(times, t_start + 1e-12)
         k1 = np.searchsorted(times, t_start + dur - 1e-12, side="right")
         plan["cruise_v"] = _interval_max(speed, k0, k1, np.maximum(plan["start_v"], plan["end_v"]))
-    plan["cruise_t"] = dur
-    plan["accel"] = 0.0
-    plan["decel"] = 0.0
     is_motion = (moves["kind"] <= 1)
+    # the phases and accelerations each row's interval saw in the trace (linuxcnc_phases.py)
+    from .linuxcnc_phases import fill_phases
+
+    fill_phases(plan, times, speed, run.cycle, run.lead, t_start, dur, is_motion)
     feed = moves["feed_v"]
     lim = np.where(plan["cruise_v"] >= 0.999 * np.minimum(feed, machine_vlimit(run)), LIMIT_FEED, LIMIT_ACCEL)
     plan["limit"] = np.where(is_motion & (dur > 0), lim, LIMIT_NONE)

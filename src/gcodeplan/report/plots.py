@@ -17,7 +17,6 @@ import io
 import math
 from dataclasses import dataclass, field
 
-import matplotlib
 import numpy as np
 from matplotlib.collections import LineCollection, PolyCollection
 from matplotlib.backends.backend_agg import FigureCanvasAgg
@@ -252,17 +251,52 @@ def minmax_columns(t: np.ndarray, y: np.ndarray, gap: np.ndarray, n_cols: int = 
     return centre, y_min, y_max
 
 
-def plot_series(ax, s: "Samples", y: np.ndarray, gid: str, label: str | None = None, color="black", lw=1.0):
+def mean_columns(t: np.ndarray, y: np.ndarray, gap: np.ndarray, n_cols: int = DENSE_COLUMNS):
+    """Time-weighted mean of a time-sorted curve in each of ``n_cols`` equal time columns (its integral
+    by the trapezoid rule over the samples, exact for curves linear between samples such as trapezoid
+    speed profiles, over the time covered). Returns (centre_t, mean) of the non-empty columns, NaN rows
+    before a column where a new stretch starts (``gap``)."""
+    lo, hi = float(t[0]), float(t[-1])
+    width = (hi - lo) / n_cols if hi > lo else 1.0
+    dt = np.diff(t)
+    area = 0.5 * (y[1:] + y[:-1]) * dt
+    keep = ~gap[1:] & (dt > 0)                      # no interval across a hole in time
+    mid = 0.5 * (t[1:] + t[:-1])
+    col = np.minimum(((mid - lo) / width).astype(np.int64), n_cols - 1)
+    a = np.bincount(col[keep], weights=area[keep], minlength=n_cols)
+    w = np.bincount(col[keep], weights=dt[keep], minlength=n_cols)
+    used = np.flatnonzero(w > 0)
+    centre = lo + (used + 0.5) * width
+    mean = a[used] / w[used]
+    brk = np.zeros(n_cols, bool)
+    gcol = np.minimum(((t[gap] - lo) / width).astype(np.int64), n_cols - 1)
+    brk[gcol] = True
+    at = np.flatnonzero(brk[used])
+    if at.size:
+        centre, mean = np.insert(centre, at, np.nan), np.insert(mean, at, np.nan)
+    return centre, mean
+
+
+def is_dense(s: "Samples") -> bool:
+    """True when a window has more samples than pixels can show apart (:data:`DENSE_SAMPLES`): its curves
+    are drawn as per-column envelopes (:func:`plot_series`)."""
+    return s.t.size > DENSE_SAMPLES
+
+
+def plot_series(ax, s: "Samples", y: np.ndarray, gid: str, label: str | None = None, color="black", lw=1.0,
+                mean: bool = True):
     """Draw one sampled curve: every sample for ordinary windows (a line with gid ``gid``); for
     dense ones the band between the per-column min and max (``minmax_columns``: gid ``gid``,
-    filled) edged by the min and max lines (gids ``gid_min``, ``gid_max``), which covers the
-    same pixels as the full curve at a fraction of the drawing cost."""
-    if s.t.size > DENSE_SAMPLES:
+    filled, light, so that a whole print is not a solid block) and, with ``mean``, the time-weighted
+    mean of each column as a line over it (:func:`mean_columns`: gid ``gid_mean``)."""
+    if is_dense(s):
         x, y_min, y_max = minmax_columns(s.t, y, s.gap)
-        ax.fill_between(x, y_min, y_max, step="mid", color=color, lw=0, alpha=0.85, gid=gid,
-                        label=(label + " (min/max per pixel column)") if label else None)
-        ax.step(x, y_min, where="mid", color=color, lw=lw * 0.6, gid=gid + "_min", label="_min")
-        ax.step(x, y_max, where="mid", color=color, lw=lw * 0.6, gid=gid + "_max", label="_max")
+        ax.fill_between(x, y_min, y_max, step="mid", color=color, lw=0, alpha=0.25, gid=gid,
+                        label=(label + " (range per pixel column)") if label else None)
+        if mean:
+            xm, ym = mean_columns(s.t, y, s.gap)
+            ax.plot(xm, ym, color=color, lw=lw, gid=gid + "_mean",
+                    label=(label + " (mean per pixel column)") if label else "_" + gid + "_mean")
         return
     x, (yy,) = _with_breaks(s.t, [y], s.gap)
     ax.plot(x, yy, gid=gid, label=label if label else "_" + gid, color=color, lw=lw)
@@ -273,6 +307,9 @@ def new_figure(nrows: int = 1, ncols: int = 1, size_in=FIGSIZE_IN, dpi: int = DP
     fig = Figure(figsize=size_in, dpi=dpi, layout="constrained")
     FigureCanvasAgg(fig)  # headless: the figure renders through Agg whatever backend pyplot may use
     axs = fig.subplots(nrows, ncols, squeeze=False, **kw)
+    for ax in axs.flat:
+        # whole numbers on the axes: no '+1.87e3' offset to add in one's head (a window late in a print)
+        ax.ticklabel_format(axis="both", style="plain", useOffset=False)
     return fig, axs
 
 
@@ -314,6 +351,28 @@ def phase_bands(segs: np.ndarray, max_bands: int = DENSE_COLUMNS):
     return t0[starts], t1[ends], ph[starts]
 
 
+def tangential_phases(segs: np.ndarray) -> np.ndarray:
+    """``segs`` with the accel / cruise / decel phase of each piece taken from the sign of its tangential
+    acceleration v·a/|v| at its middle (blend and dwell pieces keep theirs): a piece that turns at constant
+    speed (a LinuxCNC arc's, whose acceleration is normal to the path) is cruising, not decelerating."""
+    from ..schema import PHASE_ACCEL, PHASE_CRUISE, PHASE_DECEL
+
+    if segs.size == 0:
+        return segs
+    mid = 0.5 * segs["dt"]
+    _, vel, acc, _ = eval_segments(segs, np.arange(segs.size), mid)
+    v, a = vel[:, :3], acc[:, :3]
+    speed = np.sqrt((v * v).sum(axis=1))
+    a_t = np.where(speed > 1e-12, (v * a).sum(axis=1) / np.maximum(speed, 1e-300), np.sqrt((a * a).sum(axis=1)))
+    # mostly normal to the path (an arc at constant speed; a fit's rounding along it) is not a ramp
+    tol = np.maximum(0.02 * np.sqrt((a * a).sum(axis=1)), 1e-9 * max(float(np.abs(a).max()), 1.0))
+    new = np.where(a_t > tol, PHASE_ACCEL, np.where(a_t < -tol, PHASE_DECEL, PHASE_CRUISE)).astype(segs["phase"].dtype)
+    keep = (segs["phase"] != PHASE_ACCEL) & (segs["phase"] != PHASE_CRUISE) & (segs["phase"] != PHASE_DECEL)
+    out = segs.copy()
+    out["phase"] = np.where(keep, segs["phase"], new)
+    return out
+
+
 def _shade_phases(ax, bands) -> None:
     """Shade each phase band full-height (x in data, y in axes coordinates), one collection."""
     a, b, ph = bands
@@ -353,6 +412,18 @@ def _window_title(win: Window, what: str) -> str:
             f"t = {t0:.3f}–{t1:.3f} s")
 
 
+def is_cnc_window(win: Window, machine=None) -> bool:
+    """True for a CNC program's window: the machine is a CNC flavour (grbl, linuxcnc), or nothing in the
+    window extrudes and E never moves. Its feed moves (G1/G2/G3) are the cuts, its rapids (G0) the travel,
+    and it has no E row."""
+    if machine is not None and getattr(machine, "is_cnc", False):
+        return True
+    m = win.moves
+    if m.size == 0 or np.any(m["kind"] == KIND_PRINT):
+        return False
+    return not np.any(m["e1"] != m["e0"]) if "e1" in m.dtype.names else True
+
+
 def _need_segments(win: Window) -> None:
     if win.segs.size == 0:
         raise GcodeplanError("the selected window has no motion to plot")
@@ -360,27 +431,42 @@ def _need_segments(win: Window) -> None:
 
 # ----------------------------------------------------------------------------- velocity
 def plot_velocity(win: Window, title: str | None = None, size_in=FIGSIZE_IN, dpi: int = DPI) -> Figure:
-    """Toolhead speed, tangential acceleration and its jerk against time.
+    """Toolhead speed, tangential acceleration and, for plans whose acceleration changes continuously
+    (S-curves, blends), its jerk against time.
 
     Phases are shaded; junction speeds (the plan's start_v of each XYZ move) are marked; the
-    requested feed rate is drawn as a step line. The jerk of a trapezoid plan is impulsive: it is
-    drawn as zero inside phases, and each step in acceleration is marked ▲ (up) or ▼ (down) on
-    the jerk axis. Lines carry gids ``speed``, ``accel``, ``jerk``, ``feed``, ``junctions``,
+    requested feed rate is drawn as a step line. The jerk of a trapezoid plan is impulsive (zero inside
+    phases, a step in acceleration at each phase change): it has no panel, the steps are the
+    acceleration curve's own. A window of more moves than pixels (a whole print) is drawn as envelopes:
+    per pixel column the range of the speed (light band) and its time-weighted mean (a line), the range
+    of the acceleration and the highest requested feed; phases and junctions are not drawn there.
+    Lines carry gids ``speed`` (``speed_mean`` dense), ``accel``, ``jerk``, ``feed``, ``junctions``,
     ``jerk_steps_up``, ``jerk_steps_down`` so tests can read them back.
     """
     _need_segments(win)
     segs = win.segs
     s = sample_plan(segs)
     speed, a_t, j_t = toolhead_kinematics(s.vel, s.acc, s.jerk, s.side)
-    fig, axs = new_figure(3, 1, size_in, dpi, sharex=True)
-    ax_v, ax_a, ax_j = axs[:, 0]
-    bands = phase_bands(segs)
-    for ax in (ax_v, ax_a, ax_j):
-        _shade_phases(ax, bands)
+    dense = is_dense(s)
+    # a jerk panel for plans whose acceleration changes continuously: S-curves (jerk pieces) and blends
+    # (turning velocity); trapezoids and LinuxCNC's constant-acceleration pieces only step it
+    has_jerk = bool(np.any(_columns(segs, "j")[:, :3] != 0.0) or np.any(segs["phase"] == PHASE_BLEND))
+    fig, axs = new_figure(3 if has_jerk else 2, 1, size_in, dpi, sharex=True)
+    ax_v, ax_a = axs[0, 0], axs[1, 0]
+    ax_j = axs[2, 0] if has_jerk else None
+    panels = [ax for ax in (ax_v, ax_a, ax_j) if ax is not None]
+    if not dense:
+        bands = phase_bands(tangential_phases(segs))
+        for ax in panels:
+            _shade_phases(ax, bands)
+    for ax in panels:
         ax.grid(True, alpha=0.3)
-    plot_series(ax_v, s, speed, "speed", "toolhead speed |v|", color="black", lw=1.0)
-    plot_series(ax_a, s, a_t, "accel", "tangential acceleration d|v|/dt", color="black", lw=1.0)
-    plot_series(ax_j, s, j_t, "jerk", "jerk d²|v|/dt²", color="black", lw=1.0)
+    plot_series(ax_v, s, speed, "speed", "toolhead speed |v|", color="black" if not dense else "tab:blue",
+                lw=1.0, mean=True)
+    plot_series(ax_a, s, a_t, "accel", "tangential acceleration d|v|/dt",
+                color="black" if not dense else "tab:green", lw=1.0, mean=False)
+    if ax_j is not None:
+        plot_series(ax_j, s, j_t, "jerk", "jerk d²|v|/dt²", color="black", lw=1.0, mean=False)
 
     # requested feed rate, for contrast (rapids / unlimited feeds have no finite request: not drawn)
     moves, plan = win.moves, win.plan
@@ -388,37 +474,59 @@ def plot_velocity(win: Window, title: str | None = None, size_in=FIGSIZE_IN, dpi
     if xyz.any():
         feed = np.where(np.isfinite(moves["feed_v"][xyz]), moves["feed_v"][xyz], np.nan)
         ts = plan["t_start"][xyz]
-        fx, fy = _step_xy(ts, ts + plan["duration"][xyz], feed)
-        ax_v.plot(fx, fy, color="tab:orange", lw=1.0, ls="--", label="requested feed rate", gid="feed")
-        ax_v.plot(ts, plan["start_v"][xyz], ls="none", marker="o", ms=3.5, mfc="none", mec="tab:purple",
-                  label="junction speed (plan start_v)", gid="junctions")
+        if dense:      # the feed asked for, time-weighted per pixel column: what the mean speed falls short of
+            fs = _feed_at_samples(win, s)
+            ok = np.isfinite(fs)
+            if ok.sum() > 1:
+                idx = np.flatnonzero(ok)
+                gap = s.gap[idx] | np.r_[False, np.diff(idx) > 1]   # a rapid or E-only stretch between
+                x, f_mean = mean_columns(s.t[idx], fs[idx], gap)
+                ax_v.plot(x, f_mean, color="tab:orange", lw=1.0, ls="--",
+                          label="requested feed rate (mean per pixel column)", gid="feed")
+        else:
+            fx, fy = _step_xy(ts, ts + plan["duration"][xyz], feed)
+            ax_v.plot(fx, fy, color="tab:orange", lw=1.0, ls="--", label="requested feed rate", gid="feed")
+            ax_v.plot(ts, plan["start_v"][xyz], ls="none", marker="o", ms=3.5, mfc="none", mec="tab:purple",
+                      label="junction speed (plan start_v)", gid="junctions")
 
-    # Steps in acceleration = jerk impulses (trapezoids, blends): at boundaries between
-    # segments that touch in time, and where motion starts from / ends at rest (acceleration 0 outside).
-    step_t, step_da = jerk_steps(s, a_t, speed)
-    scale = max(float(np.abs(a_t).max()), 1e-9)
-    up, down = step_da > 1e-6 * scale, step_da < -1e-6 * scale
-    if up.any():
-        ax_j.plot(step_t[up], np.zeros(int(up.sum())), ls="none", marker="^", ms=6, color="tab:green",
-                  label="jerk impulse (acceleration steps up)", gid="jerk_steps_up")
-    if down.any():
-        ax_j.plot(step_t[down], np.zeros(int(down.sum())), ls="none", marker="v", ms=6, color="tab:red",
-                  label="jerk impulse (acceleration steps down)", gid="jerk_steps_down")
-    if not np.any(j_t != 0.0):
-        ax_j.set_ylim(-1.0, 1.0)
+    if ax_j is not None:
+        # Steps in acceleration = jerk impulses (blends' corners): at boundaries between segments that
+        # touch in time, and where motion starts from / ends at rest (acceleration 0 outside).
+        step_t, step_da = jerk_steps(s, a_t, speed)
+        scale = max(float(np.abs(a_t).max()), 1e-9)
+        up, down = step_da > 1e-6 * scale, step_da < -1e-6 * scale
+        if up.any() and not dense:
+            ax_j.plot(step_t[up], np.zeros(int(up.sum())), ls="none", marker="^", ms=6, color="tab:green",
+                      label="jerk impulse (acceleration steps up)", gid="jerk_steps_up")
+        if down.any() and not dense:
+            ax_j.plot(step_t[down], np.zeros(int(down.sum())), ls="none", marker="v", ms=6, color="tab:red",
+                      label="jerk impulse (acceleration steps down)", gid="jerk_steps_down")
+        ax_j.set_ylabel("jerk (mm/s³)")
 
     ax_v.set_ylabel("speed (mm/s)")
     ax_a.set_ylabel("acceleration (mm/s²)")
-    ax_j.set_ylabel("jerk (mm/s³)")
-    ax_j.set_xlabel("time (s)")
+    panels[-1].set_xlabel("time (s)")
     ax_v.set_ylim(bottom=0.0)
     ax_v.set_xlim(s.t[0], s.t[-1])
-    ax_v.legend(handles=ax_v.get_legend_handles_labels()[0] + _phase_legend_handles(segs),
+    ax_v.legend(handles=ax_v.get_legend_handles_labels()[0] + ([] if dense else _phase_legend_handles(segs)),
                 loc="upper left", bbox_to_anchor=(1.0, 1.0), fontsize=9)
-    ax_a.legend(loc="upper left", bbox_to_anchor=(1.0, 1.0), fontsize=9)
-    ax_j.legend(loc="upper left", bbox_to_anchor=(1.0, 1.0), fontsize=9)
+    for ax in panels[1:]:
+        ax.legend(loc="upper left", bbox_to_anchor=(1.0, 1.0), fontsize=9)
     fig.suptitle(title or _window_title(win, "velocity profile"))
     return fig
+
+
+def _feed_at_samples(win: Window, s: Samples) -> np.ndarray:
+    """Requested feed (mm/s) of the XYZ move each sample belongs to, NaN for others (rapids, E-only)."""
+    rows = win.move_rows(win.segs["move"][s.seg])
+    ok = (rows >= 0) & (rows < win.moves.size)
+    out = np.full(s.t.size, np.nan)
+    m = win.moves
+    r = rows[ok]
+    xyz = ((m["kind"][r] == KIND_TRAVEL) | (m["kind"][r] == KIND_PRINT)) & (m["move_d"][r] > 0)
+    f = np.where(xyz & np.isfinite(m["feed_v"][r]), m["feed_v"][r], np.nan)
+    out[ok] = f
+    return out
 
 
 # ----------------------------------------------------------------------------- axes
@@ -452,7 +560,8 @@ def plot_axes(win: Window, machine=None, title: str | None = None, size_in=FIGSI
     """
     _need_segments(win)
     s = sample_plan(win.segs)
-    rows = list(AXES)
+    # a CNC program has no extruder: no E row
+    rows = [a for a in AXES if a != "e" or not is_cnc_window(win, machine)]
     pos = {a: s.pos[:, i] for i, a in enumerate(AXES)}
     vel = {a: s.vel[:, i] for i, a in enumerate(AXES)}
     kin = getattr(machine, "kinematics", "cartesian") if machine is not None else "cartesian"
@@ -588,7 +697,7 @@ def motor_motion(segs: np.ndarray, machine, t: np.ndarray) -> list[tuple]:
 
 # ----------------------------------------------------------------------------- path
 def plot_path(win: Window, title: str | None = None, size_in=FIGSIZE_IN, dpi: int = DPI,
-              pieces_per_segment: int = 4) -> Figure:
+              pieces_per_segment: int = 4, machine=None) -> Figure:
     """XY toolpath coloured by actual toolhead speed; travel moves dashed; a colour bar.
 
     Each segment is cut into ``pieces_per_segment`` pieces at its own times (a cruise keeps one)
@@ -602,6 +711,13 @@ def plot_path(win: Window, title: str | None = None, size_in=FIGSIZE_IN, dpi: in
     rows = win.move_rows(segs["move"])
     ok = (rows >= 0) & (rows < win.moves.size)
     kind[ok] = win.moves["kind"][rows[ok]]
+    cnc = is_cnc_window(win, machine)
+    if cnc:      # the cuts are the feed moves (travel kind, not G0): drawn solid, the rapids dashed
+        from ..schema import FLAG_RAPID
+
+        rapid = np.zeros(n, bool)
+        rapid[ok] = (win.moves["flags"][rows[ok]] & FLAG_RAPID) != 0
+        kind = np.where((kind == KIND_TRAVEL) & ~rapid, KIND_PRINT, kind)
     # cruise phases of straight moves have constant speed: one piece is exact
     const_v = (np.abs(_columns(segs, "a")[:, :3]).sum(axis=1) == 0) & (np.abs(_columns(segs, "j")[:, :3]).sum(axis=1) == 0)
     per = np.where(const_v, 1, max(1, pieces_per_segment))
@@ -622,11 +738,13 @@ def plot_path(win: Window, title: str | None = None, size_in=FIGSIZE_IN, dpi: in
     vmax = float(speed[moved].max()) if moved.any() else 1.0
     norm_kw = dict(cmap="viridis", clim=(0.0, max(vmax, 1e-9)))
     cols = {}
+    names = {"print": "cutting (feed) moves" if cnc else "print moves",
+             "travel": "rapids (G0, dashed)" if cnc else "travel moves (dashed)"}
     for name, sel, style, lw in (("print", kseg != KIND_TRAVEL, "solid", 1.2),
                                  ("travel", kseg == KIND_TRAVEL, (0, (3, 2)), 0.9)):
         m = sel & moved
         lc = LineCollection(np.stack([p0[m, :2], p1[m, :2]], axis=1), linestyles=style, linewidths=lw,
-                            gid=f"path_{name}", label=f"{name} moves" + (" (dashed)" if name == "travel" else ""))
+                            gid=f"path_{name}", label=names[name])
         lc.set_array(speed[m])
         lc.set_cmap(norm_kw["cmap"])
         lc.set_clim(*norm_kw["clim"])
@@ -637,8 +755,8 @@ def plot_path(win: Window, title: str | None = None, size_in=FIGSIZE_IN, dpi: in
     ax.set_xlabel("x (mm)")
     ax.set_ylabel("y (mm)")
     ax.grid(True, alpha=0.3)
-    handles = [Line2D([], [], color="0.3", lw=1.2, label="print moves"),
-               Line2D([], [], color="0.3", lw=0.9, ls=(0, (3, 2)), label="travel moves (dashed)")]
+    handles = [Line2D([], [], color="0.3", lw=1.2, label=names["print"]),
+               Line2D([], [], color="0.3", lw=0.9, ls=(0, (3, 2)), label=names["travel"])]
     ax.legend(handles=handles, loc="lower left", bbox_to_anchor=(0.0, 1.0), ncols=2, fontsize=9, frameon=False)
     fig.colorbar(cols["print"], ax=ax, label="toolhead speed (mm/s)", pad=0.01)
     fig.suptitle(title or _window_title(win, "toolpath coloured by speed"))
@@ -714,11 +832,15 @@ def plot_layers(times: LayerFeatureTimes, feature_names: list, layer_z: list | N
     ax = axs[0, 0]
     x = np.arange(n_layers)
     bottom = np.zeros(n_layers)
-    cmap = matplotlib.colormaps["tab10" if len(order) <= 10 else "tab20"]
+    # the viewer page's colours (report/palette.py): a feature looks the same in both
+    from .palette import NO_FEATURE_COLOR, OTHER_COLOR, WAITS_COLOR, feature_colors
+
+    colors = dict(zip(names[1:-1], feature_colors(names[1:-1])))
+    colors.update({WAITS_NAME: WAITS_COLOR, UNTAGGED_NAME: NO_FEATURE_COLOR, "other": OTHER_COLOR})
     width = 0.85 if n_layers < 200 else 1.0
     for i, nm in enumerate(order):
         h = np.asarray(uniq[nm], dtype=np.float64)
-        color = "#bbbbbb" if nm == WAITS_NAME else cmap(i % cmap.N)
+        color = colors.get(nm, OTHER_COLOR)
         bars = ax.bar(x, h, bottom=bottom, width=width, color=color, label=nm, linewidth=0)
         for r in bars:
             r.set_gid(f"layer_bars:{nm}")

@@ -18,6 +18,11 @@ What the page holds, per MOVE row (one pass of :func:`gcodeplan.pipeline.run` wi
 * float32 where exactness is not needed: XY(Z) end points for the toolpath, the requested feed;
 * small integers: line number (delta-coded), kind, flags, feature, layer, object, what limited the move.
 
+The columns are compressed as the plan streams in (the times and coordinates wait in a temporary file until
+the print's length fixes the time grid), so memory stays bounded by the page, not the program. A program of
+more than :data:`PAGE_GCODE_BYTES` of G-code gets page rows that each merge ``thin`` consecutive moves
+(:func:`thin_for`): the page stays about 30 MB whatever the file's size; times and layer bars stay exact.
+
 Each array is deflated (the coordinates byte-shuffled first); the browser inflates it with its own
 ``DecompressionStream``. The G-code text of the lines that made moves is read in a second
 streaming pass over the source (:func:`_pick_lines`, vectorised per chunk) and stored in zstd blocks of
@@ -41,7 +46,8 @@ import numpy as np
 from .. import pipeline
 from ..errors import GcodeplanError
 from ..gcode.sources import cr_line_ends
-from ..schema import KIND_DWELL, KIND_NAMES, KIND_WAIT, LIMIT_NAMES
+from ..schema import KIND_DWELL, KIND_NAMES, KIND_PRINT, KIND_WAIT, LIMIT_NAMES
+from .palette import NO_FEATURE_COLOR, WAITS_COLOR, feature_colors
 
 ASSETS = Path(__file__).with_name("viewer_assets")
 
@@ -50,6 +56,7 @@ TEXT_BLOCK_BYTES = 2 << 20    # G-code text is compressed in blocks of about thi
 TEXT_ZSTD_LEVEL = 5           # 5: 9.9 MB for the 50 MB corpus file's 49 MB of move lines, 0.25 s in 2 threads
 DEFLATE_LEVEL = 4
 _READ_CHUNK = 8 << 20
+SPILL_CHUNK_ROWS = 1 << 20    # rows read back at a time from a column kept in a temporary file
 
 
 def _sorted_unique(a: np.ndarray) -> np.ndarray:
@@ -66,15 +73,151 @@ def _time_bits(t_end: float) -> int:
     return int(min(40, max(20, 52 - math.ceil(math.log2(t_end + 1.0)))))
 
 
-class ViewerSink(pipeline.Sink):
-    """Collects, piece by piece, the compact per-move columns the viewer needs (about 60 bytes a move
-    in memory; the plan is not kept). ``close`` keeps the run's result (reader: layers, features)."""
+class _Stream:
+    """One page array compressed as it grows (zlib format, as the page inflates it): only the compressed
+    bytes are kept."""
+
+    __slots__ = ("dtype", "n", "_z", "_out")
+
+    def __init__(self, dtype):
+        self.dtype = np.dtype(dtype)
+        self.n = 0
+        self._z = zlib.compressobj(DEFLATE_LEVEL)
+        self._out: list[bytes] = []
+
+    def add(self, a: np.ndarray) -> None:
+        a = np.ascontiguousarray(a, dtype=self.dtype)
+        self.n += len(a)
+        if a.size:
+            self._out.append(self._z.compress(a.tobytes()))
+
+    def add_bytes(self, b: bytes, count: int = 0) -> None:
+        self.n += count
+        if b:
+            self._out.append(self._z.compress(b))
+
+    def packed(self, shuffle: bool = False) -> dict:
+        blob = b"".join(self._out) + self._z.flush()
+        self._out = []
+        return {"dtype": _DTYPES[self.dtype], "n": int(self.n), "shuffle": int(shuffle),
+                "b64": base64.b64encode(blob).decode("ascii")}
+
+
+class _Spill:
+    """A column kept on disk (an unnamed temporary file) until the page is packed: times, whose grid is
+    chosen from the print's length (known at the end), and the coordinates, byte-shuffled as a whole."""
+
+    __slots__ = ("dtype", "n", "_fh")
+
+    def __init__(self, dtype):
+        self.dtype = np.dtype(dtype)
+        self.n = 0
+        self._fh = None
+
+    def add(self, a: np.ndarray) -> None:
+        if self._fh is None:
+            self._fh = tempfile.TemporaryFile(prefix="gcodeplan-view-")
+        a = np.ascontiguousarray(a, dtype=self.dtype)
+        self._fh.write(a.tobytes())
+        self.n += len(a)
+
+    def chunks(self, rows: int = SPILL_CHUNK_ROWS):
+        """The column again, in order, ``rows`` at a time."""
+        if self._fh is None:
+            return
+        self._fh.seek(0)
+        size = self.dtype.itemsize
+        while True:
+            b = self._fh.read(rows * size)
+            if not b:
+                return
+            yield np.frombuffer(b, self.dtype)
+
+    def close(self) -> None:
+        if self._fh is not None:
+            self._fh.close()
+            self._fh = None
+
+
+class _LayerBars:
+    """Time per (group, feature) in s, folded chunk by chunk (bincount): the page's layer bars."""
 
     def __init__(self):
-        self._cols: dict[str, list[np.ndarray]] = {k: [] for k in (
-            "t", "vs", "vc", "ve", "acc", "dec", "feed", "x", "y", "z", "line", "kind", "flags", "feature",
-            "layer", "limit", "object")}
-        self._segs: list[np.ndarray] = []
+        self.t = np.zeros((0, 0))
+        self.seen = np.zeros(0, bool)
+
+    def add(self, group: np.ndarray, feature: np.ndarray, kind: np.ndarray, dur: np.ndarray) -> None:
+        if group.size == 0:
+            return
+        row = group.astype(np.int64) + 1                 # group -1 (before the first layer) is row 0
+        n_rows = max(self.t.shape[0], int(row.max()) + 1)
+        n_feat = max(self.t.shape[1] - 2, int(feature.max()) + 1, 0)
+        width = n_feat + 2
+        if (n_rows, width) != self.t.shape:
+            grown = np.zeros((n_rows, width))
+            old_f = max(self.t.shape[1] - 2, 0)
+            if self.t.size:
+                grown[: self.t.shape[0], :old_f] = self.t[:, :old_f]
+                grown[: self.t.shape[0], -2:] = self.t[:, -2:]
+            self.t = grown
+            seen = np.zeros(n_rows, bool)
+            seen[: self.seen.size] = self.seen
+            self.seen = seen
+        col = np.where(feature >= 0, feature.astype(np.int64), n_feat)
+        col = np.where(kind == KIND_WAIT, n_feat + 1, col)
+        self.t += np.bincount(row * width + col, weights=dur, minlength=n_rows * width).reshape(n_rows, width)
+        self.seen[np.unique(row)] = True
+
+    def meta(self, n_features: int) -> dict:
+        """{"layers": groups in order, "times": per group, columns = features, then 'none', then 'waits'}."""
+        rows = np.flatnonzero(self.seen)
+        if rows.size == 0:
+            return {"layers": [], "times": []}
+        n_feat = self.t.shape[1] - 2
+        out = np.zeros((rows.size, n_features + 2))
+        k = min(n_feat, n_features)
+        out[:, :k] = self.t[rows, :k]
+        out[:, n_features] = self.t[rows, n_feat] + self.t[rows, k:n_feat].sum(axis=1)
+        out[:, n_features + 1] = self.t[rows, n_feat + 1]
+        return {"layers": (rows - 1).tolist(), "times": np.round(out, 6).tolist()}
+
+
+#: moves a CNC program's Z levels are grouped by: a new level at each feed move at a new height (1 µm)
+Z_LEVEL_UM = 1.0
+#: more Z levels than this (3-D contouring, a vase) are not levels: such a program stays one group
+MAX_Z_LEVELS = 2000
+#: planning modes whose SEGMENT pieces the page keeps (their rows are not trapezoids the page can rebuild)
+SEGMENT_MODES = ("blend", "linuxcnc")
+
+
+class ViewerSink(pipeline.Sink):
+    """Packs, piece by piece, the compact per-move columns the viewer needs: each column is compressed as
+    it grows (about 6 bytes a move kept in memory for a print; the plan is not kept), and the times and
+    coordinates wait in a temporary file until the page is packed. ``close`` keeps the run's result
+    (reader: layers, features)."""
+
+    def __init__(self, thin: int = 1):
+        self.thin = max(1, int(thin))     # page rows merge this many moves (:func:`thin_for`)
+        self.moves = 0                    # moves seen (rows × thin, but for the last row)
+        self._carry = None                # the moves of an unfinished group of ``thin`` (thinned pages)
+        self._z = {name: _Stream(dt) for name, dt in (
+            ("vs", "f8"), ("vc", "f8"), ("ve_res", "f8"), ("acc", "f8"), ("dec", "f8"), ("feed", "f4"),
+            ("z", "f4"), ("line_d", "i4"), ("kind", "u1"), ("flags", "u1"), ("feature", "i2"),
+            ("layer_d", "i4"), ("zlevel_d", "i4"), ("limit", "u1"), ("object", "i4"))}
+        self._spill = {name: _Spill(dt) for name, dt in (("t", "f8"), ("x", "f4"), ("y", "f4"), ("line", "i8"))}
+        self._seg = None                  # SEGMENT columns (blend and LinuxCNC plans), made on first use
+        self._seg_t0 = _Spill("f8")
+        self._bars = _LayerBars()
+        self._zbars = _LayerBars()
+        self._ve_tail = None              # the last row's end speed, until the next row's start speed is known
+        self._line_prev = 0
+        self._layer_prev = 0
+        self._zlevel_prev = 0
+        self._zlevels: dict[int, int] = {}    # Z level (µm) -> group, in order of first use
+        self._zlevel_z: list[float] = []
+        self._zlevel_cur = -1
+        self._max_layer = -1
+        self._printed = False             # any move extruded: a printer's program, not a CNC one
         self.jerk = 0.0
         self.mode: str | None = None
         self.t_end = 0.0
@@ -85,49 +228,169 @@ class ViewerSink(pipeline.Sink):
         self.has_object = False
 
     def add(self, piece: pipeline.Piece) -> None:
-        self.add_rows(piece.moves, piece.plan, piece.first_move, piece.mode,
-                      piece.segments if piece.mode == "blend" else None)
+        own = piece.mode in SEGMENT_MODES
+        self.add_rows(piece.moves, piece.plan, piece.first_move, piece.mode, piece.segments if own else None)
 
     def add_rows(self, m: np.ndarray, p: np.ndarray, first: int, mode: str | None, segs=None) -> None:
         """The same as :meth:`add` for callers that hold (MOVE, PLAN) rows, the first row's global index,
-        the planning mode and, for blend plans, the SEGMENT rows of these moves."""
+        the planning mode and, for blend and LinuxCNC plans, the SEGMENT rows of these moves."""
         if len(m) == 0:
             return
         if mode is None:   # callers outside the pipeline: S-curves carry their jerk, blends their pieces
             mode = "scurve" if np.any(p["jerk"] != 0.0) else ("blend" if segs is not None else "trapezoid")
+        self.moves += len(m)
+        if self.thin > 1:
+            # the layer bars from the moves themselves; the rest from rows of ``thin`` moves each
+            self._bars.add(m["layer"].astype(np.int64), m["feature"].astype(np.int16), m["kind"], p["duration"])
+            self.mode = mode or self.mode
+            merged = self._merge(m, p)
+            if merged is not None:
+                self._add_exact(merged[0], merged[1], self.rows, mode, None)
+            return
+        self._add_exact(m, p, first, mode, segs)
+
+    def _merge(self, m: np.ndarray, p: np.ndarray, final: bool = False):
+        """(MOVE, PLAN) rows each standing for ``thin`` consecutive moves (the rest waits for the next call):
+        the first move's start, the last one's end, the highest cruise speed, feed and accelerations, the
+        summed duration; a print row when any of them printed."""
+        if self._carry is not None:
+            m = np.concatenate([self._carry[0], m])
+            p = np.concatenate([self._carry[1], p])
+            self._carry = None
+        k = self.thin
+        full = len(m) if final else len(m) // k * k
+        if full < len(m):
+            self._carry = (m[full:].copy(), p[full:].copy())
+        if full == 0:
+            return None
+        m, p = m[:full], p[:full]
+        starts = np.arange(0, full, k)
+        last = np.r_[starts[1:], full] - 1
+        mm, pp = m[starts].copy(), p[starts].copy()
+        for f in ("x1", "y1", "z1", "e1"):
+            mm[f] = m[f][last]
+        mm["feed_v"] = np.maximum.reduceat(m["feed_v"], starts)
+        printed = np.maximum.reduceat((m["kind"] == KIND_PRINT).astype(np.int8), starts) > 0
+        mm["kind"] = np.where(printed, KIND_PRINT, m["kind"][starts])
+        mm["flags"] = np.bitwise_or.reduceat(m["flags"], starts)
+        mm["move_d"] = np.add.reduceat(m["move_d"], starts)
+        pp["duration"] = np.add.reduceat(p["duration"], starts)
+        pp["end_v"] = p["end_v"][last]
+        for f in ("cruise_v", "accel", "decel"):
+            pp[f] = np.maximum.reduceat(p[f], starts)
+        pp["jerk"] = 0.0                  # rows of several moves are drawn as trapezoids
+        return mm, pp
+
+    def _add_exact(self, m: np.ndarray, p: np.ndarray, first: int, mode: str | None, segs=None) -> None:
         if self.rows == 0:
             self.first_pos = (float(m["x0"][0]), float(m["y0"][0]), float(m["z0"][0]))
             self.has_object = "object" in m.dtype.names
         self.mode = mode or self.mode
-        c = self._cols
-        c["t"].append(p["t_start"].copy())
-        for name, field in (("vs", "start_v"), ("vc", "cruise_v"), ("ve", "end_v"), ("acc", "accel"),
-                            ("dec", "decel")):
-            c[name].append(p[field].copy())
-        c["feed"].append(m["feed_v"].astype(np.float32))
-        for ax in "xyz":
-            c[ax].append(m[ax + "1"].astype(np.float32))
-        c["line"].append(m["line"].astype(np.int64))
-        c["kind"].append(m["kind"].copy())
-        c["flags"].append(m["flags"].copy())
-        c["feature"].append(m["feature"].astype(np.int16))
-        c["layer"].append(m["layer"].astype(np.int32))
-        c["limit"].append(p["limit"].copy())
+        z, sp = self._z, self._spill
+        sp["t"].add(p["t_start"])
+        vs = _quantize(p["start_v"], SPEED_FRAC_BITS)
+        ve = _quantize(p["end_v"], SPEED_FRAC_BITS)
+        z["vs"].add(vs)
+        z["vc"].add(_quantize(p["cruise_v"], SPEED_FRAC_BITS))
+        # the end speed is the next move's start speed but across a full stop: store the difference
+        if self._ve_tail is not None:
+            z["ve_res"].add(np.array([self._ve_tail - vs[0]]))
+        z["ve_res"].add(ve[:-1] - vs[1:])
+        self._ve_tail = float(ve[-1])
+        z["acc"].add(_quantize(p["accel"], SPEED_FRAC_BITS))
+        z["dec"].add(_quantize(p["decel"], SPEED_FRAC_BITS))
+        z["feed"].add(m["feed_v"].astype(np.float32))
+        sp["x"].add(m["x1"].astype(np.float32))
+        sp["y"].add(m["y1"].astype(np.float32))
+        z["z"].add(m["z1"].astype(np.float32))
+        line = m["line"].astype(np.int64)
+        z["line_d"].add(np.diff(line, prepend=self._line_prev).astype(np.int32))
+        self._line_prev = int(line[-1])
+        used = line[line > 0]
+        if used.size:
+            used = used[np.r_[True, used[1:] != used[:-1]]]
+            sp["line"].add(used)
+        kind = m["kind"]
+        self._printed = self._printed or bool(np.any(kind == KIND_PRINT))
+        z["kind"].add(kind.astype(np.uint8))
+        z["flags"].add(m["flags"].astype(np.uint8))
+        feature = m["feature"].astype(np.int16)
+        z["feature"].add(feature)
+        layer = m["layer"].astype(np.int64)
+        z["layer_d"].add(np.diff(layer, prepend=self._layer_prev).astype(np.int32))
+        self._layer_prev = int(layer[-1])
+        self._max_layer = max(self._max_layer, int(layer.max()))
+        z["limit"].add(p["limit"].astype(np.uint8))
         if self.has_object:
-            c["object"].append(m["object"].astype(np.int32))
+            z["object"].add(m["object"].astype(np.int32))
+        dur = p["duration"]
+        if self.thin == 1:
+            self._bars.add(layer, feature, kind, dur)
+        if self._max_layer < 0 and len(self._zlevels) <= MAX_Z_LEVELS:
+            zl = self._z_levels(m)
+        else:                         # a print (it has layers), or no plain Z levels: nothing to group
+            zl = np.full(len(m), self._zlevel_prev, np.int64)
+        z["zlevel_d"].add(np.diff(zl, prepend=self._zlevel_prev).astype(np.int32))
+        self._zlevel_prev = int(zl[-1])
+        self._zbars.add(zl, feature, kind, dur)
         jerk = p["jerk"]
         if np.any(jerk != 0.0):
             self.jerk = float(np.max(jerk))
-        if segs is not None and len(segs):
-            keep = np.zeros(len(segs), dtype=[("t0", "f8"), ("dt", "f8"), ("move", "i8"), ("v", "f8", 4),
-                                              ("a", "f8", 4)])
-            keep["t0"], keep["dt"], keep["move"] = segs["t0"], segs["dt"], segs["move"]
-            for k, ax in enumerate("xyze"):
-                keep["v"][:, k] = segs["v" + ax]
-                keep["a"][:, k] = segs["a" + ax]
-            self._segs.append(keep)
+        if segs is not None:
+            self._add_segments(segs, first, len(m))
         self.t_end = float(p["t_start"][-1] + p["duration"][-1])
         self.rows = first + len(m)
+
+    def _z_levels(self, m: np.ndarray) -> np.ndarray:
+        """Group of each move by Z level, for programs without layers (CNC): the height of the latest feed
+        move (to 1 µm), groups numbered in the order the program first cuts at them; moves before the
+        first feed move belong to its level."""
+        from ..schema import FLAG_RAPID, KIND_TRAVEL
+
+        # the cuts: feed moves (G1/G2/G3, not G0 rapids) of a program that does not extrude
+        feed = (m["kind"] == KIND_PRINT) | ((m["kind"] == KIND_TRAVEL) & ((m["flags"] & FLAG_RAPID) == 0))
+        out = np.empty(len(m), np.int64)
+        if not feed.any():
+            out[:] = self._zlevel_cur
+            return out
+        zk = np.rint(m["z1"][feed] * (1000.0 / Z_LEVEL_UM)).astype(np.int64)
+        # group ids of the distinct heights in first-use order (few: one dict look-up per new height run)
+        ids = np.empty(zk.size, np.int64)
+        starts = np.flatnonzero(np.r_[True, zk[1:] != zk[:-1]])
+        ends = np.r_[starts[1:], zk.size]
+        for a, b in zip(starts.tolist(), ends.tolist()):
+            key = int(zk[a])
+            g = self._zlevels.get(key)
+            if g is None:
+                g = self._zlevels[key] = len(self._zlevels)
+                self._zlevel_z.append(key * Z_LEVEL_UM / 1000.0)
+            ids[a:b] = g
+        pos = np.flatnonzero(feed)
+        last = np.maximum.accumulate(np.where(feed, np.arange(len(m)), -1))
+        k = np.searchsorted(pos, last.clip(min=0))
+        out = np.where(last >= 0, ids[np.minimum(k, ids.size - 1)], self._zlevel_cur)
+        if self._zlevel_cur < 0:      # before the program's first feed move: the first level
+            out[out < 0] = ids[0]
+        self._zlevel_cur = int(out[-1])
+        return out
+
+    def _add_segments(self, segs: np.ndarray, first: int, n: int) -> None:
+        if self._seg is None:
+            self._seg = {"seg_count": _Stream("u4"), "seg_dt": _Stream("f8")}
+            for ax in "xyze":
+                self._seg["seg_v" + ax] = _Stream("f8")
+                self._seg["seg_a" + ax] = _Stream("f8")
+            if self.rows:                # moves before this piece had none
+                self._seg["seg_count"].add(np.zeros(self.rows, np.uint32))
+        move = np.clip(segs["move"] - first, 0, n - 1)
+        order = np.argsort(move, kind="stable")
+        s = segs[order]
+        self._seg["seg_count"].add(np.bincount(move, minlength=n)[:n].astype(np.uint32))
+        self._seg_t0.add(s["t0"])
+        self._seg["seg_dt"].add(s["dt"].astype(np.float64))
+        for ax in "xyze":
+            self._seg["seg_v" + ax].add(s["v" + ax].astype(np.float64))
+            self._seg["seg_a" + ax].add(s["a" + ax].astype(np.float64))
 
     def close(self, result: pipeline.RunResult) -> None:
         self.finish(result.reader, result.policy)
@@ -137,12 +400,80 @@ class ViewerSink(pipeline.Sink):
         self.reader = reader
         self.policy = policy
 
-    def column(self, name: str) -> np.ndarray:
-        parts = self._cols[name]
-        return np.concatenate(parts) if parts else np.zeros(0)
+    @property
+    def grouped_by_z(self) -> bool:
+        """True for a program without layers (a CNC program) that cuts at some height: the page groups its
+        moves by Z level instead of showing one 'before the first layer' group."""
+        return self._max_layer < 0 and 0 < len(self._zlevels) <= MAX_Z_LEVELS
 
-    def segments(self) -> np.ndarray | None:
-        return np.concatenate(self._segs) if self._segs else None
+    def flush(self) -> None:
+        """A thinned page's last, shorter row (the moves of an unfinished group)."""
+        if self._carry is not None:
+            m, p = self._carry
+            self._carry = None
+            merged = self._merge(m, p, final=True)
+            if merged is not None:
+                self._add_exact(merged[0], merged[1], self.rows, self.mode, None)
+
+    def line_numbers(self) -> np.ndarray:
+        """The sorted distinct source lines that made rows (the lines whose text the page shows)."""
+        parts = list(self._spill["line"].chunks())
+        return _sorted_unique(np.concatenate(parts)) if parts else np.zeros(0, np.int64)
+
+    def pack(self) -> tuple[dict, dict, int]:
+        """(arrays packed for the page, layer bars, time grid bits): reads the spilled columns back."""
+        self.flush()
+        bits = _time_bits(self.t_end)
+        scale = float(2 ** bits)
+        arrays: dict[str, dict] = {}
+        lo, hi = _Stream("u4"), _Stream("u4")
+        prev = 0
+        for t in self._spill["t"].chunks():
+            tq = np.rint(t * scale).astype(np.int64)
+            dq = np.maximum(np.diff(tq, prepend=prev), 0)   # a rounding tie never runs the clock backwards
+            prev = int(tq[-1])
+            lo.add((dq & 0xFFFFFFFF).astype(np.uint32))
+            hi.add((dq >> 32).astype(np.uint32))
+        end_q = max(int(np.rint(self.t_end * scale)), prev)
+        lo.add(np.array([(end_q - prev) & 0xFFFFFFFF], np.uint32))
+        hi.add(np.array([(end_q - prev) >> 32], np.uint32))
+        arrays["t_lo"], arrays["t_hi"] = lo.packed(), hi.packed()
+        z = self._z
+        z["ve_res"].add(np.array([(self._ve_tail or 0.0) - 0.0]))
+        for name in ("vs", "vc", "ve_res", "acc", "dec", "feed"):
+            arrays[name] = z[name].packed()
+        for name in ("x", "y"):            # byte-shuffled as a whole: byte plane by byte plane
+            col = self._spill[name]
+            st = _Stream(col.dtype)
+            size = col.dtype.itemsize
+            for plane in range(size):
+                for a in col.chunks():
+                    st.add_bytes(np.ascontiguousarray(a.view(np.uint8).reshape(-1, size)[:, plane]).tobytes())
+            st.n = col.n
+            arrays[name] = st.packed(shuffle=True)
+        arrays["z"] = z["z"].packed()
+        for name in ("line_d", "kind", "flags", "feature"):
+            arrays[name] = z[name].packed()
+        arrays["layer_d"] = z["zlevel_d" if self.grouped_by_z else "layer_d"].packed()
+        arrays["limit"] = z["limit"].packed()
+        if self.has_object:
+            arrays["object"] = z["object"].packed()
+        if self._seg is not None:
+            seg = self._seg
+            lo, hi = _Stream("u4"), _Stream("u4")
+            for t in self._seg_t0.chunks():
+                sq = np.rint(t * scale).astype(np.int64)
+                lo.add((sq & 0xFFFFFFFF).astype(np.uint32))
+                hi.add((sq >> 32).astype(np.uint32))
+            arrays["seg_count"] = seg["seg_count"].packed()
+            arrays["seg_t0_lo"], arrays["seg_t0_hi"] = lo.packed(), hi.packed()
+            for name in ["seg_dt"] + [f"seg_{q}{ax}" for q in "va" for ax in "xyze"]:
+                arrays[name] = seg[name].packed()
+        features = list(getattr(self.reader, "features", []) or [])
+        bars = (self._zbars if self.grouped_by_z else self._bars).meta(len(features))
+        for col in list(self._spill.values()) + [self._seg_t0]:
+            col.close()
+        return arrays, bars, bits
 
 
 # ----------------------------------------------------------------------------------------- G-code text
@@ -292,90 +623,55 @@ def _object_names(reader) -> list[str]:
     return []
 
 
-def _layer_bars(layer: np.ndarray, feature: np.ndarray, kind: np.ndarray, dur: np.ndarray,
-                n_features: int) -> dict:
-    """Time per layer split by feature (s): rows = layers in order, columns = features, then 'none'
-    (moves before the first feature comment) and 'waits' (heating, homing: not motion)."""
-    if layer.size == 0:
-        return {"layers": [], "times": []}
-    layers = _sorted_unique(layer)
-    li = np.searchsorted(layers, layer)
-    col = np.where(feature >= 0, feature.astype(np.int64), n_features)
-    col = np.where(kind == KIND_WAIT, n_features + 1, col)
-    width = n_features + 2
-    times = np.bincount(li * width + col, weights=dur, minlength=len(layers) * width).reshape(len(layers), width)
-    return {"layers": layers.tolist(), "times": np.round(times, 6).tolist()}
-
-
 # ----------------------------------------------------------------------------------------- the page
 def collect(source, machine, policy: str | None = None, jerk: float | None = None, strict: bool = False,
             progress=None) -> ViewerSink:
     """Plan ``source`` once into a :class:`ViewerSink` (raises GcodeplanError on bad input)."""
-    sink = ViewerSink()
+    sink = ViewerSink(thin_for(source))
     pipeline.run(source, machine, policy=policy, jerk=jerk, strict=strict, sinks=[sink], progress=progress)
     return sink
+
+
+#: G-code bytes a page holds every move of; a bigger file's page merges consecutive moves into one row, so
+#: that the page stays under about 30 MB (12.5 bytes a move, ~29 bytes of G-code a move in a print)
+PAGE_GCODE_BYTES = 64 << 20
+
+
+def thin_for(source) -> int:
+    """Moves per page row for ``source``: 1 up to :data:`PAGE_GCODE_BYTES` of G-code, then enough to keep
+    the page about that size (compressed and binary G-code count 3× and 5× their bytes)."""
+    size = pipeline._file_size(source)
+    if size is None:
+        return 1
+    try:
+        with open(source, "rb") as f:
+            head = f.read(4)
+    except OSError:
+        return 1
+    if head[:2] == b"\x1f\x8b":
+        size *= 3
+    elif head == b"GCDE":
+        size *= 5
+    return max(1, math.ceil(size / PAGE_GCODE_BYTES))
 
 
 def viewer_data(sink: ViewerSink, source, machine_name: str = "", policy: str = "") -> dict:
     """Everything the page needs, packed: ``{"meta": {...}, "arrays": {...}, "text": [...]}``.
     ``source``: the path whose lines the inspector shows (read a second time here)."""
+    sink.flush()
     if sink.rows == 0 or sink.reader is None:
         raise GcodeplanError(f"{os.fspath(source) if isinstance(source, (str, os.PathLike)) else source}: "
                              "no moves to show (empty file, or no motion commands)")
     reader = sink.reader
     n = sink.rows
-    t = sink.column("t")
-    bits = _time_bits(max(sink.t_end, float(t[-1]) if n else 0.0))
-    tq = np.rint(np.r_[t, max(sink.t_end, float(t[-1]))] * float(2 ** bits)).astype(np.int64)
-    dq = np.diff(tq, prepend=0)
-    if np.any(dq < 0):  # the plan's clock never runs backwards; a rounding tie could, by one unit
-        dq = np.maximum(dq, 0)
-    kind = sink.column("kind").astype(np.uint8)
-    vs = _quantize(sink.column("vs"), SPEED_FRAC_BITS)
-    ve = _quantize(sink.column("ve"), SPEED_FRAC_BITS)
-    line = sink.column("line").astype(np.int64)
-    arrays: dict[str, np.ndarray] = {
-        "t_lo": (dq & 0xFFFFFFFF).astype(np.uint32),
-        "t_hi": (dq >> 32).astype(np.uint32),
-        "vs": vs,
-        "vc": _quantize(sink.column("vc"), SPEED_FRAC_BITS),
-        # the end speed is the next move's start speed but across a full stop: store the difference
-        "ve_res": ve - np.r_[vs[1:], 0.0],
-        "acc": _quantize(sink.column("acc"), SPEED_FRAC_BITS),
-        "dec": _quantize(sink.column("dec"), SPEED_FRAC_BITS),
-        "feed": sink.column("feed").astype(np.float32),
-        "x": sink.column("x").astype(np.float32),
-        "y": sink.column("y").astype(np.float32),
-        "z": sink.column("z").astype(np.float32),
-        "line_d": np.diff(line, prepend=0).astype(np.int32),
-        "kind": kind,
-        "flags": sink.column("flags").astype(np.uint8),
-        "feature": sink.column("feature").astype(np.int16),
-        "layer_d": np.diff(sink.column("layer").astype(np.int64), prepend=0).astype(np.int32),
-        "limit": sink.column("limit").astype(np.uint8),
-    }
-    if sink.has_object:
-        arrays["object"] = sink.column("object").astype(np.int32)
-    segs = sink.segments() if sink.mode == "blend" else None
-    if segs is not None:
-        order = np.argsort(segs["move"], kind="stable")
-        segs = segs[order]
-        counts = np.bincount(segs["move"], minlength=n)[:n]
-        sq = np.rint(segs["t0"] * float(2 ** bits)).astype(np.int64)
-        arrays["seg_count"] = counts.astype(np.uint32)
-        arrays["seg_t0_lo"] = (sq & 0xFFFFFFFF).astype(np.uint32)
-        arrays["seg_t0_hi"] = (sq >> 32).astype(np.uint32)
-        arrays["seg_dt"] = segs["dt"].astype(np.float64)
-        for k, ax in enumerate("xyze"):
-            arrays["seg_v" + ax] = np.ascontiguousarray(segs["v"][:, k])
-            arrays["seg_a" + ax] = np.ascontiguousarray(segs["a"][:, k])
     # the text of every line that made a row, in line order (the page finds a move's line by bisection)
-    wanted = _sorted_unique(line[line > 0])
+    wanted = sink.line_numbers()
+    arrays, bars, bits = sink.pack()
     identity = getattr(getattr(reader, "source", None), "identity", None)
     blob = _source_lines(source, wanted, identity) if isinstance(source, (str, os.PathLike)) else b""
     blocks = _text_blocks(blob)
-    arrays["text_lines_d"] = np.diff(wanted, prepend=0).astype(np.int32)
-    dur = np.diff(tq).astype(np.float64) / float(2 ** bits)
+    del blob
+    arrays.update(_pack_arrays({"text_lines_d": np.diff(wanted, prepend=0).astype(np.int32)}))
     features = list(getattr(reader, "features", []) or [])
     layer_z = [None if z is None or not math.isfinite(z) else float(z) for z in list(reader.layer_z)]
     meta = {
@@ -384,24 +680,30 @@ def viewer_data(sink: ViewerSink, source, machine_name: str = "", policy: str = 
         "machine": machine_name,
         "policy": policy or sink.policy,
         "mode": sink.mode or "trapezoid",
-        "jerk": sink.jerk,
+        "segments": sink.mode in SEGMENT_MODES and sink.thin == 1,
+        "jerk": sink.jerk if sink.thin == 1 else 0.0,
         "n": n,
+        "thin": sink.thin,
+        "moves": sink.moves,
         "t_bits": bits,
         "v_bits": SPEED_FRAC_BITS,
-        "t_end": float(tq[-1]) / float(2 ** bits),
+        "t_end": float(np.rint(sink.t_end * float(2 ** bits))) / float(2 ** bits),
         "first_pos": list(sink.first_pos),
         "features": features,
+        "feature_colors": feature_colors(features) + [NO_FEATURE_COLOR, WAITS_COLOR],
         "layer_z": layer_z,
+        "cnc": not sink._printed,
+        "group_by": "z" if sink.grouped_by_z else "layer",
+        "group_z": list(sink._zlevel_z) if sink.grouped_by_z else [],
         "objects": _object_names(reader) if sink.has_object else None,
         "limit_names": list(LIMIT_NAMES),
         "kind_names": list(KIND_NAMES),
         "kind_dwell": KIND_DWELL,
         "kind_wait": KIND_WAIT,
-        "layer_bars": _layer_bars(sink.column("layer").astype(np.int64), sink.column("feature").astype(np.int64),
-                                  kind, dur, len(features)),
+        "layer_bars": bars,
         "text_blocks": [c for c, _ in blocks],
     }
-    return {"meta": meta, "arrays": _pack_arrays(arrays),
+    return {"meta": meta, "arrays": arrays,
             "text": [base64.b64encode(frame).decode("ascii") for _, frame in blocks]}
 
 

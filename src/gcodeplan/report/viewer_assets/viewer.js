@@ -17,6 +17,9 @@
   const SUBDIV = 8;               // samples inside a curved piece (S-curve jerk phases, blends)
   const n = META.n;
   const KDWELL = META.kind_dwell, KWAIT = META.kind_wait, KTRAVEL = 0, KPRINT = 1, KEXTRUDE = 2;
+  // a program that never extrudes (a CNC program): its feed moves are the cuts, its rapids (G0) the travel
+  const CNC = !!META.cnc, FRAPID = 1;
+  const isCut = (i) => KIND[i] === KPRINT || (CNC && KIND[i] === KTRAVEL && !(FLAGS[i] & FRAPID));
 
   // ------------------------------------------------------------------------------------ decoding
   function b64bytes(s) {
@@ -54,7 +57,7 @@
   let T, VS, VC, VE, ACC, DEC, F, X, Y, LINE, KIND, FLAGS, FEAT, LAYER, LIMIT, OBJ, TEXTLINES;
   let SEGOFF = null, SEG = null;
   const J = META.jerk > 0 ? META.jerk : 0;
-  const BLEND = META.mode === 'blend';
+  const BLEND = !!META.segments || META.mode === 'blend';   // rows drawn from their SEGMENT pieces
   let TEND = META.t_end;
 
   async function load() {
@@ -362,9 +365,22 @@
     const sec = s - 3600 * h - 60 * m;
     return h + ':' + String(m).padStart(2, '0') + ':' + (sec < 10 ? '0' : '') + sec.toFixed(3);
   }
-  function fmtAxisT(u, vals) {
+  function tickDecimals(incr) {   // as many decimals as the tick spacing needs, no more
+    return incr > 0 && isFinite(incr) ? Math.min(12, Math.max(0, Math.ceil(-Math.log10(incr) - 1e-9))) : 3;
+  }
+  function fmtAxisT(u, vals, axisIdx, space, incr) {
     const span = u.scales.x.max - u.scales.x.min;
-    return vals.map((v) => span > 600 ? hms(v).replace(/\.\d+$/, '') : (span > 10 ? v.toFixed(1) : v.toPrecision(8).replace(/0+$/, '').replace(/\.$/, '')));
+    if (span > 600) return vals.map((v) => hms(v).replace(/\.\d+$/, ''));
+    const d = tickDecimals(incr);
+    return vals.map((v) => v.toFixed(d));
+  }
+  function axisSpaceT(u, axisIdx, lo, hi) {   // px between ticks: wide enough for the longest label
+    const span = hi - lo;
+    if (!(span > 0)) return 80;
+    if (span > 600) return 80;
+    const digits = Math.max(1, Math.ceil(Math.log10(Math.max(Math.abs(lo), Math.abs(hi), 1) + 1)));
+    const chars = digits + 1 + tickDecimals(span / 8);
+    return Math.max(60, 7.5 * chars + 24);
   }
   function esc(s) {
     return String(s).replace(/[&<>"]/g, (c) => ({ '&': '&amp;', '<': '&lt;', '>': '&gt;', '"': '&quot;' })[c]);
@@ -402,11 +418,26 @@
   }
 
   // ------------------------------------------------------------------------------------ inspector
+  function segAt(t) {   // the SEGMENT piece running at t (pieces are in time order: by move, then time)
+    let lo = 0, hi = SEG.t0.length - 1;
+    if (hi < 0) return -1;
+    while (lo < hi) { const mid = (lo + hi + 1) >> 1; if (SEG.t0[mid] <= t) lo = mid; else hi = mid - 1; }
+    return lo;
+  }
   function inspectAt(t) {
     t = +t;
     const i = moveAt(Math.min(Math.max(t, 0), TEND));
     const ps = pieces(i);
-    const p = ps.length ? pieceAt(ps, t) : null;
+    let p = ps.length ? pieceAt(ps, t) : null;
+    if (BLEND && p && p.vec && !(t >= p.t0 && t <= p.t0 + p.dt)) {
+      // a piece of a neighbouring row runs now (LinuxCNC: a blend arc's pieces belong to the row after it)
+      const s = segAt(t);
+      if (s >= 0 && t <= SEG.t0[s] + SEG.dt[s]) {
+        const e = KIND[i] === KEXTRUDE;
+        p = { t0: SEG.t0[s], dt: SEG.dt[s], vec: e ? [SEG.ve[s], 0, 0, SEG.ae[s], 0, 0]
+          : [SEG.vx[s], SEG.vy[s], SEG.vz[s], SEG.ax[s], SEG.ay[s], SEG.az[s]] };
+      }
+    }
     const [v, a] = p ? evalPiece(p, t - p.t0) : [0, 0];
     const feat = FEAT[i];
     const ob = OBJ ? OBJ[i] : -1;
@@ -438,7 +469,7 @@
       ['G-code line', String(r.line)],
       ['text', r.text],
       ['feature', r.feature === null ? '–' : r.feature],
-      ['layer', r.layer < 0 ? 'before the first layer' : r.layer + (r.z === null ? '' : ' (z ' + r.z.toFixed(3) + ' mm)')],
+      [BY_Z ? 'Z level' : 'layer', groupName(r.layer)],
       ['object', r.object === null ? '–' : String(r.object)]
     ];
     $('gpv-insp').innerHTML = rows.map(([k, v]) => '<tr><th>' + esc(k) + '</th><td' + (k === 'text' ? ' class="gpv-code"' : '')
@@ -446,6 +477,18 @@
   }
 
   // ------------------------------------------------------------------------------------ toolpath
+  // a CNC program (no layers) is grouped by Z level: its moves at one cutting height (viewer.py)
+  const BY_Z = META.group_by === 'z';   // (set before the toolpath is indexed)
+  function groupName(ly, short) {
+    if (BY_Z) {
+      if (ly < 0) return 'before the first cut';
+      const z = (META.group_z || [])[ly];
+      return (short ? 'Z level ' : '') + ly + (z === undefined ? '' : ' (z ' + z.toFixed(3) + ' mm)');
+    }
+    if (ly < 0) return 'before the first layer';
+    const z = ly < META.layer_z.length ? META.layer_z[ly] : null;
+    return (short ? 'layer ' : '') + ly + (short || z === null ? '' : ' (z ' + z.toFixed(3) + ' mm)');
+  }
   const layers = [];          // sorted layer values
   const layerRuns = new Map(); // layer -> [[i0, i1), ...]
   let bbox = null, vColorMax = 1;
@@ -472,10 +515,10 @@
       for (let i = 0; i < n; i++) {
         const k = KIND[i];
         const inFrame = all ? (k === KPRINT || k === KTRAVEL)
-                            : (k === KPRINT && LAYER[i] >= 0 && !(FEAT[i] >= 0 && custom[FEAT[i]]));
+                            : (isCut(i) && (LAYER[i] >= 0 || BY_Z || CNC) && !(FEAT[i] >= 0 && custom[FEAT[i]]));
         if (inFrame && (X[i] !== px || Y[i] !== py)) {
           x0 = Math.min(x0, px, X[i]); x1 = Math.max(x1, px, X[i]); y0 = Math.min(y0, py, Y[i]); y1 = Math.max(y1, py, Y[i]);
-          if (k === KPRINT && VC[i] > vColorMax) vColorMax = VC[i];
+          if (isCut(i) && VC[i] > vColorMax) vColorMax = VC[i];
         }
         px = X[i]; py = Y[i];
       }
@@ -518,8 +561,8 @@
     g.strokeStyle = '#eee'; g.lineWidth = 1; g.strokeRect(px(x0), py(y1), (x1 - x0) * sc, (y1 - y0) * sc);
     const runs = layerRuns.get(view.layer) || [];
     const buckets = Array.from({ length: NBUCKET }, () => []);
-    const travel = [], hl = [];
-    let count = 0;
+    const travel = [], hl = [], prints = [];
+    let count = 0, vLo = Infinity, vHi = -Infinity;
     for (const [a, b] of runs) {
       for (let i = a; i < b; i++) {
         const k = KIND[i];
@@ -527,11 +570,21 @@
         const [sx, sy] = startOf(i);
         if (sx === X[i] && sy === Y[i]) continue;
         count++;
-        if (k === KTRAVEL) travel.push(i);
-        else buckets[Math.min(NBUCKET - 1, Math.max(0, Math.floor(VC[i] / vColorMax * (NBUCKET - 1) + 0.5)))].push(i);
+        if (!isCut(i)) travel.push(i);
+        else { prints.push(i); if (VC[i] < vLo) vLo = VC[i]; if (VC[i] > vHi) vHi = VC[i]; }
         if (view.hl && T[i + 1] > view.hl[0] && T[i] < view.hl[1]) hl.push(i);
       }
     }
+    // the colour scale spans the speeds of the moves drawn (this layer's), not the whole print's
+    if (!(vHi >= vLo)) { vLo = 0; vHi = 1; }
+    if (vHi - vLo < 0.05 * vHi) vLo = 0;    // one speed (or nearly): a scale from rest, not a flat colour
+    const range = vHi - vLo;
+    for (const i of prints) {
+      const b = range > 0 ? Math.floor((VC[i] - vLo) / range * (NBUCKET - 1) + 0.5) : NBUCKET - 1;
+      buckets[Math.min(NBUCKET - 1, Math.max(0, b))].push(i);
+    }
+    view.colorRange = [vLo, vHi];
+    legend();
     const stroke = (list) => {
       g.beginPath();
       for (const i of list) { const [sx, sy] = startOf(i); g.moveTo(px(sx), py(sy)); g.lineTo(px(X[i]), py(Y[i])); }
@@ -554,9 +607,7 @@
     }
     view.pathSegments = count;
     view.highlighted = hl.length;
-    const z = view.layer >= 0 && view.layer < META.layer_z.length ? META.layer_z[view.layer] : null;
-    $('gpv-layer').textContent = (view.layer < 0 ? 'before the first layer' : view.layer + (z === null ? '' : ' (z ' + z.toFixed(3) + ' mm)'))
-      + ', ' + count + ' segments';
+    $('gpv-layer').textContent = groupName(view.layer) + ', ' + count + ' segments';
   }
   function fractionAlong(i, t) {   // distance done / move length at time t
     const ps = pieces(i);
@@ -600,17 +651,19 @@
     const g = sizeCanvas(c, 160, 10);
     for (let b = 0; b < NBUCKET; b++) { g.fillStyle = bucketColor(b); g.fillRect(b * 5, 0, 5, 10); }
     const el = $('gpv-legend');
-    el.textContent = 'speed (peak of each move) 0 ';
+    const [lo, hi] = view.colorRange || [0, vColorMax];
+    const digits = hi - lo >= 10 ? 0 : (hi - lo >= 1 ? 1 : 2);
+    el.textContent = 'speed (peak of each move) ' + lo.toFixed(digits) + ' ';
     el.appendChild(c);
-    el.appendChild(document.createTextNode(' ' + vColorMax.toFixed(0) + ' mm/s; travel dashed; pink: the selected time span'));
+    el.appendChild(document.createTextNode(' ' + hi.toFixed(digits) + ' mm/s (this ' + (BY_Z ? 'Z level' : 'layer')
+      + '\'s range); ' + (CNC ? 'rapids (G0)' : 'travel') + ' dashed; pink: the selected time span'));
   }
 
   // ------------------------------------------------------------------------------------ layer bars
   const bars = META.layer_bars;
-  const PALETTE = ['#4e79a7', '#f28e2b', '#e15759', '#76b7b2', '#59a14f', '#edc948', '#b07aa1', '#ff9da7',
-                   '#9c755f', '#bab0ac', '#86bcb6', '#d37295', '#8cd17d', '#b6992d', '#499894'];
+  // one palette with the PNG plots (gcodeplan/report/palette.py): features, then '(no feature)', 'waits'
   const barNames = META.features.concat(['(no feature)', 'waits']);
-  const barColor = (c) => c === barNames.length - 1 ? '#f4cccc' : (c === barNames.length - 2 ? '#cccccc' : PALETTE[c % PALETTE.length]);
+  const barColor = (c) => META.feature_colors[c] || '#999999';
   const barsCanvas = $('gpv-bars');
   let barsGeom = null;
   function drawBars() {
@@ -635,8 +688,8 @@
       if (bars.layers[k] === view.layer) { g.strokeStyle = '#e0006a'; g.lineWidth = 1.5; g.strokeRect(x - 1, 2, bw + 1, base - 2); }
     }
     g.fillStyle = '#555';
-    g.fillText('layer ' + bars.layers[0], 45, h - 3);
-    const last = 'layer ' + bars.layers[L - 1];
+    g.fillText(groupName(bars.layers[0], true), 45, h - 3);
+    const last = groupName(bars.layers[L - 1], true);
     g.fillText(last, w - 5 - g.measureText(last).width, h - 3);
   }
   function barsLegend() {
@@ -692,10 +745,20 @@
     const k = Math.min(layers.length - 1, Math.max(0, layers.indexOf(view.layer) + d));
     showLayer(layers[k]);
   }
-  function pan(frac) { const w = view.t1 - view.t0; zoomTo(view.t0 + frac * w, view.t1 + frac * w); }
-  function zoomBy(f, at) {
+  function pan(frac) {   // never past either end of the print
+    const w = view.t1 - view.t0;
+    let a = view.t0 + frac * w;
+    a = Math.min(a, TEND - w);
+    a = Math.max(a, 0);
+    if (w >= TEND) { zoomTo(0, TEND); return; }
+    zoomTo(a, a + w);
+  }
+  function zoomBy(f, at) {   // zooming out stops at the whole print
     const c = at === undefined ? 0.5 * (view.t0 + view.t1) : at;
-    zoomTo(c - (c - view.t0) * f, c + (view.t1 - c) * f);
+    let a = c - (c - view.t0) * f, b = c + (view.t1 - c) * f;
+    if (b - a >= TEND) { a = 0; b = TEND; }
+    else if (a < 0) { b -= a; a = 0; } else if (b > TEND) { a -= b - TEND; b = TEND; }
+    zoomTo(a, b);
   }
   const api = {
     state: () => ({ t0: view.t0, t1: view.t1, layer: view.layer, points: view.points, mode: view.mode,
@@ -712,6 +775,13 @@
       return [q.ox + (0.5 * (sx + X[i]) - q.x0) * q.sc, q.oy + (q.y1 - 0.5 * (sy + Y[i])) * q.sc];
     },
     barsGeometry: () => Object.assign({}, barsGeom),
+    // the time axis's tick labels: text, centre and width (CSS px), for scripts and tests
+    ticks: () => {
+      const ax = plot.axes[0], vals = ax._values || [], splits = ax._splits || [];
+      const g = document.createElement('canvas').getContext('2d');
+      g.font = '12px system-ui, -apple-system, "Segoe UI", Roboto, "Helvetica Neue", Arial, "Noto Sans", sans-serif';
+      return vals.map((s, k) => ({ text: String(s), x: plot.valToPos(splits[k], 'x'), w: g.measureText(String(s)).width }));
+    },
     timing: {}
   };
   function selectMove(i) {
@@ -733,16 +803,16 @@
       scales: { x: { time: false }, v: { auto: true }, a: { auto: true } },
       series: [
         { label: 'time', value: (u, v) => v === null ? '' : hms(v) },
-        { label: 'speed', scale: 'v', stroke: '#1f5fa8', width: 1.3, value: (u, v) => v === null ? '' : v.toFixed(2) },
+        { label: 'speed (min–max per pixel)', scale: 'v', stroke: '#1f5fa8', width: 1.3, value: (u, v) => v === null ? '' : v.toFixed(2) },
         { label: 'speed (min)', scale: 'v', stroke: '#1f5fa8', width: 1, value: (u, v) => v === null ? '' : v.toFixed(2) },
         { label: 'requested feed', scale: 'v', stroke: '#f08a24', width: 1, dash: [5, 3], value: (u, v) => v === null ? '' : v.toFixed(2) },
         { label: 'feed (min)', scale: 'v', stroke: '#f08a24', width: 1, dash: [5, 3], show: true, value: (u, v) => v === null ? '' : v.toFixed(2) },
-        { label: 'acceleration', scale: 'a', stroke: 'rgba(46,158,68,0.6)', width: 1, value: (u, v) => v === null ? '' : v.toFixed(0) },
+        { label: 'acceleration (min–max)', scale: 'a', stroke: 'rgba(46,158,68,0.6)', width: 1, value: (u, v) => v === null ? '' : v.toFixed(0) },
         { label: 'accel (min)', scale: 'a', stroke: 'rgba(46,158,68,0.6)', width: 1, value: (u, v) => v === null ? '' : v.toFixed(0) }
       ],
       bands: [{ series: [1, 2], fill: 'rgba(31,95,168,0.30)' }, { series: [5, 6], fill: 'rgba(46,158,68,0.10)' }],
       axes: [
-        { values: fmtAxisT, size: 40 },
+        { values: fmtAxisT, space: axisSpaceT, size: 40 },
         { scale: 'v', label: 'speed, feed (mm/s)', size: 60 },
         { scale: 'a', side: 1, label: 'acceleration (mm/s²)', grid: { show: false }, size: 70 }
       ],
@@ -771,6 +841,8 @@
       }
     };
     const p = new uPlot(opts, [[0, 1], [0, 0], [0, 0], [null, null], [null, null], [0, 0], [0, 0]], $('gpv-timeline'));
+    // the band's lower edges are drawn, not listed: one legend entry per quantity
+    p.root.querySelectorAll('.u-legend .u-series').forEach((row) => { if (/\(min\)/.test(row.textContent)) row.style.display = 'none'; });
     p.over.addEventListener('wheel', (e) => {
       e.preventDefault();
       const t = p.posToVal(e.offsetX, 'x');
@@ -791,7 +863,9 @@
     const t_start = performance.now();
     $('gpv-title').textContent = META.name;
     $('gpv-sub').textContent = 'machine ' + META.machine + ', policy ' + META.policy + ', ' + META.mode
-      + (J > 0 ? ' (jerk ' + J + ' mm/s³)' : '') + '; ' + n + ' moves, ' + hms(META.t_end);
+      + (J > 0 ? ' (jerk ' + J + ' mm/s³)' : '') + '; ' + n + ' moves, ' + hms(META.t_end)
+      + (META.thin > 1 ? ' — a big program: each row here merges ' + META.thin + ' consecutive moves (of '
+         + META.moves + '), so that the page stays small; the times and layer bars are exact' : '');
     await load();
     const t_decoded = performance.now();
     buildTree();
@@ -801,8 +875,11 @@
     plot = makePlot(width);
     sizeCanvas(canvas, Math.min(640, Math.max(360, Math.floor(width * 0.45))), 520);
     sizeCanvas(barsCanvas, width, 170);
-    legend();
     barsLegend();
+    if (BY_Z) {
+      $('gpv-bars-title').textContent = 'time per Z level, split by feature';
+      $('gpv-group-label').textContent = 'Z level';
+    }
     const slider = $('gpv-slider');
     slider.max = String(Math.max(0, layers.length - 1));
     slider.addEventListener('input', () => showLayer(layers[+slider.value]));
@@ -827,7 +904,7 @@
       const k = Math.floor((e.clientX - r.left - barsGeom.left) / barsGeom.bw);
       if (k < 0 || k >= bars.layers.length) return;
       const tot = bars.times[k].reduce((a, b) => a + b, 0);
-      barsCanvas.title = 'layer ' + bars.layers[k] + ': ' + hms(tot);
+      barsCanvas.title = groupName(bars.layers[k], true) + ': ' + hms(tot);
     });
     let inside = false;
     root.addEventListener('mouseenter', () => { inside = true; });
