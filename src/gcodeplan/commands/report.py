@@ -148,14 +148,9 @@ def _tables(est, d: dict) -> list[str]:
 
 
 def build_report(path: str, machine, policy: str | None = None, jerk: float | None = None, strict: bool = False,
-<<<<<<< HEAD
-                 slowest: int = 2, size_in=plots.FIGSIZE_IN) -> str:
+                 slowest: int = 2, size_in=plots.FIGSIZE_IN, progress=None) -> str:
     """Plan ``path`` once and return the HTML page (the viewer reads the lines' texts again: ``path`` must be
     readable twice, a regular file or :func:`gcodeplan.gcode.sources.spooled`'s copy)."""
-=======
-                 slowest: int = 2, size_in=plots.FIGSIZE_IN, progress=None) -> str:
-    """Plan ``path`` once and return the HTML page."""
->>>>>>> h-viz
     from .estimate import Estimate, print_text
     from ..report.summary import TimeSummary
     from ..report.viewer import ViewerSink, thin_for, viewer_data, viewer_fragment
@@ -230,21 +225,16 @@ def run(args) -> int:
     parent = os.path.dirname(os.path.abspath(out))
     if not os.path.isdir(parent):
         raise GcodeplanError(f"cannot write {out}: no such directory {parent}")
-<<<<<<< HEAD
     from ..gcode.sources import spooled
-
-    with spooled(args.file) as src:       # read twice (the plan, then the viewer's line texts): '-', FIFOs copied
-        page = build_report(src, machine, args.policy, args.jerk, args.strict, args.slowest, size_in)
-=======
     from .common import progress_bar
 
     bar, progress = progress_bar(args.file, getattr(args, "quiet", False))
     try:
-        page = build_report(args.file, machine, args.policy, args.jerk, args.strict, args.slowest, size_in, progress)
+        with spooled(args.file) as src:   # read twice (the plan, then the viewer's line texts): '-', FIFOs copied
+            page = build_report(src, machine, args.policy, args.jerk, args.strict, args.slowest, size_in, progress)
     finally:
         if bar is not None:
             bar.close()
->>>>>>> h-viz
     from ..report.output import atomic_output
 
     try:
