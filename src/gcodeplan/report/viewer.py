@@ -37,6 +37,8 @@ import io
 import json
 import math
 import os
+import shutil
+import tempfile
 import zlib
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
