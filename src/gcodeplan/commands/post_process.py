@@ -16,7 +16,9 @@ from .common import add_machine_arguments, add_plan_arguments, check_plan_argume
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("file", metavar="FILE",
                    help="G-code file, rewritten in place (atomically: temporary file + rename, permissions kept)")
-    p.add_argument("-o", "--output", metavar="OUT", help="write the result here instead of in place")
+    p.add_argument("-o", "--output", metavar="OUT",
+                   help="write the result here instead of in place ('-': standard output); a symbolic "
+                        "link's target is replaced, a device or pipe is written as a stream")
     add_machine_arguments(p)
     add_plan_arguments(p)
     p.add_argument("--no-m73", action="store_true",
@@ -32,8 +34,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run(args) -> int:
     from ..report.postprocess import post_process
 
+    from ..report.output import resolve_output
+
     check_plan_arguments(args)
     machine = machine_from_args(args)
+    resolve_output(args.output if args.output is not None else args.file)   # refuse before planning
     # PrusaSlicer >= 2.6 tells the final name of the file it is writing (the path it gives is a temporary one)
     shown = os.environ.get("SLIC3R_PP_OUTPUT_NAME") or args.file
     bar, progress = progress_bar(args.file, args.quiet)
