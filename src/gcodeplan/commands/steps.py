@@ -92,8 +92,6 @@ def run(args) -> int:
     rails = rails_from(machine, klipper_names=bool(getattr(args, "klipper_config", None)))
     names = [r.name for r in rails]
     max_rate = args.max_step_rate if args.max_step_rate is not None else machine.max_step_rate
-    # the summary goes to standard error when the .npz itself goes to standard output
-    report = sys.stderr if refuse_terminal(args.output, "an .npz file").kind == "stdout" else sys.stdout
 
     writer = None
     csv = None
@@ -102,6 +100,8 @@ def run(args) -> int:
     try:
         with held():     # no signal between creating the spool and knowing it (the except below cleans up)
             writer = NpzStreamWriter(args.output)       # fails early on an unwritable place
+        # the summary goes to standard error when the .npz itself goes to standard output
+        report = sys.stderr if refuse_terminal(args.output, "an .npz file").kind == "stdout" else sys.stdout
         if args.csv:
             try:
                 made = make_dirs(args.csv)              # what we make we remove again on failure

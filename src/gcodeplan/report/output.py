@@ -296,7 +296,14 @@ def _stream_output(target: OutputTarget, mode: str, encoding, newline, tty_ok: b
         fh.flush()
         if raw is not None:
             raw.flush()
+    except BrokenPipeError:
+        if target.kind == "stdout":
+            _silence_stdout()
+            raise                    # the reader left (`| head`): cli.main ends quietly
+        raise GcodeplanError(f"cannot write {target.name}: the reading end was closed") from None
     except OSError as err:
+        if target.kind == "stdout":
+            _silence_stdout()        # what could not be written is dropped: the exit's flush must not fail
         raise GcodeplanError(f"cannot write {target.name}: {err.strerror or err}") from None
     finally:
         if isinstance(fh, io.TextIOWrapper) and fh is not raw_text:
@@ -352,6 +359,15 @@ def _keep_mode(tmp: str, real: str) -> None:
         os.chmod(tmp, stat.S_IMODE(old.st_mode))
     except FileNotFoundError:
         os.chmod(tmp, 0o666 & ~_umask())
+
+
+def _silence_stdout() -> None:
+    """Point standard output's descriptor at /dev/null (bytes left in Python's buffer then go nowhere)."""
+    with contextlib.suppress(AttributeError, OSError, ValueError):
+        fd = sys.stdout.fileno()
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, fd)
+        os.close(devnull)
 
 
 def install_temp(tmp: str | os.PathLike, target: OutputTarget) -> None:

@@ -71,6 +71,8 @@ class NpzStreamWriter:
         self._files: dict[str, object] = {}
         self._small: dict[str, np.ndarray] = {}
         self._done = False
+        if str(self.path) != "-" and not self.path.is_symlink():
+            _check_dir(self.path.parent if str(self.path.parent) else Path("."), self.path)
         self.target = _out.resolve_output(self.path)    # '-', devices, FIFOs: streams; links followed
         near = Path(self.target.temp_near)
         _check_dir(near.parent if str(near.parent) else Path("."), self.path)
