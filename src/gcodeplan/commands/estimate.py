@@ -114,7 +114,14 @@ def run_jobs(jobs: list, n: int) -> list:
 
         def give(w) -> None:
             w[2] = next(order, None)
-            w[1].send(None if w[2] is None else jobs[w[2]])
+            try:
+                w[1].send(None if w[2] is None else jobs[w[2]])
+            except OSError:          # it died between two files (a closed pipe): not standard output's fault
+                if w[2] is None:
+                    return
+                w[0].join(1.0)
+                raise WorkerDied(f"{jobs[w[2]][0]}: the worker given it had died, "
+                                 f"{_how_it_ended(w[0].exitcode)}; the other workers were stopped") from None
 
         for w in workers:
             give(w)
