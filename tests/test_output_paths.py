@@ -266,3 +266,30 @@ def test_view_of_standard_input_with_a_full_tmpdir(tmp_path):
         assert not (tmp_path / "v.html").exists() and os.listdir(small) == []
     finally:
         subprocess.run(["umount", str(small)], capture_output=True)
+
+
+# ----------------------------------------------------------------------------- /dev/stdout and its kin
+def test_a_link_to_proc_self_fd_1_is_standard_output(tmp_path, gcode):
+    """What /dev/stdout is (a link to /proc/self/fd/1), made inside the temporary directory: the output goes down
+    the pipe and the link stays (it was replaced by a regular file)."""
+    if not os.path.exists("/proc/self/fd/1"):
+        pytest.skip("needs /proc")
+    link = tmp_path / "stdout"
+    os.symlink("/proc/self/fd/1", link)
+    proc = cli("dump-moves", gcode, "-o", link, cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr.decode()
+    assert proc.stdout.decode().startswith("line,kind,")
+    assert os.path.islink(link) and os.readlink(link) == "/proc/self/fd/1"
+
+
+def test_output_naming_the_file_standard_output_is_goes_down_standard_output(tmp_path, gcode):
+    """`gcodeplan post-process a.gcode -o /dev/stdout >> log`: the same file, appended through the descriptor the
+    shell opened, not replaced by a new file behind the shell's back."""
+    log = tmp_path / "log.txt"
+    log.write_bytes(b"earlier\n")
+    inode = os.stat(log).st_ino
+    with open(log, "ab") as out:
+        proc = cli("post-process", gcode, "-o", log, "-q", cwd=tmp_path, stdout=out)
+    assert proc.returncode == 0, proc.stderr.decode()
+    text = log.read_text()
+    assert os.stat(log).st_ino == inode and text.startswith("earlier\nM73 P0") and "M73 P100" in text
