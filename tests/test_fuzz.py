@@ -3,6 +3,7 @@ machinery (reproducible cases, delta-debugging minimiser, case files that replay
 from __future__ import annotations
 
 import math
+import os
 import sys
 from pathlib import Path
 
@@ -161,3 +162,43 @@ def test_step_times_never_go_back_at_a_piece_boundary():
     assert sum(len(t) for t, _ in steps.values()) > 50000
     for name, (t, _) in steps.items():
         assert np.all(np.diff(t) >= 0.0), name
+
+
+# ----------------------------------------------------------------------------- the command-line rounds
+def test_output_round_short(tmp_path):
+    """tools/fuzz.py --outputs, cut to what CI affords: two commands (text and a picture) at every kind of path,
+    and a full standard output (the whole round: `python tools/fuzz.py --outputs`)."""
+    picked = [c for c in fuzz.OUTPUT_COMMANDS if c[0] in ("post-process -o", "plot -o")]
+    st = fuzz.output_round(tmp_path, log=print, commands=picked, stdout_commands=fuzz.STDOUT_COMMANDS[:2])
+    assert st["runs"] >= 2 * len(fuzz.OUTPUT_KINDS) - 2
+    assert st["failures"] == []
+
+
+def test_output_round_catches_a_replaced_link(tmp_path, monkeypatch):
+    """The round's checks fire: an output path written the old way (os.replace over whatever the path names)
+    is reported for the link to /dev/null, the FIFO and the full device."""
+    picked = [c for c in fuzz.OUTPUT_COMMANDS if c[0] == "dump-moves -o"]
+    shim = tmp_path / "shim"
+    shim.mkdir()
+    (shim / "sitecustomize.py").write_text(
+        "from gcodeplan.report import output as o\n"
+        "def resolve(path, _real=o.resolve_output):\n"
+        "    t = _real(path)\n"
+        "    return o.OutputTarget('file', t.path, t.path, t.name) if t.kind == 'stream' else t\n"
+        "o.resolve_output = resolve\n")
+    real_env = fuzz._cli_env
+    monkeypatch.setattr(fuzz, "_cli_env", lambda: dict(real_env(), PYTHONPATH=f"{shim}{os.pathsep}"
+                                                                                f"{real_env()['PYTHONPATH']}"))
+    st = fuzz.output_round(tmp_path / "w", log=print, commands=picked, kinds=("devnull-link", "fifo"),
+                           stdout_commands=())
+    assert any("null was replaced" in f for f in st["failures"]), st
+    assert any("pipe was replaced" in f for f in st["failures"]), st
+
+
+@pytest.mark.slow
+def test_signal_round_short(tmp_path):
+    """tools/fuzz.py --signals: one random signal into each command (`--long` for long rounds)."""
+    st = fuzz.signal_round(seed=5, rounds=1, moves=300_000, work=tmp_path, log=print)
+    assert st["runs"] == len(fuzz.signal_commands(tmp_path, tmp_path, tmp_path))
+    assert st["signalled"] >= st["runs"] // 2          # most runs were really interrupted
+    assert st["failures"] == []

@@ -6,6 +6,7 @@ signal is sent once the command has made its temporary spool, i.e. mid-run.
 """
 from __future__ import annotations
 
+import json
 import os
 import signal
 import subprocess
@@ -15,7 +16,7 @@ import time
 import pytest
 
 from conftest import shared_path
-from gcodeplan import signals
+from gcodeplan import cli, signals
 from gcodeplan.report import output
 
 SIGNALS = [signal.SIGTERM, signal.SIGHUP, signal.SIGINT]
@@ -99,8 +100,15 @@ def test_steps_compact_and_csv_interrupted_leave_nothing(tmp_path, big_file):
     rc, err = _run_and_signal(["steps", big_file, "-o", str(tmp_path / "s.npz"), "--format", "compact",
                                "--csv", str(tmp_path / "csv"), "-q"], tmp_path, signal.SIGTERM)
     assert rc == 143, err
-    assert _leftovers(tmp_path) == [] and _leftovers(tmp_path / "csv") == []
-    assert sorted(os.listdir(tmp_path)) == ["csv"] and os.listdir(tmp_path / "csv") == []
+    assert os.listdir(tmp_path) == []        # not even the csv directory it made (it did not exist before)
+
+
+def test_steps_csv_interrupted_keeps_a_directory_that_existed(tmp_path, big_file):
+    (tmp_path / "csv").mkdir()
+    rc, err = _run_and_signal(["steps", big_file, "-o", str(tmp_path / "s.npz"), "--csv", str(tmp_path / "csv"),
+                               "-q"], tmp_path, signal.SIGTERM)
+    assert rc == 143, err
+    assert os.listdir(tmp_path) == ["csv"] and os.listdir(tmp_path / "csv") == []
 
 
 @pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGHUP])
@@ -180,3 +188,114 @@ def test_stale_temporaries_of_a_dead_process_are_removed_live_ones_kept(tmp_path
     (stale_dir / "0000.raw").write_bytes(b"\0" * 10)
     output.atomic_write_text(str(tmp_path / "r.html"), "<html></html>")
     assert sorted(os.listdir(tmp_path)) == sorted([live.name, other.name, "r.html"])
+
+
+# ----------------------------------------------------------------------------- inherited dispositions
+def _ignoring(sig):
+    return lambda: signal.signal(sig, signal.SIG_IGN)
+
+
+@pytest.mark.parametrize("sig", [signal.SIGHUP, signal.SIGINT], ids=lambda s: signal.Signals(s).name)
+def test_a_signal_inherited_as_ignored_stays_ignored(tmp_path, long_file, sig):
+    """`nohup gcodeplan …` (SIGHUP ignored) and a script's background job (SIGINT ignored) run on."""
+    proc = subprocess.Popen([sys.executable, "-m", "gcodeplan.cli", "estimate", long_file, "--json"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, preexec_fn=_ignoring(sig))
+    try:
+        t0 = time.monotonic()
+        while not _handles_sigterm(proc.pid):          # gcodeplan's handlers are in place
+            assert proc.poll() is None and time.monotonic() - t0 < 120, proc.stderr.read()
+            time.sleep(0.02)
+        time.sleep(0.3)
+        assert proc.poll() is None, "finished before the signal"
+        proc.send_signal(sig)
+        out, err = proc.communicate(timeout=300)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert proc.returncode == 0, err
+    assert json.loads(out)["moves"] > 1_000_000
+
+
+def test_an_error_after_a_signal_is_the_signal(tmp_path, monkeypatch, capsys):
+    """A handler's exception raised inside a callback from C comes back as a SystemError (numba's compiler):
+    exit 128 + n with the one-line message, not an internal error with a traceback."""
+    mod = tmp_path / "gp_fake_cmd.py"
+    mod.write_text(
+        "import os, signal, time\n"
+        "def add_arguments(p):\n    pass\n"
+        "def run(args):\n"
+        "    try:\n"
+        "        os.kill(os.getpid(), signal.SIGTERM)\n"
+        "        for _ in range(2000):\n            time.sleep(0.001)\n"
+        "    except KeyboardInterrupt as err:\n"
+        "        raise SystemError('<built-in function x> returned a result with an exception set') from err\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    monkeypatch.setitem(cli.COMMANDS, "fake", ("gp_fake_cmd", "test"))
+    rc = cli.main(["fake"])
+    err = capsys.readouterr().err
+    assert rc == 143 and err == "gcodeplan: terminated by SIGTERM\n", err
+
+
+def test_a_signal_inside_a_ctypes_callback_is_one_line(tmp_path):
+    """The print-and-ignore of an exception in a ctypes callback (how llvmlite calls back during numba's
+    compilation) adds no 'Exception ignored' traceback; the re-raise ends the command with 143."""
+    script = tmp_path / "cb.py"
+    script.write_text(
+        "import ctypes, os, signal, sys, time\n"
+        "from gcodeplan import cli\n"
+        "class Cmd:\n"
+        "    @staticmethod\n"
+        "    def add_arguments(p): pass\n"
+        "    @staticmethod\n"
+        "    def run(args):\n"
+        "        libc = ctypes.CDLL(None)\n"
+        "        CMP = ctypes.CFUNCTYPE(ctypes.c_int, ctypes.POINTER(ctypes.c_int), ctypes.POINTER(ctypes.c_int))\n"
+        "        sent = []\n"
+        "        def cmp(a, b):\n"
+        "            if not sent:\n"
+        "                sent.append(1); os.kill(os.getpid(), signal.SIGTERM)\n"
+        "                for _ in range(100): time.sleep(0.001)\n"
+        "            return a[0] - b[0]\n"
+        "        arr = (ctypes.c_int * 4)(3, 1, 2, 0)\n"
+        "        libc.qsort(arr, 4, ctypes.sizeof(ctypes.c_int), CMP(cmp))\n"
+        "        for _ in range(10000): time.sleep(0.001)\n"
+        "        return 0\n"
+        "sys.modules['gp_cb_cmd'] = Cmd\n"
+        "cli.COMMANDS['cb'] = ('gp_cb_cmd', 'test')\n"
+        "sys.exit(cli.main(['cb']))\n")
+    proc = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 143 and proc.stderr == "gcodeplan: terminated by SIGTERM\n", proc.stderr
+
+
+# ----------------------------------------------------------------------------- estimate --jobs
+def _children(pid: int) -> list[int]:
+    try:
+        with open(f"/proc/{pid}/task/{pid}/children") as fh:
+            return [int(x) for x in fh.read().split()]
+    except OSError:
+        return []
+
+
+def test_a_dead_jobs_worker_is_reported_not_waited_for(tmp_path, long_file):
+    proc = subprocess.Popen([sys.executable, "-m", "gcodeplan.cli", "estimate", "--jobs", "2", long_file, long_file],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        t0 = time.monotonic()
+        while len(_children(proc.pid)) < 2:
+            assert proc.poll() is None and time.monotonic() - t0 < 120, proc.stderr.read()
+            time.sleep(0.02)
+        time.sleep(0.5)
+        assert proc.poll() is None, "finished before the kill"
+        workers = _children(proc.pid)
+        os.kill(workers[0], signal.SIGKILL)                 # as the out-of-memory killer does
+        out, err = proc.communicate(timeout=90)         # before: waited forever
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert proc.returncode == 1, err
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and long_file in lines[0] and "died" in lines[0] and "SIGKILL" in lines[0], err
+    time.sleep(0.5)
+    assert not any(os.path.exists(f"/proc/{pid}") for pid in workers)     # the other one was stopped

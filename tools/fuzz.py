@@ -30,6 +30,21 @@ case is minimised (delta debugging over its lines, keeping the same failure) and
 
 Every case has its own random stream derived from (seed, case number), so ``--replay N`` reproduces
 case N alone, whatever ran before it.
+
+Two rounds drive the real command line instead (a subprocess per run, as a user runs it):
+
+    python tools/fuzz.py --signals --seed 3              # one random signal into each command (short)
+    python tools/fuzz.py --signals --long --seconds 600  # a longer file, many signals per command
+    python tools/fuzz.py --outputs                       # every output option at every kind of path
+
+``--signals`` sends SIGTERM, SIGINT or SIGHUP at a random moment (after gcodeplan's handlers are in place)
+into every command that reads G-code, and checks: the exit status is 0 (it finished first) or 128 + n;
+standard error is then exactly the one line ``gcodeplan: interrupted`` / ``gcodeplan: terminated by SIGx``;
+nothing is left behind (no temporary file, no directory it made, no ``--jobs`` worker) and an output that
+existed before is untouched. ``--outputs`` writes every output option to standard output (``-``), a link
+to /dev/null, a FIFO, a symbolic link to a file, a full device (``/dev/full``) and a full standard output,
+and checks the exit status (0, or 2 with one line for a full device), that a link stays a link, a FIFO a
+FIFO and a device a device, that a link's target got the output, and that no temporary file stays.
 """
 from __future__ import annotations
 
@@ -694,6 +709,312 @@ def fuzz(seed: int, cases: int | None, seconds: float | None, out: Path, max_ste
     return st
 
 
+# --------------------------------------------------------------------------- the command line: signals, outputs
+SIGNAL_NAMES = ("SIGTERM", "SIGINT", "SIGHUP")
+
+
+def _cli_env() -> dict:
+    """The environment of a CLI run: this checkout's sources first."""
+    env = dict(os.environ)
+    env["PYTHONPATH"] = os.pathsep.join([str(REPO / "src")] + [p for p in env.get("PYTHONPATH", "").split(os.pathsep)
+                                                                 if p])
+    return env
+
+
+def _cli(argv, cwd, env=None, **kw):
+    import subprocess
+
+    return subprocess.Popen([sys.executable, "-m", "gcodeplan.cli", *map(str, argv)], cwd=cwd,
+                            env=env or _cli_env(), **kw)
+
+
+def zigzag_file(path: Path, moves: int) -> Path:
+    """A printer program of ``moves`` long zig-zag moves (planning and stepping take about a second a 300 000)."""
+    block = "".join(f"G1 X{(i % 2) * 180 + 10:.0f} Y{10 + (i % 1800) * 0.1:.1f} E0.5 F12000\n" for i in range(3600))
+    with open(path, "w") as fh:
+        fh.write(";LAYER_CHANGE\n;Z:0.2\nG90\nM83\nG1 Z0.2 F600\n")
+        for _ in range(max(moves // 3600, 1)):
+            fh.write(block)
+    return path
+
+
+def _handlers_in_place(pid: int) -> bool:
+    import signal
+
+    try:
+        with open(f"/proc/{pid}/status") as fh:
+            caught = next(int(line.split()[1], 16) for line in fh if line.startswith("SigCgt:"))
+    except (OSError, StopIteration):
+        return False
+    return bool(caught >> (signal.SIGTERM - 1) & 1)
+
+
+def _children(pid: int) -> list[int]:
+    try:
+        with open(f"/proc/{pid}/task/{pid}/children") as fh:
+            return [int(x) for x in fh.read().split()]
+    except OSError:
+        return []
+
+
+def signal_commands(src: Path, src2: Path, out: Path) -> list[tuple[str, list, list[str]]]:
+    """(label, argv, output names in ``out`` that exist beforehand with "previous" in them)."""
+    return [
+        ("estimate", ["estimate", src], []),
+        ("estimate --json --per-line", ["estimate", src, "--json", "--per-line", out / "l.csv"], ["l.csv"]),
+        ("estimate --jobs 2", ["estimate", "--jobs", "2", src, src2], []),
+        ("parse", ["parse", src], []),
+        ("steps", ["steps", src, "-o", out / "s.npz", "-q"], ["s.npz"]),
+        ("steps --csv --compress", ["steps", src, "-o", out / "s.npz", "--csv", out / "csv" / "new", "--compress",
+                                    "-q"], ["s.npz"]),
+        ("report", ["report", src, "-o", out / "r.html", "--slowest", "1"], ["r.html"]),
+        ("view", ["view", src, "-o", out / "v.html"], ["v.html"]),
+        ("post-process", ["post-process", src, "-o", out / "p.gcode", "-q"], ["p.gcode"]),
+        ("dump-moves", ["dump-moves", src, "-o", out / "m.csv"], ["m.csv"]),
+        ("plot layers", ["plot", src, "-o", out / "p.png", "--what", "layers"], ["p.png"]),
+    ]
+
+
+def signal_round(seed: int, rounds: int = 1, moves: int = 300_000, max_delay_s: float = 3.0, work: Path | None = None,
+                 seconds: float | None = None, log=print, cold: bool = False) -> dict:
+    """Signal every command of :func:`signal_commands` ``rounds`` times (or until ``seconds``) at a random moment;
+    returns {"runs", "signalled", "finished_first", "failures": [text, …]}. ``cold``: every run starts with an
+    empty numba cache (NUMBA_CACHE_DIR), so signals land inside numba's compiler and its callbacks from C."""
+    import shutil
+    import signal
+    import subprocess
+    import tempfile
+
+    rng = random.Random(seed)
+    own = work is None
+    work = Path(tempfile.mkdtemp(prefix="gcodeplan-fuzz-signals-")) if own else Path(work)
+    work.mkdir(parents=True, exist_ok=True)
+    stats = {"runs": 0, "signalled": 0, "finished_first": 0, "failures": []}
+    t_end = None if seconds is None else time.monotonic() + seconds
+    try:
+        inputs = work / "in"
+        inputs.mkdir(exist_ok=True)
+        src = zigzag_file(inputs / "a.gcode", moves)
+        src2 = zigzag_file(inputs / "b.gcode", moves // 3)
+        r = 0
+        while r < rounds or t_end is not None:
+            if t_end is not None and time.monotonic() > t_end:
+                break
+            for label, argv, existing in signal_commands(src, src2, work / "out"):
+                out = work / "out"
+                shutil.rmtree(out, ignore_errors=True)
+                out.mkdir()
+                for name in existing:
+                    (out / name).write_bytes(b"previous")
+                sig = getattr(signal, rng.choice(SIGNAL_NAMES))
+                delay = rng.uniform(0.0, max_delay_s)
+                what = f"{label} [{signal.Signals(sig).name} after {delay:.2f} s]"
+                env = None
+                if cold:
+                    env = dict(_cli_env(), NUMBA_CACHE_DIR=str(work / "numba-cache"))
+                    shutil.rmtree(work / "numba-cache", ignore_errors=True)
+                proc = _cli(argv, out, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, env=env)
+                workers: set[int] = set()
+                sent = False
+                try:
+                    t0 = time.monotonic()
+                    while not _handlers_in_place(proc.pid) and proc.poll() is None and time.monotonic() - t0 < 120:
+                        time.sleep(0.005)
+                    t1 = time.monotonic()
+                    while proc.poll() is None and time.monotonic() - t1 < delay:
+                        workers.update(_children(proc.pid))
+                        time.sleep(0.005)
+                    if proc.poll() is None:
+                        workers.update(_children(proc.pid))
+                        proc.send_signal(sig)
+                        sent = True
+                    err = proc.communicate(timeout=300)[1]
+                except subprocess.TimeoutExpired:
+                    proc.kill()
+                    err = proc.communicate()[1]
+                    stats["failures"].append(f"{what}: did not end within 300 s of the signal")
+                    continue
+                stats["runs"] += 1
+                rc = proc.returncode
+                problems = []
+                if rc == 0:
+                    stats["finished_first"] += 1
+                elif rc == 128 + sig and sent:
+                    stats["signalled"] += 1
+                    want = "gcodeplan: interrupted" if sig == signal.SIGINT else \
+                        f"gcodeplan: terminated by {signal.Signals(sig).name}"
+                    if err.splitlines() != [want]:
+                        problems.append(f"stderr is not the one line {want!r}: {err[-600:]!r}")
+                    for name in existing:
+                        if (out / name).read_bytes() != b"previous" and not (out / name).stat().st_size > 8:
+                            problems.append(f"{name} half-written")
+                    made = sorted(set(os.listdir(out)) - set(existing))
+                    if made:
+                        problems.append(f"left behind: {made}")
+                else:
+                    problems.append(f"exit status {rc} (want 0 or {128 + sig}): {err[-600:]!r}")
+                hidden = [n for n in os.listdir(out) if n.startswith(".")]
+                if hidden:
+                    problems.append(f"temporary files left: {hidden}")
+                time.sleep(0.05)
+                alive = [pid for pid in workers if os.path.exists(f"/proc/{pid}")
+                         and "gcodeplan" in _cmdline(pid)]
+                if alive:
+                    problems.append(f"workers still running: {alive}")
+                    for pid in alive:
+                        with contextlib_suppress():
+                            os.kill(pid, signal.SIGKILL)
+                for p in problems:
+                    stats["failures"].append(f"{what}: {p}")
+                    log(f"FAIL {what}: {p}")
+            r += 1
+    finally:
+        if own:
+            shutil.rmtree(work, ignore_errors=True)
+    return stats
+
+
+def _cmdline(pid: int) -> str:
+    try:
+        with open(f"/proc/{pid}/cmdline", "rb") as fh:
+            return fh.read().replace(b"\0", b" ").decode("utf-8", "replace")
+    except OSError:
+        return ""
+
+
+def contextlib_suppress():
+    import contextlib
+
+    return contextlib.suppress(OSError)
+
+
+OUTPUT_COMMANDS = (
+    # (label, argv with {o} for the output, what the output starts with, the output's usual ending)
+    ("post-process -o", ["post-process", "{f}", "-o", "{o}", "-q"], b"M73 P0", ".gcode"),
+    ("dump-moves -o", ["dump-moves", "{f}", "-o", "{o}"], b"line,kind,", ".csv"),
+    ("estimate --per-line", ["estimate", "{f}", "--per-line", "{o}", "--quiet"], b"source_line,end_time_s", ".csv"),
+    ("report -o", ["report", "{f}", "-o", "{o}", "--slowest", "0"], b"<!DOCTYPE html>", ".html"),
+    ("view -o", ["view", "{f}", "-o", "{o}"], b"<!DOCTYPE html>", ".html"),
+    ("plot -o", ["plot", "{f}", "-o", "{o}", "--what", "path"], b"\x89PNG", ".png"),
+    ("steps -o", ["steps", "{f}", "-o", "{o}", "-q"], b"PK", ".npz"),
+    ("profile --plot", ["profile", "--distance", "10", "--v-max", "100", "--a-max", "1000", "--plot", "{o}"],
+     b"\x89PNG", ".png"),
+)
+STDOUT_COMMANDS = (["estimate", "{f}"], ["estimate", "{f}", "--json"], ["parse", "{f}"], ["parse", "{f}", "--json"],
+                   ["estimate", "--jobs", "2", "{f}", "{f}"])
+OUTPUT_KINDS = ("stdout", "devnull-link", "fifo", "file-link", "full-device")
+
+
+def output_round(work: Path | None = None, log=print, kinds=OUTPUT_KINDS, commands=OUTPUT_COMMANDS,
+                 stdout_commands=STDOUT_COMMANDS) -> dict:
+    """Every output option of :data:`OUTPUT_COMMANDS` at every kind of path, plus the commands that print to a
+    full standard output; returns {"runs", "failures": [text, …]}."""
+    import shutil
+    import stat
+    import subprocess
+    import tempfile
+    import threading
+
+    own = work is None
+    work = Path(tempfile.mkdtemp(prefix="gcodeplan-fuzz-outputs-")) if own else Path(work)
+    work.mkdir(parents=True, exist_ok=True)
+    stats = {"runs": 0, "failures": []}
+    program = "G28\nG1 X10 Y10 F3000\nG1 X20 E1\nG1 X30 Y5 E2\n"
+    full = "/dev/full" if os.path.exists("/dev/full") else None
+
+    def fail(what, text):
+        stats["failures"].append(f"{what}: {text}")
+        log(f"FAIL {what}: {text}")
+
+    try:
+        src = work / "a.gcode"
+        src.write_text(program)
+        for label, argv, head, ext in commands:
+            for kind in kinds:
+                if kind == "full-device" and full is None:
+                    continue
+                what = f"{label} at {kind}"
+                d = work / "o"
+                shutil.rmtree(d, ignore_errors=True)
+                d.mkdir()
+                real = d / ("real" + ext)
+                got: list[bytes] = []
+                reader = None
+                if kind == "stdout":
+                    target = "-"
+                elif kind == "devnull-link":
+                    target = d / "null"
+                    os.symlink(os.devnull, target)
+                elif kind == "fifo":
+                    target = d / "pipe"
+                    os.mkfifo(target)
+                    reader = threading.Thread(target=lambda t=target: got.append(open(t, "rb").read()), daemon=True)
+                    reader.start()
+                elif kind == "file-link":
+                    real.write_bytes(b"previous")
+                    os.chmod(real, 0o640)
+                    target = d / ("link" + ext)
+                    os.symlink(real.name, target)
+                else:
+                    target = d / "full"
+                    os.symlink(full, target)      # a link to the full device: written as a stream, never replaced
+                before = os.lstat(target).st_mode if kind != "stdout" else None
+                proc = _cli([a.format(f=src, o=target) for a in argv], d, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE)
+                try:
+                    out, err = proc.communicate(timeout=300)
+                except subprocess.TimeoutExpired:
+                    proc.kill()
+                    out, err = proc.communicate()
+                    fail(what, "did not end within 300 s")
+                    continue
+                if reader is not None:
+                    reader.join(30)
+                    if reader.is_alive():       # nobody opened the FIFO: unblock the reader
+                        with contextlib_suppress():
+                            os.close(os.open(target, os.O_WRONLY | os.O_NONBLOCK))
+                stats["runs"] += 1
+                errs = err.decode("utf-8", "replace")
+                if "Traceback" in errs:
+                    fail(what, f"traceback: {errs[-600:]!r}")
+                    continue
+                if kind == "full-device":
+                    if proc.returncode != 2 or len(errs.strip().splitlines()) != 1 or "No space left" not in errs:
+                        fail(what, f"want exit 2 and one line naming the full device, got {proc.returncode}: {errs!r}")
+                elif proc.returncode != 0:
+                    fail(what, f"exit status {proc.returncode}: {errs[-600:]!r}")
+                    continue
+                if kind != "stdout":
+                    now = os.lstat(target).st_mode
+                    if stat.S_IFMT(now) != stat.S_IFMT(before):
+                        fail(what, f"{target.name} was replaced: it was {stat.filemode(before)}, now {stat.filemode(now)}")
+                if kind == "stdout" and not out.startswith(head):
+                    fail(what, f"standard output starts {out[:40]!r}, want {head!r}")
+                if kind == "fifo" and not (got and got[0].startswith(head)):
+                    fail(what, f"the FIFO's reader got {got[0][:40] if got else None!r}, want {head!r}")
+                if kind == "file-link":
+                    if not real.read_bytes().startswith(head):
+                        fail(what, "the link's target did not get the output")
+                    if stat.S_IMODE(os.stat(real).st_mode) != 0o640:
+                        fail(what, "the target's permissions changed")
+                leftovers = [n for n in os.listdir(d) if n.startswith(".") or n == "-"]
+                if leftovers:
+                    fail(what, f"left behind: {leftovers}")
+        for argv in stdout_commands if full else ():
+            what = " ".join(argv).replace("{f}", "FILE") + " > /dev/full"
+            with open(full, "wb") as sink:
+                proc = _cli([a.format(f=src) for a in argv], work, stdout=sink, stderr=subprocess.PIPE)
+                errs = proc.communicate(timeout=300)[1].decode("utf-8", "replace")
+            stats["runs"] += 1
+            if proc.returncode != 2 or errs.strip().splitlines() != [
+                    "gcodeplan: cannot write standard output: No space left on device"]:
+                fail(what, f"want exit 2 and one line, got {proc.returncode}: {errs[-600:]!r}")
+    finally:
+        if own:
+            shutil.rmtree(work, ignore_errors=True)
+    return stats
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--seed", type=int, default=0)
@@ -707,7 +1028,31 @@ def main(argv=None) -> int:
     ap.add_argument("--differential", action="store_true",
                     help="compare interpreted kernels with compiled ones instead (gcodeplan/_jit.py)")
     ap.add_argument("--interpreted-worker", action="store_true", help=argparse.SUPPRESS)
+    ap.add_argument("--signals", action="store_true",
+                    help="signal round: a random SIGTERM/SIGINT/SIGHUP into each command (see the module doc)")
+    ap.add_argument("--outputs", action="store_true",
+                    help="output-path round: every output option at -, /dev/null, a FIFO, a link, a full device")
+    ap.add_argument("--cold", action="store_true",
+                    help="--signals: each run with an empty numba cache (signals land in the compiler)")
+    ap.add_argument("--long", action="store_true",
+                    help="--signals: a 4x longer file and 5 signals per command (default: one, short; --seconds "
+                         "runs rounds until then)")
     args = ap.parse_args(argv)
+    if args.signals or args.outputs:
+        failures = []
+        if args.outputs:
+            st = output_round()
+            print(f"outputs: {st['runs']} runs, {len(st['failures'])} failures")
+            failures += st["failures"]
+        if args.signals:
+            st = signal_round(args.seed, rounds=5 if args.long else 1, moves=1_200_000 if args.long else 300_000,
+                              max_delay_s=10.0 if args.long else 3.0, seconds=args.seconds, cold=args.cold)
+            print(f"signals: {st['runs']} runs, {st['signalled']} stopped by the signal, {st['finished_first']} "
+                  f"finished first, {len(st['failures'])} failures")
+            failures += st["failures"]
+        for f in failures:
+            print("  " + f)
+        return 1 if failures else 0
     if args.interpreted_worker:
         return interpreted_worker(args.seed)
     if args.differential:

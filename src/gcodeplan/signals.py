@@ -13,6 +13,13 @@ in Python code called back from C, as numba's compiler does, would otherwise be 
 clean-up cut short by it leaves, the registry sweep run on the way out removes. Only kill -9
 (SIGKILL) escapes, and the temporary names it leaves (``.<name>.gcodeplan-<pid>-*``) are never
 taken for output and are removed by the next write to the same target (:mod:`gcodeplan.report.output`).
+
+A signal the process inherited as ignored stays ignored: ``nohup gcodeplan …`` survives the terminal's
+SIGHUP, and a background job of a script (started with SIGINT ignored) survives Ctrl-C, as every Unix
+program does (POSIX: a shell starts asynchronous commands with SIGINT and SIGQUIT ignored). Any error
+raised after a signal arrived (the exception raised inside a callback from C comes back as a
+``SystemError``, or as a library's own error) is reported as the signal: one line, 128 + n
+(``cli.main``, :func:`taken`).
 """
 from __future__ import annotations
 
@@ -40,6 +47,7 @@ class Terminated(KeyboardInterrupt):
 
 
 _taken: list[int] = []      # signals received since install(); the first one gives the exit status
+_inherited: dict[int, object] = {}   # signal -> disposition found at the first install() (SIG_IGN stays)
 _owner: list[int] = []      # pid of the process that installed the handlers
 _caught = threading.Event()  # set once cli.main has the exception in hand (no more raising)
 RERAISE_S = 1.0             # s: a Terminated swallowed on its way (see _watch) is raised again this late
@@ -72,6 +80,41 @@ def _handler(signum, frame) -> None:
     raise Terminated(_taken[0])
 
 
+def taken() -> int | None:
+    """The first signal received since :func:`install` (None if none): an error raised after it is the
+    signal's doing and is reported as the signal."""
+    return _taken[0] if _taken else None
+
+
+def inherited_ignored(signum: int) -> bool:
+    """True when the process started with ``signum`` ignored (nohup, a background job): it stays so."""
+    return _inherited.get(signum) == signal.SIG_IGN
+
+
+def child_defaults() -> None:
+    """In a forked worker (estimate --jobs): SIGINT / SIGTERM / SIGHUP back to what the process inherited,
+    ignored where it was ignored (nohup), else the default (the worker dies; its parent reports and cleans up)."""
+    for sig in HANDLED:
+        try:
+            signal.signal(sig, signal.SIG_IGN if inherited_ignored(sig) else signal.SIG_DFL)
+        except (ValueError, OSError):
+            pass
+
+
+def _unraisable(hook):
+    """sys.unraisablehook that drops a Terminated raised where Python can only print it (inside a ctypes
+    callback: numba's compiler): it is raised again in the main thread (:func:`_watch`), so the
+    multi-line 'Exception ignored' print is noise."""
+
+    def quiet(info) -> None:
+        if isinstance(info.exc_value, KeyboardInterrupt) and _taken:
+            return
+        hook(info)
+
+    quiet.gcodeplan = True
+    return quiet
+
+
 def caught() -> None:
     """cli.main has the Terminated in hand: later signals are ignored while it reports and cleans up."""
     _caught.set()
@@ -88,9 +131,18 @@ def install():
     previous = {}
     for sig in HANDLED:
         try:
+            now = signal.getsignal(sig)
+            _inherited[sig] = now
+            if now == signal.SIG_IGN:       # nohup, a background job: ignored it stays
+                continue
             previous[sig] = signal.signal(sig, _handler)
         except (ValueError, OSError):      # not settable here (embedded interpreter)
             pass
+    import sys
+
+    old_hook = sys.unraisablehook
+    if not getattr(old_hook, "gcodeplan", False):
+        sys.unraisablehook = _unraisable(old_hook)
 
     def restore() -> None:
         from .report.output import discard_temporaries
@@ -102,6 +154,8 @@ def install():
                 signal.signal(sig, old if old is not None else signal.SIG_DFL)
             except (ValueError, OSError):
                 pass
+        if getattr(sys.unraisablehook, "gcodeplan", False):
+            sys.unraisablehook = old_hook
         del _taken[:]
 
     return restore
@@ -126,4 +180,5 @@ def exit_status(err: BaseException) -> int:
     return 128 + getattr(err, "signum", signal.SIGINT)
 
 
-__all__ = ["Terminated", "install", "held", "caught", "exit_status", "HANDLED"]
+__all__ = ["Terminated", "install", "held", "caught", "taken", "child_defaults", "inherited_ignored",
+           "exit_status", "HANDLED"]

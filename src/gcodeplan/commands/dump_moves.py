@@ -53,7 +53,8 @@ def format_rows(moves: np.ndarray, plan: np.ndarray, features: list[str], object
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("file", metavar="FILE", help="G-code file")
-    p.add_argument("-o", "--output", required=True, metavar="moves.csv", help="CSV file to write")
+    p.add_argument("-o", "--output", required=True, metavar="moves.csv",
+                   help="CSV file to write ('-': standard output)")
     add_machine_arguments(p)
     add_plan_arguments(p)
     p.add_argument("--exclude-object", action="append", default=[], metavar="NAME",
@@ -81,8 +82,11 @@ def dump_moves(source, out_path: str, machine, policy=None, jerk=None, *, strict
 
 
 def run(args) -> int:
+    from ..report.output import resolve_output
+
     check_plan_arguments(args)
     machine = machine_from_args(args)
+    resolve_output(args.output)       # refuse an unwritable place before planning
     bar, progress = progress_bar(args.file, args.quiet)
     try:
         dump_moves(args.file, args.output, machine, args.policy, args.jerk, strict=args.strict, progress=progress,

@@ -240,7 +240,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("file", metavar="FILE", help="G-code file")
     add_machine_arguments(p)
     p.add_argument("-o", "--output", metavar="OUT.png",
-                   help="picture to write (.png, .svg or .pdf); default FILE_<what>.png beside the input")
+                   help="picture to write (.png, .svg or .pdf; '-' or a device/pipe without one of these "
+                        "endings: PNG, never to a terminal); default FILE_<what>.png beside the input, "
+                        "stdin_<what>.png in the current directory when FILE is standard input")
     p.add_argument("--what", choices=WHATS, default="velocity",
                    help="velocity: speed/acceleration/jerk against time; axes: per-axis position and velocity; "
                         "path: XY toolpath coloured by speed; layers: time per layer by feature (default velocity)")
@@ -281,13 +283,18 @@ def selection_from_args(args) -> Selection:
 
 
 def output_path(args) -> tuple[str, str]:
-    out = args.output or f"{os.path.splitext(args.file)[0]}_{args.what}.png"
+    """(path, format) of the picture; refuses a bad name or place before any planning."""
+    from ..report.output import default_output, refuse_terminal, resolve_output
+
+    out = args.output or default_output(args.file, f"_{args.what}.png")
     ext = os.path.splitext(out)[1].lower()
+    target = resolve_output(out)
     if ext not in FORMATS:
-        raise GcodeplanError(f"{out}: the picture's name must end in .png, .svg or .pdf")
-    parent = os.path.dirname(os.path.abspath(out))
-    if not os.path.isdir(parent):
-        raise GcodeplanError(f"cannot write {out}: no such directory {parent}")
+        if not target.is_stream:
+            raise GcodeplanError(f"{out}: the picture's name must end in .png, .svg or .pdf")
+        ext = ".png"          # standard output, /dev/null, a pipe: PNG
+    if FORMATS[ext] != "svg":
+        refuse_terminal(out, f"a {FORMATS[ext].upper()} picture")
     return out, FORMATS[ext]
 
 
@@ -328,9 +335,12 @@ def run(args) -> int:
     from ..report.output import atomic_output
 
     try:
-        with atomic_output(out, "wb") as fh:      # whole or not at all, even on SIGTERM
-            fig.savefig(fh, format=fmt, dpi=fig.dpi)
+        with atomic_output(out, "wb", tty_ok=fmt == "svg", what=f"a {fmt.upper()} picture") as fh:
+            fig.savefig(fh, format=fmt, dpi=fig.dpi)  # whole or not at all, even on SIGTERM
     except OSError as err:
         raise GcodeplanError(f"cannot write {out}: {err.strerror or err}") from None
-    print(out)
+    from ..report.output import resolve_output
+
+    if resolve_output(out).kind != "stdout":     # else the picture itself went to standard output
+        print(out)
     return 0

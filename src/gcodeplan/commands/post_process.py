@@ -17,7 +17,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("file", metavar="FILE",
                    help="G-code file, rewritten in place (atomically: temporary file + rename, permissions kept); "
                         "'-' (standard input) or a pipe is read once and needs -o")
-    p.add_argument("-o", "--output", metavar="OUT", help="write the result here instead of in place")
+    p.add_argument("-o", "--output", metavar="OUT",
+                   help="write the result here instead of in place ('-': standard output); a symbolic "
+                        "link's target is replaced, a device or pipe is written as a stream")
     add_machine_arguments(p)
     add_plan_arguments(p)
     p.add_argument("--no-m73", action="store_true",
@@ -33,8 +35,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run(args) -> int:
     from ..report.postprocess import post_process
 
+    from ..report.output import resolve_output
+
     check_plan_arguments(args)
     machine = machine_from_args(args)
+    resolve_output(args.output if args.output is not None else args.file)   # refuse before planning
     # PrusaSlicer >= 2.6 tells the final name of the file it is writing (the path it gives is a temporary one)
     from ..gcode.sources import source_name
 

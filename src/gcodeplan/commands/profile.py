@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
 
 import numpy as np
 
@@ -29,7 +30,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="mm/s² deceleration for trapezoids when it differs from --a-max")
     p.add_argument("--v-start", type=_number, default=0.0, metavar="V0", help="mm/s at the start (default 0)")
     p.add_argument("--v-end", type=_number, default=0.0, metavar="V1", help="mm/s at the end (default 0)")
-    p.add_argument("--plot", metavar="out.png", help="draw position, velocity, acceleration and jerk against time")
+    p.add_argument("--plot", metavar="out.png",
+                   help="draw position, velocity, acceleration and jerk against time (.png, .svg or .pdf; "
+                        "'-' or a device/pipe: PNG, never to a terminal)")
 
 
 def solve(args: argparse.Namespace) -> Profile:
@@ -90,7 +93,11 @@ def plot_profile(p: Profile, path: str, n: int = 1000):
     axes[0].set_title(f"{p.kind}: {p.distance:g} mm in {p.duration:.6g} s, peak {p.peak_velocity:.6g} mm/s")
     fig.tight_layout()
     try:
-        fig.savefig(path, dpi=100)
+        from ..report.output import atomic_output
+
+        fmt = _plot_format(path)
+        with atomic_output(path, "wb", tty_ok=fmt == "svg", what=f"a {fmt.upper()} picture") as fh:
+            fig.savefig(fh, format=fmt, dpi=100)      # whole or not at all (report/output.py)
     except OSError as err:
         raise GcodeplanError(f"cannot write plot: {err}", file=path) from None
     finally:
@@ -98,14 +105,38 @@ def plot_profile(p: Profile, path: str, n: int = 1000):
     return fig
 
 
+def _plot_format(path: str) -> str:
+    """png / svg / pdf from the name; PNG for standard output or a device/pipe without such an ending."""
+    from ..report.output import resolve_output
+
+    ext = os.path.splitext(str(path))[1].lower().lstrip(".")
+    if ext in ("png", "svg", "pdf"):
+        return ext
+    if resolve_output(path).is_stream:
+        return "png"
+    raise GcodeplanError(f"{path}: the picture's name must end in .png, .svg or .pdf")
+
+
 def run(args: argparse.Namespace) -> int:
     for name in ("distance", "v_max", "a_max", "j_max", "decel", "v_start", "v_end"):
         value = getattr(args, name)
         if value is not None and math.isnan(value):
             raise GcodeplanError(f"--{name.replace('_', '-')} must be a number, got nan")
+    if args.plot:       # refuse a bad name, place or a terminal before any work
+        from ..report.output import refuse_terminal, resolve_output
+
+        try:
+            fmt = _plot_format(args.plot)
+            if fmt != "svg":
+                refuse_terminal(args.plot, f"a {fmt.upper()} picture")
+            to_stdout = resolve_output(args.plot).kind == "stdout"
+        except GcodeplanError as err:
+            raise GcodeplanError(str(err).replace("cannot write ", "cannot write plot ", 1)) from None
     p = solve(args)
-    print(format_phases(p))
+    if not (args.plot and to_stdout):       # the picture alone goes to standard output
+        print(format_phases(p))
     if args.plot:
         plot_profile(p, args.plot)
-        print(f"plot written to {args.plot}")
+        if not to_stdout:
+            print(f"plot written to {args.plot}")
     return 0

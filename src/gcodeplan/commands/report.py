@@ -92,7 +92,9 @@ class SlowestLayers:
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("file", metavar="FILE", help="G-code file")
     add_machine_arguments(p)
-    p.add_argument("-o", "--output", metavar="REPORT.html", help="page to write; default FILE.html beside the input")
+    p.add_argument("-o", "--output", metavar="REPORT.html",
+                   help="page to write ('-': standard output); default FILE.html beside the input, "
+                        "stdin.html in the current directory when FILE is standard input")
     add_plan_arguments(p)
     p.add_argument("--slowest", type=int, default=2, metavar="N",
                    help="draw the velocity, axes and path plots of the N slowest layers (default 2)")
@@ -221,13 +223,12 @@ def run(args) -> int:
         raise GcodeplanError(f"--slowest must be 0 or more, got {args.slowest}")
     machine = machine_from_args(args)
     size_in = parse_size(args.size)
-    out = args.output or os.path.splitext(args.file)[0] + ".html"
-    parent = os.path.dirname(os.path.abspath(out))
-    if not os.path.isdir(parent):
-        raise GcodeplanError(f"cannot write {out}: no such directory {parent}")
     from ..gcode.sources import spooled
+    from ..report.output import atomic_output, default_output, resolve_output
     from .common import progress_bar
 
+    out = args.output or default_output(args.file, ".html")
+    target = resolve_output(out)      # refuse an unwritable place before planning, not after
     bar, progress = progress_bar(args.file, getattr(args, "quiet", False))
     try:
         with spooled(args.file) as src:   # read twice (the plan, then the viewer's line texts): '-', FIFOs copied
@@ -235,12 +236,12 @@ def run(args) -> int:
     finally:
         if bar is not None:
             bar.close()
-    from ..report.output import atomic_output
 
     try:
         with atomic_output(out, "w") as fh:       # whole or not at all, even on SIGTERM
             fh.write(page)
     except OSError as err:
         raise GcodeplanError(f"cannot write {out}: {err.strerror or err}") from None
-    print(out)
+    if target.kind != "stdout":       # the page itself went to standard output
+        print(out)
     return 0

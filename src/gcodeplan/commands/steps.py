@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import argparse
 import math
-import os
 import sys
 
 import numpy as np
@@ -28,12 +27,15 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     add_plan_arguments(p)
     out = p.add_argument_group("output")
     out.add_argument("-o", "--output", required=True, metavar="steps.npz",
-                     help="step times per stepper (.npz, written atomically)")
+                     help="step times per stepper (.npz, written atomically; '-': standard output, "
+                          "never a terminal)")
     out.add_argument("--format", choices=("plain", "compact"), default="plain",
                      help="plain: float64 times and int8 directions, Klipper's reference layout (9 bytes a "
                           "step); compact: the same times bit for bit, deflated (many times smaller; read it "
                           "with gcodeplan.stepper.export.load_steps)")
-    out.add_argument("--csv", metavar="DIR", help="also write DIR/<stepper>.csv (time_s,dir per step)")
+    out.add_argument("--csv", metavar="DIR",
+                     help="also write DIR/<stepper>.csv (time_s,dir per step); DIR is made if missing "
+                          "and removed again if the run fails")
     out.add_argument("--compress", action="store_true",
                      help="also store Klipper-style queue_step runs <stepper>_runs (interval, count, add, dir) "
                           "in clock ticks")
@@ -59,6 +61,8 @@ def _check_args(args) -> None:
     if args.sds_filter is not None and not (args.sds_filter > 0 and math.isfinite(args.sds_filter)):
         raise GcodeplanError(f"--sds-filter must be a positive time in s, got {args.sds_filter:g}")
     check_plan_arguments(args)
+    if args.csv is not None and args.csv in ("-", ""):
+        raise GcodeplanError("--csv takes a directory (one file per stepper), not standard output")
     if args.max_step_rate is not None and not (args.max_step_rate > 0):
         raise GcodeplanError(f"--max-step-rate must be > 0, got {args.max_step_rate:g}")
 
@@ -77,6 +81,7 @@ def summary_line(name: str, st: np.ndarray) -> str:
 def run(args) -> int:
     from .. import pipeline
     from ..stepper import compress as cmp
+    from ..report.output import keep_made_dirs, make_dirs, refuse_terminal, remove_made_dirs
     from ..signals import held
     from ..stepper.export import COMPACT_FORMAT, CompactEncoder, CsvStepWriter, NpzStreamWriter
     from ..stepper.source import StepSink, rails_from
@@ -90,10 +95,18 @@ def run(args) -> int:
     writer = None
     csv = None
     bar = None
+    made: list[str] = []
     try:
         with held():     # no signal between creating the spool and knowing it (the except below cleans up)
             writer = NpzStreamWriter(args.output)       # fails early on an unwritable place
-        csv = CsvStepWriter(args.csv, names) if args.csv else None
+        # the summary goes to standard error when the .npz itself goes to standard output
+        report = sys.stderr if refuse_terminal(args.output, "an .npz file").kind == "stdout" else sys.stdout
+        if args.csv:
+            try:
+                made = make_dirs(args.csv)              # what we make we remove again on failure
+            except OSError as err:
+                raise GcodeplanError(f"cannot write {args.csv}: {err.strerror or err}") from None
+            csv = CsvStepWriter(args.csv, names)
         encoders = None
         if args.format == "compact":
             encoders = [CompactEncoder() for _ in rails]
@@ -150,11 +163,13 @@ def run(args) -> int:
         writer.commit()
         if csv is not None:
             csv.commit()
+        keep_made_dirs(made)
     except BaseException:
         if writer is not None:
             writer.abort()
         if csv is not None:
             csv.abort()
+        remove_made_dirs(made)
         raise
     finally:
         if bar is not None:
@@ -162,7 +177,7 @@ def run(args) -> int:
 
     for rail, st in zip(rails, gen.stats):
         if not args.quiet:
-            print(summary_line(rail.name, st))
+            print(summary_line(rail.name, st), file=report)
         if math.isfinite(max_rate) and st[5] > 0 and 1.0 / st[5] > max_rate:
             print(f"gcodeplan: warning: {rail.name} reaches {1.0 / st[5]:,.0f} steps/s at t = {st[6]:.6f} s, "
                   f"above the maximum step rate {max_rate:,.0f} steps/s", file=sys.stderr)

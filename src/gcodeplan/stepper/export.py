@@ -71,10 +71,14 @@ class NpzStreamWriter:
         self._files: dict[str, object] = {}
         self._small: dict[str, np.ndarray] = {}
         self._done = False
-        _check_dir(self.path.parent if str(self.path.parent) else Path("."), self.path)
-        _out.remove_stale(self.path)
+        if str(self.path) != "-" and not self.path.is_symlink():
+            _check_dir(self.path.parent if str(self.path.parent) else Path("."), self.path)
+        self.target = _out.resolve_output(self.path)    # '-', devices, FIFOs: streams; links followed
+        near = Path(self.target.temp_near)
+        _check_dir(near.parent if str(near.parent) else Path("."), self.path)
+        _out.remove_stale(near)
         try:
-            self._spool = Path(_out.make_temp_dir(self.path))
+            self._spool = Path(_out.make_temp_dir(near))
         except OSError as err:
             raise _io_error(self.path, err) from None
 
@@ -113,7 +117,7 @@ class NpzStreamWriter:
         try:
             for fh in self._files.values():
                 fh.close()   # type: ignore[attr-defined]
-            fd, tmp_name = _out.make_temp_file(self.path)
+            fd, tmp_name = _out.make_temp_file(self.target.temp_near)
             os.close(fd)
             tmp = Path(tmp_name)
             with zipfile.ZipFile(tmp, "w", compression=zipfile.ZIP_STORED, allowZip64=True) as zf:
@@ -125,9 +129,7 @@ class NpzStreamWriter:
                 for key, arr in self._small.items():
                     with zf.open(key + ".npy", "w", force_zip64=True) as out:
                         np.lib.format.write_array(out, arr, allow_pickle=False)
-            os.chmod(tmp, 0o666 & ~_umask())
-            os.replace(tmp, self.path)
-            _out.unregister(tmp)
+            _out.install_temp(tmp, self.target)     # renamed over the target, or copied into a stream
             tmp = None
         except OSError as err:
             raise _io_error(self.path, err) from None
