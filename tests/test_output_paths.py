@@ -262,7 +262,7 @@ def test_view_of_standard_input_with_a_full_tmpdir(tmp_path):
         env = dict(os.environ, TMPDIR=str(small))
         proc = cli("view", "-", "-o", tmp_path / "v.html", cwd=tmp_path, input=program.encode(), env=env)
         assert proc.returncode == 2
-        one_line_error(proc, "standard input", "No space left on device")
+        one_line_error(proc, "<stdin>", "No space left on device")   # the spool (read once) names its input
         assert not (tmp_path / "v.html").exists() and os.listdir(small) == []
     finally:
         subprocess.run(["umount", str(small)], capture_output=True)
