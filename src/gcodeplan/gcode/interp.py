@@ -36,9 +36,10 @@ from .objects import KlipperExclude, ObjectTable
 
 from .commands_motion import MotionCommands
 from .commands_state import StateCommands
+from .rs274 import Rs274Commands
 
 
-class Interpreter(StateCommands, MotionCommands):
+class Interpreter(StateCommands, MotionCommands, Rs274Commands):
     """Modal state and the Python side of the interpretation of a file."""
 
     def __init__(self, machine: Machine, path: str, strict: bool = False):
@@ -124,6 +125,7 @@ class Interpreter(StateCommands, MotionCommands):
         self.header_layer_count: int | None = None
         self.slicer_estimate_s: float | None = None
         self.line = 0
+        self._cnc_init()
 
     # ------------------------------------------------------------------ helpers
     @property
@@ -572,6 +574,9 @@ class Interpreter(StateCommands, MotionCommands):
 
     # ------------------------------------------------------------------ execution of one classic line
     def _execute(self, gs: list[float], ms: list[int], params: dict[str, Word], tool: Word | None) -> None:
+        if self.dialect == S.DIALECT_CNC:
+            self._execute_cnc(gs, ms, params)      # RS274NGC's order of execution (gcode/rs274.py)
+            return
         st, ist = self.st, self.ist
         used: set[str] = set()
         axis_consumed = False       # axis words taken by G10/G28/G43.1/G92 (no motion)

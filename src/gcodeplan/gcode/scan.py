@@ -528,15 +528,17 @@ def scan_chunk(buf, pos, end, st, ist, out, n_out, feat_raw, feat_len, feat_idx)
             else:
                 return ST_PYTHON, line_start, n_out
         else:  # 'm'
+            if dialect == DIALECT_CNC:
+                # CNC lines run every word in RS274NGC's order (gcode/rs274.py): Python's job
+                return ST_PYTHON, line_start, n_out
             if code == 82 or code == 83:
                 if has != 0:
                     return ST_PYTHON, line_start, n_out
                 ist[I_ABS_E] = 1 if code == 82 else 0
             elif code == 104 or code == 105 or code == 106 or code == 107 or code == 140:
                 # heaters / fan / temperature report: no motion. An F here is the command's own parameter on
-                # printers, but a modal feed on CNC controls: Python's job there
-                if (has & 16) and dialect == DIALECT_CNC:
-                    return ST_PYTHON, line_start, n_out
+                # printers (CNC dialects never get here)
+                pass
             elif code == 204:
                 if dialect == DIALECT_CNC or (has & ~(32 | 64 | 128 | 256)):
                     return ST_PYTHON, line_start, n_out

@@ -61,6 +61,12 @@ class LinuxcncSettings:
         self.gap_cycles = float(gap_cycles)
         self.ramp_freq = float(ramp_freq)            # Hz
         self.kink_ratio = min(max(float(kink_ratio), 0.001), 0.7071)   # tp.c bounds it
+        # what the interpreter takes from the .ini (config/linuxcnc.py; gcode/rs274.py)
+        self.program_units_mm = 1.0                  # mm per program unit before any G20/G21 ([TRAJ]LINEAR_UNITS)
+        self.parameters: dict[int, float] = {}       # the .var parameter file (#5161-5169 G28, #5181-5189 G30)
+        self.tool_table: dict[int, float] = {}       # tool number -> length offset Z (mm), [EMCIO]TOOL_TABLE
+        self.tool_change_position = None             # (x, y, z) machine mm, [EMCIO]TOOL_CHANGE_POSITION
+        self.startup_code = ""                       # [RS274NGC]RS274NGC_STARTUP_CODE
 
 
 def settings_of(machine) -> LinuxcncSettings:
