@@ -241,3 +241,13 @@ def test_travel_limits_from_the_ini_are_enforced(tmp_path):
 def test_unknown_tool_in_g43_is_an_error(tmp_path):
     with pytest.raises(GcodeError, match="G43 H7: tool 7 is not in the tool table"):
         moves(tmp_path, PRE + "G43 H7\nM2\n", mill(tmp_path))
+
+
+@pytest.mark.parametrize("line", ["G90.1 G2 X20 Y10 I15 J10", "G91.1 G2 X20 Y10 I5 J0", "G2 X20 Y10 I5 J0"])
+def test_arc_centre_modes(tmp_path, line):
+    """G90.1: I J are the centre's coordinates; G91.1 (the default): offsets from the start. From (10, 10) to
+    (20, 10) clockwise about (15, 10): a half circle over (15, 15)."""
+    _, a, _ = moves(tmp_path, PRE + line + "\nM2\n", mill(tmp_path))
+    arc = a[a["line"] == 3]
+    assert np.abs(np.hypot(arc["x1"] - 15.0, arc["y1"] - 10.0) - 5.0).max() < 1e-9
+    assert arc["y1"].max() == pytest.approx(15.0, abs=0.01)

@@ -3,7 +3,8 @@
 The scanner walks the raw bytes of a chunk and fully handles the lines that make
 up nearly all of a slicer's output (G0/G1 with X Y Z E F, G90/G91, M82/M83,
 ``G92 E``, M204, G4, fan/heater commands without motion, comments, ``;TYPE:``
-names already seen). Any other line (arcs, offsets, Klipper extended commands,
+names already seen; on the CNC dialects no M line: RS274NGC runs every word of it, see :mod:`.rs274`).
+Any other line (arcs, offsets, Klipper extended commands,
 unknown commands, anything odd or malformed) is handed back to the Python
 interpreter (:mod:`.interp`) *before* the scanner changes any state, so the
 interpreter is the single authority on rare lines and on every error message.
