@@ -175,6 +175,17 @@ def test_r_impossible_and_near_half_circle():
         arc_chords((1, 2, 0), (1, 2, 3), r=5.0)
 
 
+def test_r_short_within_linuxcnc_radius_tolerance():
+    """LinuxCNC's arc_data_r runs an R arc up to RADIUS_TOLERANCE (0.00127 mm = 0.00005 inch) short of half
+    its chord, as a half circle about the chord's midpoint; a little more is its 'Arc radius too small'."""
+    for short in (0.001, 0.00126):
+        pts = with_start((0, 0, 0), arc_chords((0, 0, 0), (10, 0, 0), r=5 - short, clockwise=True,
+                                               tolerance=0.001))
+        assert np.abs(np.hypot(pts[:, 0] - 5, pts[:, 1]) - 5).max() < 1e-9
+    with pytest.raises(ArcError, match="R arc impossible"):
+        arc_chords((0, 0, 0), (10, 0, 0), r=5 - 0.0013, clockwise=True)
+
+
 def test_end_not_on_circle():
     with pytest.raises(ArcError, match=r"arc end is not on the circle: radius at start 10\.000 mm, at end "
                                        r"10\.300 mm"):

@@ -282,3 +282,17 @@ def test_piece_rows_equal_a_numpy_construction(seed):
     assert len(got) == len(want)
     for f in MOVE_DTYPE.names:
         assert np.ascontiguousarray(got[f]).tobytes() == np.ascontiguousarray(want[f]).tobytes(), f
+
+
+def test_peck_count_follows_linuxcncs_accumulation():
+    """LinuxCNC convert_cycle_g83: ``for (d = r − q; d > bottom; d = d − q)``. R1 Z0 Q0.1: ten subtractions
+    of 0.1 leave 1.4e-16 above the bottom, so LinuxCNC pecks ten times (the tenth a rounding error above
+    the bottom) and then feeds to the bottom; R0 Z-3 Q1 subtracts exactly: pecks at -1 and -2 only."""
+    rows, _ = expand_cycle(83, {"Z": 0.0, "R": 1.0, "Q": 0.1}, CycleState.enter(0, 0, 1.0, retract_mode=99))
+    feeds = rows[rows[:, 3] == F, 2]
+    assert len(feeds) == 11 and feeds[-2] > 0.0 and feeds[-2] < 1e-15 and feeds[-1] == 0.0
+    rows, _ = expand_cycle(73, {"Z": -3.0, "R": 0.0, "Q": 1.0}, CycleState.enter(0, 0, 0.0, retract_mode=99))
+    assert list(rows[rows[:, 3] == F, 2]) == [-1.0, -2.0, -3.0]
+    # G73 backs off 0.254 mm above each peck (G83_RAPID_DELTA), never clamped to R (LinuxCNC)
+    rows, _ = expand_cycle(73, {"Z": -1.0, "R": 0.0, "Q": 0.1}, CycleState.enter(0, 0, 0.0, retract_mode=99))
+    assert rows[rows[:, 3] == R, 2].max() == pytest.approx(-0.1 + 0.254)

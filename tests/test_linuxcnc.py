@@ -291,3 +291,56 @@ def test_stellabee_first20000_exact_path_total(tmp_path):
     run, *_ = _run(f)
     ref = _noidle("linuxcnc_stellabee1_first20000_g61_speedup8")
     assert abs(run.total_time - ref) <= 0.001 * ref
+
+
+# ------------------------------------------------------------------ helices, the second reference set
+def test_helix_limits_as_linuxcncs_arc_feed():
+    """emccanon.cc ARC_FEED for pcb2gcode's hole helix (r = 0.00396 in, 0.007 in per turn, one turn):
+    the circle is held by the XY limits (√3/2 of 1000 mm/s² as normal acceleration on r: 9.33 mm/s), Z
+    only by its own 20 mm/s / 500 mm/s² over its 0.18 mm, the time spread over the helical length."""
+    from gcodeplan.planner.linuxcnc import arc_limits
+
+    r, h = 0.00396 * 25.4, 0.007 * 25.4
+    vmax = np.array([100.0, 100.0, 20.0])
+    amax = np.array([1000.0, 1000.0, 500.0])
+    v, a = arc_limits(r, 0.0, 2 * math.pi, np.array([0.0, 0.0, 0.0]), np.array([0.0, 0.0, -h]), 0, 1, vmax, amax)
+    planar = 2 * math.pi * r
+    helix = math.hypot(planar, h)
+    v_planar = math.sqrt(1000 * math.sqrt(3) / 2 * r)
+    assert v == pytest.approx(helix / max(planar / v_planar, h / 20.0), rel=1e-12)
+    assert v == pytest.approx(9.69, abs=0.01)                  # the speed LinuxCNC ran (README, velocity trace)
+    assert a == pytest.approx(helix / max(planar / 1000.0, h / 500.0), rel=1e-12)
+
+
+REF2 = ("reference", "linuxcnc2")
+
+
+@pytest.mark.parametrize("program,stem", [
+    (("gcode", "cnc2", "pcb2gcode_multivibrator_tiles_milldrill.ngc"), "pcb2gcode_multivibrator_tiles_milldrill_g64"),
+    (REF2 + ("programs", "variants", "pcb2gcode_multivibrator_tiles_milldrill_g61.ngc"),
+     "pcb2gcode_multivibrator_tiles_milldrill_g61_speedup8"),
+    (("gcode", "cnc2", "fusion360_lcnc_HEMA-P027.ngc"), "fusion360_lcnc_HEMA-P027_g64"),
+])
+def test_second_reference_set_totals(program, stem):
+    """LinuxCNC 2.9's motion time plus the programmed dwells (it runs G4 with its queue empty) within 0.1 %."""
+    import gcodeplan as gp
+
+    m = load_linuxcnc_ini(str(shared_path(*REF2, "config", "mill.ini")))
+    sink = gp.pipeline.LineTimes()
+    gp.pipeline.run(str(shared_path(*program)), m, policy="linuxcnc", sinks=[sink])
+    _, end = sink.arrays()          # every move and dwell, the trailing G4 included
+    ref = json.loads(shared_path(*REF2, "times.json").read_text())[stem]["total_time_noidle_plus_dwell_s"]
+    assert abs(float(end.max()) - ref) <= 0.001 * ref
+
+
+def test_blend_into_a_z_rapid_keeps_z_within_its_limit(tmp_path):
+    """XY rapid then Z rapid (G64): LinuxCNC blends them (both move at once), so the path speed at the line
+    change is the two segments' speeds combined, but no axis ever exceeds its own limit (Z 20 mm/s)."""
+    m = load_linuxcnc_ini(_write_ini(tmp_path))
+    f = tmp_path / "j.ngc"
+    f.write_text("G21 G90 G64\nG0 X20 Y20\nG0 Z5\nM2\n")
+    run, *_ = _run(f, m)
+    pos = np.vstack([run.start_pos[None, :], run.pos[:run.n_cycles]])
+    vz = np.abs(np.diff(pos[:, 2])) / 0.001
+    vx = np.abs(np.diff(pos[:, 0])) / 0.001
+    assert vz.max() <= 20.0 + 1e-9 and vx.max() <= 100.0 + 1e-9

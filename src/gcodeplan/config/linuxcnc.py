@@ -11,6 +11,12 @@ absent), units as the file's [TRAJ]LINEAR_UNITS (mm or inch; converted to mm):
   ``[JOINT_n]`` values of the joints mapped to it (trivkins: joint n = n-th letter of COORDINATES);
 * ``[EMCMOT]SERVO_PERIOD`` (ns; default 1 000 000), ``[DISPLAY]MAX_FEED_OVERRIDE`` must be ≤ 1 if given
   (feed override above 100 % is not modelled);
+* ``[AXIS_X|Y|Z]`` MIN_LIMIT, MAX_LIMIT (travel limits, enforced like a printer's position_min/max;
+  MIN_LIMIT above MAX_LIMIT is an error);
+* for the interpreter: ``[TRAJ]LINEAR_UNITS`` (the units of a program that states none),
+  ``[RS274NGC]PARAMETER_FILE`` (the .var file: stored G28/G30 positions #5161-5163 / #5181-5183, relative to
+  the .ini's folder; absent or missing file: zero), ``[RS274NGC]RS274NGC_STARTUP_CODE``,
+  ``[EMCIO]TOOL_TABLE`` (tool length offsets for G43) and ``[EMCIO]TOOL_CHANGE_POSITION`` (M6 moves there);
 * every other section ([DISPLAY], [HAL], [TASK], ...) is ignored.
 
 Errors name ``file:line`` and the key (:class:`gcodeplan.errors.ConfigError`).
@@ -68,7 +74,7 @@ class _Ini:
         return self.sections.get(section, {}).get(key)
 
     def number(self, section: str, key: str, default: float | None = None, *, positive: bool = True,
-               integer: bool = False) -> float | None:
+               integer: bool = False, signed: bool = False) -> float | None:
         got = self.get(section, key)
         if got is None:
             return default
@@ -79,6 +85,10 @@ class _Ini:
             raise ConfigError(f"{self.path}:{line}: [{section}]{key}: not a number: {value!r}") from None
         if not math.isfinite(x) and not (x == math.inf):
             raise ConfigError(f"{self.path}:{line}: [{section}]{key}: not a finite number: {value!r}")
+        if signed:
+            if not math.isfinite(x):
+                raise ConfigError(f"{self.path}:{line}: [{section}]{key}: not a finite number: {value!r}")
+            return x
         if positive and not x > 0:
             raise ConfigError(f"{self.path}:{line}: [{section}]{key}: must be > 0, got {value}")
         if not positive and x < 0:
@@ -141,14 +151,21 @@ def load_linuxcnc_ini(path: str) -> Machine:
         if v is None or acc is None:
             key = "MAX_VELOCITY" if v is None else "MAX_ACCELERATION"
             raise ConfigError(f"{ini.path}: [AXIS_{letter}]{key}: missing (and no [JOINT_n] value)")
-        axes[a] = Axis(max_velocity=v * scale, max_accel=acc * scale)
+        lo = _limit(ini, f"AXIS_{letter}", "MIN_LIMIT")
+        hi = _limit(ini, f"AXIS_{letter}", "MAX_LIMIT")
+        if lo is not None and hi is not None and lo[0] > hi[0]:
+            raise ConfigError(f"{ini.path}:{lo[1]}: [AXIS_{letter}]MIN_LIMIT {lo[0]:g} is above MAX_LIMIT {hi[0]:g}")
+        axes[a] = Axis(max_velocity=v * scale, max_accel=acc * scale,
+                       position_min=lo[0] * scale if lo is not None else -math.inf,
+                       position_max=hi[0] * scale if hi is not None else math.inf)
     axes["e"] = Axis()
     finite_a = [axes[a].max_accel for a in "xyz" if math.isfinite(axes[a].max_accel)]
     if not finite_a:
         raise ConfigError(f"{ini.path}: no axis has MAX_ACCELERATION")
     for a in "xyz":
         if not math.isfinite(axes[a].max_velocity):
-            axes[a] = Axis(max_velocity=1e99, max_accel=1e99)
+            axes[a] = Axis(max_velocity=1e99, max_accel=1e99, position_min=axes[a].position_min,
+                           position_max=axes[a].position_max)
     period = ini.number("EMCMOT", "SERVO_PERIOD", 1_000_000.0)
     enable = ini.number("TRAJ", "ARC_BLEND_ENABLE", 1.0, positive=False, integer=True)
     depth = ini.number("TRAJ", "ARC_BLEND_OPTIMIZATION_DEPTH", 50.0, positive=False, integer=True)
@@ -168,6 +185,7 @@ def load_linuxcnc_ini(path: str) -> Machine:
     m = Machine(name=name_raw[0] if name_raw else os.path.basename(ini.path), kinematics="cartesian",
                 flavor="linuxcnc", max_velocity=vmax * scale if vmax < 1e98 else math.inf,
                 max_accel=amax * scale if amax < 1e98 else math.inf, junction_policy="linuxcnc", axes=axes)
+    _interpreter_settings(ini, settings, scale, abs(scale - 25.4) < 1e-3)
     # RS274NGC: where 'o<name> call' finds <name>.ngc (gcode/ngc.py), the parameter file
     from ..gcode.ngc import subroutine_dirs
 
@@ -179,3 +197,86 @@ def load_linuxcnc_ini(path: str) -> Machine:
                                if var else None)
     m.linuxcnc = settings
     return m
+
+
+def _limit(ini: _Ini, section: str, key: str):
+    got = ini.get(section, key)
+    if got is None:
+        return None
+    return ini.number(section, key, positive=False, signed=True), got[1]
+
+
+def _interpreter_settings(ini: _Ini, settings, scale: float, inch: bool) -> None:
+    """The .ini keys the G-code interpreter uses (module docstring), into ``settings``."""
+    base = os.path.dirname(os.path.abspath(ini.path))
+    settings.program_units_mm = 25.4 if inch else 1.0
+    got = ini.get("RS274NGC", "RS274NGC_STARTUP_CODE")
+    settings.startup_code = got[0] if got else ""
+    got = ini.get("RS274NGC", "PARAMETER_FILE")
+    if got is not None and got[0]:
+        path = os.path.join(base, got[0])
+        if os.path.exists(path):
+            settings.parameters = _read_var(path, scale)
+    got = ini.get("EMCIO", "TOOL_TABLE")
+    if got is not None and got[0]:
+        path = os.path.join(base, got[0])
+        if not os.path.exists(path):
+            raise ConfigError(f"{ini.path}:{got[1]}: [EMCIO]TOOL_TABLE: no such file {path!r}")
+        settings.tool_table = _read_tool_table(path, scale)
+    got = ini.get("EMCIO", "TOOL_CHANGE_POSITION")
+    if got is not None:
+        parts = got[0].replace(",", " ").split()
+        try:
+            xyz = [float(v) * scale for v in parts[:3]]
+        except ValueError:
+            xyz = []
+        if len(xyz) != 3 or not all(math.isfinite(v) for v in xyz):
+            raise ConfigError(f"{ini.path}:{got[1]}: [EMCIO]TOOL_CHANGE_POSITION: expected X Y Z numbers, "
+                              f"got {got[0]!r}")
+        settings.tool_change_position = tuple(xyz)
+
+
+def _read_var(path: str, scale: float) -> dict[int, float]:
+    """A LinuxCNC parameter (.var) file: ``<number> <value>`` per line; lengths scaled to mm for the
+    G28/G30 positions (#5161-5169, #5181-5189; the first three of each are X Y Z)."""
+    out: dict[int, float] = {}
+    try:
+        with open(path, "rb") as f:
+            text = f.read().decode("utf-8", "replace")
+    except OSError as err:
+        raise ConfigError(f"{path}: cannot read LinuxCNC parameter file: {err.strerror or err}") from None
+    for no, line in enumerate(text.splitlines(), 1):
+        parts = line.split()
+        if not parts:
+            continue
+        try:
+            k, v = int(parts[0]), float(parts[1])
+        except (ValueError, IndexError):
+            raise ConfigError(f"{path}:{no}: expected '<parameter number> <value>', got {line.strip()[:40]!r}") \
+                from None
+        out[k] = v * scale if k in (5161, 5162, 5163, 5181, 5182, 5183) else v
+    return out
+
+
+def _read_tool_table(path: str, scale: float) -> dict[int, float]:
+    """A LinuxCNC tool table: ``T<n> P<pocket> Z<length> ... ;comment`` per line -> {n: Z length (mm)}."""
+    out: dict[int, float] = {}
+    try:
+        with open(path, "rb") as f:
+            text = f.read().decode("utf-8", "replace")
+    except OSError as err:
+        raise ConfigError(f"{path}: cannot read LinuxCNC tool table: {err.strerror or err}") from None
+    for no, line in enumerate(text.splitlines(), 1):
+        body = line.split(";", 1)[0].strip()
+        if not body:
+            continue
+        words = {}
+        for w in body.split():
+            try:
+                words[w[0].upper()] = float(w[1:])
+            except (ValueError, IndexError):
+                raise ConfigError(f"{path}:{no}: malformed tool table word {w[:20]!r}") from None
+        if "T" not in words or words["T"] != int(words["T"]) or words["T"] < 0:
+            raise ConfigError(f"{path}:{no}: a tool table line needs T<tool number>")
+        out[int(words["T"])] = words.get("Z", 0.0) * scale
+    return out

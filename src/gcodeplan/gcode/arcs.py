@@ -86,10 +86,11 @@ END_TOLERANCE_CAP_FACTOR = 100.0
 MIN_RADIUS_MM = 0.00127
 
 # R form: |R| may fall short of half the chord by this much (rounding in the file) and still give a half
-# circle; beyond it the arc is impossible. (1e-6 relative + 0.0005 mm, a bit tighter than LinuxCNC's
-# RADIUS_TOLERANCE of 0.00127 mm.)
+# circle about the chord's midpoint; beyond it the arc is impossible. LinuxCNC's arc_data_r allows
+# RADIUS_TOLERANCE: 0.00005 inch under G20, 0.00005 × 25.4 = 0.00127 mm under G21 (the same length); a
+# relative 1e-6 on top for radii of metres.
 R_SHORT_REL = 1e-6
-R_SHORT_ABS_MM = 0.0005
+R_SHORT_ABS_MM = 0.00005 * 25.4
 
 # Whatever the tolerance, a chord never spans more than 90°: a full circle is at least a square, never a
 # zero-length chord, even when the radius is smaller than the tolerance.

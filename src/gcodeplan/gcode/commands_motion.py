@@ -353,7 +353,7 @@ class MotionCommands:
         state.incremental = ist[S.I_ABS_COORD] == 0
         state.retract_mode = self.retract_mode
         try:
-            rows, new_state = expand_cycle(code, words, state, 0.254, plane=self.plane)
+            rows, new_state = expand_cycle(code, words, state, 0.254, plane=self.plane, unit=scale)
         except CycleError as err:
             self.error(str(err))
         self.cycle_state = new_state

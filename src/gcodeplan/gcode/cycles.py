@@ -12,7 +12,8 @@ Semantics are LinuxCNC's (G-code manual "Canned Cycles", interpreter interp_cycl
   above it. LinuxCNC tests the initial level rather than the current Z for the first step; the two differ
   only when R is raised between G99 lines, where going up first is the safe reading of the manual.
 * Clear height after each hole: G99 → R; G98 → the initial level if it is above R, else R.
-* G73 and G83 peck from R downwards by Q (depths R−Q, R−2Q, … while above the bottom, then the bottom).
+* G73 and G83 peck from R downwards by Q (depths R−Q, R−2Q, … while above the bottom, then the bottom), the
+  depth accumulated by repeated subtraction in program units as LinuxCNC does (:func:`_peck_list`).
   G73 backs off ``peck_retract_mm`` after each peck (chip break); G83 rapids out to R and back down to
   ``peck_retract_mm`` above the last depth (LinuxCNC's G83_RAPID_DELTA, 0.010 inch = 0.254 mm).
 * G85 feeds out to R then rapids to the clear height; G86 dwells P at the bottom and rapids out (the spindle
@@ -102,6 +103,20 @@ def _sticky(line_value: float | None, state_value: float, key: str, code: int, f
     return state_value
 
 
+def _peck_list(r_abs: float, bottom: float, q: float, unit: float) -> list[float]:
+    """The peck depths (mm) as LinuxCNC's convert_cycle_g83/g73 make them: ``for (d = r − q; d > bottom;
+    d = d − q)`` in program units (``unit`` mm each), the depth accumulated by repeated subtraction. A hole
+    whose depth is an exact multiple of Q usually ends with one more peck a rounding error above the
+    bottom (the accumulated depth lands just above it), then the feed to the bottom."""
+    rp, bp, qp = r_abs / unit, bottom / unit, q / unit
+    out = []
+    d = rp - qp
+    while d > bp and len(out) <= MAX_CYCLE_ROWS:
+        out.append(d * unit)
+        d = d - qp
+    return out
+
+
 def _peck_depths(r_abs: float, bottom: float, q: float) -> int:
     """Number of intermediate peck depths r − k·q (k ≥ 1) strictly above the bottom (+ DEPTH_EPS_MM)."""
     span = r_abs - bottom
@@ -128,13 +143,13 @@ def _peck_depths(r_abs: float, bottom: float, q: float) -> int:
 
 
 def expand_cycle(code: int, words: dict[str, float], state: CycleState, peck_retract_mm: float = 0.254,
-                 *, plane: int = 17) -> tuple[np.ndarray, CycleState]:
+                 *, plane: int = 17, unit: float = 1.0) -> tuple[np.ndarray, CycleState]:
     """Moves of one canned-cycle line, and the state after it.
 
     ``code`` ∈ {73, 81, 82, 83, 85, 86, 89}; ``words`` the line's X Y Z R Q P L values (absent keys absent;
     mm and seconds, already converted from inches). Returns rows (N, 5) float64 ``[x, y, z, motion, dwell_s]``
     in order: motion 0 = rapid, 1 = feed, 2 = dwell (xyz unchanged, dwell_s seconds). Raises
-    :class:`CycleError`.
+    :class:`CycleError`. ``unit``: mm per program unit (25.4 under G20), for LinuxCNC's peck arithmetic.
     """
     if code not in CYCLE_CODES:
         raise CycleError(f"G{code} is not a supported canned cycle (G73, G81, G82, G83, G85, G86, G89)")
@@ -176,7 +191,13 @@ def expand_cycle(code: int, words: dict[str, float], state: CycleState, peck_ret
         raise CycleError(f"G{code}: the R plane ({r_abs:.4f} mm) is below the hole bottom Z ({bottom:.4f} mm)")
     clear_z = r_abs if state.retract_mode == 99 else max(state.initial_z, r_abs)
 
-    pecks = _peck_depths(r_abs, bottom, q_word) if code in PECK_CODES else 0
+    peck_list: list[float] = []
+    pecks = 0
+    if code in PECK_CODES:
+        pecks = _peck_depths(r_abs, bottom, q_word)        # closed form first: refuses absurd counts cheaply
+        if (6 + 3 * pecks) * repeats + 1 <= MAX_CYCLE_ROWS:
+            peck_list = _peck_list(r_abs, bottom, q_word, unit)
+            pecks = len(peck_list)
     rows_per_hole = 6 + (3 if code == 83 else 2) * pecks
     if rows_per_hole * repeats + 1 > MAX_CYCLE_ROWS:
         raise CycleError(f"G{code} would make {rows_per_hole * repeats + 1:.4g} moves "
@@ -203,14 +224,12 @@ def expand_cycle(code: int, words: dict[str, float], state: CycleState, peck_ret
         if z > r_abs:
             add(hole_x, hole_y, r_abs, MOTION_RAPID)
         if code in PECK_CODES:
-            for k in range(1, pecks + 1):
-                depth = r_abs - k * q_word
+            for depth in peck_list:
                 add(x, y, depth, MOTION_FEED)
                 if code == 83:
                     add(x, y, r_abs, MOTION_RAPID)
-                    add(x, y, min(depth + peck_retract_mm, r_abs), MOTION_RAPID)
-                else:
-                    add(x, y, min(depth + peck_retract_mm, r_abs), MOTION_RAPID)
+                # LinuxCNC: back to G83_RAPID_DELTA above this depth, not clamped to R
+                add(x, y, depth + peck_retract_mm, MOTION_RAPID)
         add(x, y, bottom, MOTION_FEED)
         if code in DWELL_CODES and p_word > 0.0:
             add(x, y, z, MOTION_DWELL, p_word)

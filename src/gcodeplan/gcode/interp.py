@@ -37,9 +37,10 @@ from .objects import KlipperExclude, ObjectTable
 
 from .commands_motion import MotionCommands
 from .commands_state import StateCommands
+from .rs274 import Rs274Commands
 
 
-class Interpreter(StateCommands, MotionCommands):
+class Interpreter(StateCommands, MotionCommands, Rs274Commands):
     """Modal state and the Python side of the interpretation of a file."""
 
     def __init__(self, machine: Machine, path: str, strict: bool = False):
@@ -128,6 +129,7 @@ class Interpreter(StateCommands, MotionCommands):
         # RS274NGC program language (gcode/ngc.py): made by the first line that needs it
         self.ngc = None
         self._ngc_on = m.flavor == "linuxcnc"
+        self._cnc_init()
 
     # ------------------------------------------------------------------ helpers
     @property
@@ -584,6 +586,9 @@ class Interpreter(StateCommands, MotionCommands):
 
     # ------------------------------------------------------------------ execution of one classic line
     def _execute(self, gs: list[float], ms: list[int], params: dict[str, Word], tool: Word | None) -> None:
+        if self.dialect == S.DIALECT_CNC:
+            self._execute_cnc(gs, ms, params)      # RS274NGC's order of execution (gcode/rs274.py)
+            return
         st, ist = self.st, self.ist
         used: set[str] = set()
         axis_consumed = False       # axis words taken by G10/G28/G43.1/G92 (no motion)
@@ -617,8 +622,6 @@ class Interpreter(StateCommands, MotionCommands):
             used.add("F")
             if not f > 0.0:
                 self.error(f"feed rate F must be > 0, got {params['F'].text}")
-        if self.machine.flavor == "grbl":
-            self._grbl_syncs(ms, params)
         # M commands
         for mc in ms:
             self._m_command(mc, params, used)

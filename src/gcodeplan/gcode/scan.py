@@ -3,7 +3,8 @@
 The scanner walks the raw bytes of a chunk and fully handles the lines that make
 up nearly all of a slicer's output (G0/G1 with X Y Z E F, G90/G91, M82/M83,
 ``G92 E``, M204, G4, fan/heater commands without motion, comments, ``;TYPE:``
-names already seen). Any other line (arcs, offsets, Klipper extended commands,
+names already seen; on the CNC dialects no M line: RS274NGC runs every word of it, see :mod:`.rs274`).
+Any other line (arcs, offsets, Klipper extended commands,
 unknown commands, anything odd or malformed) is handed back to the Python
 interpreter (:mod:`.interp`) *before* the scanner changes any state, so the
 interpreter is the single authority on rare lines and on every error message.
@@ -528,15 +529,17 @@ def scan_chunk(buf, pos, end, st, ist, out, n_out, feat_raw, feat_len, feat_idx)
             else:
                 return ST_PYTHON, line_start, n_out
         else:  # 'm'
+            if dialect == DIALECT_CNC:
+                # CNC lines run every word in RS274NGC's order (gcode/rs274.py): Python's job
+                return ST_PYTHON, line_start, n_out
             if code == 82 or code == 83:
                 if has != 0:
                     return ST_PYTHON, line_start, n_out
                 ist[I_ABS_E] = 1 if code == 82 else 0
             elif code == 104 or code == 105 or code == 106 or code == 107 or code == 140:
                 # heaters / fan / temperature report: no motion. An F here is the command's own parameter on
-                # printers, but a modal feed on CNC controls: Python's job there
-                if (has & 16) and dialect == DIALECT_CNC:
-                    return ST_PYTHON, line_start, n_out
+                # printers (CNC dialects never get here)
+                pass
             elif code == 204:
                 if dialect == DIALECT_CNC or (has & ~(32 | 64 | 128 | 256)):
                     return ST_PYTHON, line_start, n_out

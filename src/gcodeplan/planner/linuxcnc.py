@@ -10,8 +10,9 @@ the planner:
   angle from the chord end points, which lie on the circle; the helix axis is the coordinate axis normal to
   the chords' plane);
 * per-segment limits by LinuxCNC's per-axis projection: a line's speed and acceleration are its length over
-  the slowest axis' time (``getStraightVelocity``/``getStraightAcceleration``), an arc's are the least of its
-  plane's axes (and the helix axis when it moves more than 0.001 mm);
+  the slowest axis' time (``getStraightVelocity``/``getStraightAcceleration``), an arc's those of its circular
+  motion under the plane axes' limits and of its straight displacement under every axis' own
+  (``ARC_FEED``, :func:`arc_limits`);
 * the G-code mode: G61.1 stop, G61 exact path, G64 blend with tolerance P; moves that end where they start
   are dropped; M3/M4/M5/M6/G43, dwells and the program end drain the queue (the next move starts at rest).
 
@@ -45,7 +46,7 @@ from .linuxcnc_tp import (SEG_CIRCLE, SEG_DTYPE, SEG_LINE, TERM_EXACT, TERM_PARA
                           execute_kernel, queue_kernel)
 
 CHAIN_MAX = 101            # emccanon.cc: a naive-CAM chain holds at most 100 points before it must flush
-ARC_AXIS_MIN = 0.001       # mm, emccanon.cc: a helix axis moving less than this does not limit the arc
+CART_FUZZ = 1e-8           # mm, posemath.h: emccanon.cc ignores an axis displacement below this
 
 
 # --------------------------------------------------------------------------- settings
@@ -60,6 +61,12 @@ class LinuxcncSettings:
         self.gap_cycles = float(gap_cycles)
         self.ramp_freq = float(ramp_freq)            # Hz
         self.kink_ratio = min(max(float(kink_ratio), 0.001), 0.7071)   # tp.c bounds it
+        # what the interpreter takes from the .ini (config/linuxcnc.py; gcode/rs274.py)
+        self.program_units_mm = 1.0                  # mm per program unit before any G20/G21 ([TRAJ]LINEAR_UNITS)
+        self.parameters: dict[int, float] = {}       # the .var parameter file (#5161-5169 G28, #5181-5189 G30)
+        self.tool_table: dict[int, float] = {}       # tool number -> length offset Z (mm), [EMCIO]TOOL_TABLE
+        self.tool_change_position = None             # (x, y, z) machine mm, [EMCIO]TOOL_CHANGE_POSITION
+        self.startup_code = ""                       # [RS274NGC]RS274NGC_STARTUP_CODE
 
 
 def settings_of(machine) -> LinuxcncSettings:
@@ -146,6 +153,38 @@ def _emit_line(out, n, x0, y0, z0, x1, y1, z1, line, row0, row1, term, tol, feed
     sg.maxvel = min(ini_v, L / cycle)           # tcClampVelocityByLength
     sg.maxaccel = acc
     return n + 1
+
+
+@njit(cache=True)
+def arc_limits(r0, dr, angle, p0, p1, i, j, vmax, amax):
+    """emccanon.cc ARC_FEED: (max speed mm/s, max acceleration mm/s²) of a circle or helix of start radius
+    ``r0`` (mm), radius change ``dr`` (mm) over ``angle`` (rad) from ``p0`` to ``p1`` in the plane of axes
+    i, j. The circular motion is held by the plane axes (speed, and √3/2 of their acceleration as normal
+    acceleration on the effective radius), the straight displacement p0 → p1 (the helix axis' travel) by
+    every axis' own limits (getStraightVelocity/Acceleration, displacements under CART_FUZZ ignored); the
+    least time of the two, spread over the whole helical length, gives the limits."""
+    v_axes = min(vmax[i], vmax[j])
+    a_axes = min(amax[i], amax[j])
+    r_min = min(r0, r0 + dr)
+    spiral_per_rad = dr / angle if angle > 0.0 else 0.0
+    eff_r = math.sqrt(spiral_per_rad * spiral_per_rad + r_min * r_min)
+    v_planar = min(math.sqrt(a_axes * math.sqrt(3.0) / 2.0 * eff_r), v_axes)
+    spiral_len = math.hypot(r_min * angle, dr)
+    t_motion = 0.0
+    ta_motion = 0.0
+    axial2 = 0.0
+    for a in range(3):
+        d = abs(p1[a] - p0[a])
+        if a != i and a != j:
+            axial2 += d * d
+        if d < CART_FUZZ:
+            continue
+        t_motion = max(t_motion, d / vmax[a])
+        ta_motion = max(ta_motion, d / amax[a])
+    total = math.hypot(spiral_len, math.sqrt(axial2))
+    t_max = max(t_motion, spiral_len / v_planar)
+    tt_max = max(ta_motion, spiral_len / a_axes)
+    return total / t_max, total / tt_max
 
 
 @njit(cache=True)
@@ -245,11 +284,7 @@ def _emit_arc(out, n, moves, r0, r1, term, tol, feed, vmax, amax, amax_tool, cyc
     L = math.sqrt(((R + 0.5 * dr) * angle) ** 2 + h * h)
     if L < TP_POS_EPSILON:
         return n, False
-    ini_v = min(vmax[i], vmax[j])
-    acc = min(amax[i], amax[j])
-    if abs(h) > ARC_AXIS_MIN:
-        ini_v = min(ini_v, vmax[ax])
-        acc = min(acc, amax[ax])
+    ini_v, acc = arc_limits(R, dr, angle, pts[0], pts[m], i, j, vmax, amax)
     acc = min(acc, amax_tool)
     sg.reqvel = min(feed, ini_v)
     sg.target = L

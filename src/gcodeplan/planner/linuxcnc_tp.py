@@ -168,15 +168,19 @@ def max_target_vel(sg, vlimit):
 @njit(cache=True)
 def circle_limits(sg, cycle):
     """blendmath.c pmCircleActualMaxVel: speed within 0.866 of the overall accel as normal acceleration on the
-    effective radius (a helix's is (r² + (h/θ)²)/r), and the tangential share that remains."""
+    effective radius, and the tangential share that remains. The effective radius is
+    pmCircleEffectiveMinRadius's: r_s + h²/r_s, r_s = (ρ² + r²)^1.5 / (2ρ² + r²) the spiral's (ρ = radius change
+    per radian, r the start radius), h the helix' *whole* axial travel (not its travel per radian, as the
+    curvature of a helix would have it: LinuxCNC 2.9 runs a helical turn that fast)."""
     if sg.kind != SEG_CIRCLE:
         return
     sg.maxvel = min(sg.inivel, sg.target / cycle)
     a_max = overall_accel(sg)
     h2 = sg.h[0] ** 2 + sg.h[1] ** 2 + sg.h[2] ** 2
-    pitch2 = h2 / max(sg.angle * sg.angle, 1e-300)
-    r_min = min(sg.radius, sg.radius + sg.spiral)
-    eff_r = (r_min * r_min + pitch2) / max(r_min, 1e-300)
+    dr = sg.spiral / sg.angle if sg.angle > 0.0 else 0.0
+    n_inner = dr * dr + sg.radius * sg.radius
+    r_s = math.sqrt(n_inner * n_inner * n_inner) / max(n_inner + dr * dr, 1e-300)
+    eff_r = h2 / max(r_s, 1e-300) + r_s
     a_n_cut = BLEND_ACC_RATIO_NORMAL * a_max
     a_n_vmax = sg.maxvel * sg.maxvel / max(eff_r, 1e-300)
     if a_n_vmax > a_n_cut:
