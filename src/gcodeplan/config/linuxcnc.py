@@ -220,9 +220,13 @@ def _interpreter_settings(ini: _Ini, settings, scale: float, inch: bool) -> None
     got = ini.get("EMCIO", "TOOL_TABLE")
     if got is not None and got[0]:
         path = os.path.join(base, got[0])
-        if not os.path.exists(path):
-            raise ConfigError(f"{ini.path}:{got[1]}: [EMCIO]TOOL_TABLE: no such file {path!r}")
-        settings.tool_table = _read_tool_table(path, scale)
+        if not os.path.exists(path):     # LinuxCNC starts with an empty table: G43 of a tool is then an error
+            import warnings
+
+            warnings.warn(f"{ini.path}:{got[1]}: [EMCIO]TOOL_TABLE: no such file {path!r}: the tool table is "
+                          f"empty", stacklevel=2)
+        else:
+            settings.tool_table = _read_tool_table(path, scale)
     got = ini.get("EMCIO", "TOOL_CHANGE_POSITION")
     if got is not None:
         parts = got[0].replace(",", " ").split()
@@ -252,8 +256,9 @@ def _read_var(path: str, scale: float) -> dict[int, float]:
         try:
             k, v = int(parts[0]), float(parts[1])
         except (ValueError, IndexError):
-            raise ConfigError(f"{path}:{no}: expected '<parameter number> <value>', got {line.strip()[:40]!r}") \
-                from None
+            continue          # LinuxCNC reads 'number value' lines and passes over the rest
+        if not math.isfinite(v):
+            raise ConfigError(f"{path}:{no}: parameter #{k} must be a finite number")
         out[k] = v * scale if k in (5161, 5162, 5163, 5181, 5182, 5183) else v
     return out
 

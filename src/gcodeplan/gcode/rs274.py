@@ -358,7 +358,7 @@ class Rs274Commands:
         # 21. stop
         for mc in m_ok:
             if mc in (0, 1, 60):
-                self._m_command(mc if mc != 60 else 0, params, used)
+                self._m_command(mc, params, used)     # pauses, each named (commands_state)
             elif mc in (2, 30):
                 self.event(f"M{mc} program end")
                 ist[S.I_STOPPED] = 1
