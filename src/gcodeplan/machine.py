@@ -23,6 +23,9 @@ FLAVORS = ("marlin", "klipper", "reprap", "grbl", "linuxcnc")
 SHAPER_TYPES = ("none", "zv", "mzv", "zvd", "ei", "2hump_ei", "3hump_ei")
 SHAPER_TYPE_CODES = {name: i for i, name in enumerate(SHAPER_TYPES)}
 POLICIES = ("klipper", "junction-deviation", "classic-jerk", "blend", "exact-stop", "linuxcnc")
+# firmware models: "generic" = planned by the junction policy; the others run the firmware's own planner and
+# stepper timing (planner/marlin.py)
+FIRMWARES = ("generic", "marlin-2.1.2")
 AXES = ("x", "y", "z", "e")
 
 
@@ -45,6 +48,9 @@ class Machine:
     kinematics: str = "cartesian"
     # G-code dialect: G4 P unit, M204 meaning, whether M201/M203/M205 apply, G0 rapid rate
     flavor: str = "marlin"
+    # firmware model (FIRMWARES): "generic" plans with junction_policy; "marlin-2.1.2" runs Marlin 2.1.2.4's
+    # planner buffer and stepper timing (planner/marlin.py), junction_policy is then not used
+    firmware: str = "generic"
 
     # toolhead
     max_velocity: float = 300.0          # mm/s

@@ -1,0 +1,255 @@
+"""The ``marlin-2.1.2`` firmware model: plan and time a program as Marlin 2.1.2.4 runs it.
+
+A machine whose ``firmware`` is ``"marlin-2.1.2"`` is planned by this module instead of a junction policy:
+every MOVE row goes through Marlin's own host loop, planner and stepper interrupt
+(:mod:`gcodeplan.planner.marlin_kernels`, :mod:`gcodeplan.stepper.marlin_isr`), and its PLAN row carries the
+firmware's real start and end time: the tick its block was picked up and the tick of its last step, on the
+25 MHz stepper timer. The trapezoid fields of the PLAN row are the block's as executed (entry and exit
+speeds from its step rates, phase times from the interrupt), with the cruise speed fitted so that the
+row's distance is covered in its time.
+
+Rows that make no block (under 6 steps: Marlin carries them into the next move) last 0 s at the end of
+the block before them. Waits (M400, G4, G28, heater waits) drain the buffer; the next block is picked up
+at the stepper's next 1 ms idle poll after the wait (the dwell rounded up to whole ms).
+
+Reference: ``shared/reference/marlin`` (Marlin 2.1.2.4's planner.cpp / stepper.cpp on a simulated clock);
+``tools/compare_marlin.py`` prints the agreement.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ..errors import ConfigError
+from ..schema import (KIND_DWELL, KIND_EXTRUDE_ONLY, KIND_WAIT, LIMIT_ACCEL, LIMIT_FEED, LIMIT_NONE, PLAN_DTYPE)
+from ..stepper.marlin_isr import MARLIN_TIMER_HZ
+from . import marlin_kernels as mk
+
+#: firmware names this module models (machine TOML ``firmware``, CLI ``--firmware``)
+FIRMWARES = ("marlin-2.1.2",)
+#: µs, Marlin's DEFAULT_MINSEGMENTTIME (SLOWDOWN)
+MIN_SEGMENT_TIME_US = 20000
+_AXES = ("x", "y", "z", "e")
+_UINT32_MAX = 4294967295
+
+
+def check_firmware(name: str | None) -> str | None:
+    """``name`` if it is a firmware model gcodeplan runs (None passes), else a ConfigError."""
+    if name is None or name in FIRMWARES:
+        return name
+    raise ConfigError(f"firmware: unknown value {name!r} (one of {', '.join(FIRMWARES)})")
+
+
+def _axis_accel_steps(limits: np.ndarray, spm32: np.ndarray) -> np.ndarray:
+    """max_acceleration_steps_per_s2 per LIMITS row and axis: M201 values are whole mm/s² in Marlin
+    (uint32), times steps/mm in float32, truncated."""
+    out = np.empty((len(limits), 4), dtype=np.int64)
+    for a, name in enumerate(_AXES):
+        v = limits["axis_a_" + name]
+        for i, x in enumerate(v):
+            if not math.isfinite(x) or x * float(spm32[a]) >= _UINT32_MAX:
+                out[i, a] = _UINT32_MAX // 4
+            else:
+                out[i, a] = int(np.float32(np.float32(int(x)) * spm32[a]))
+    return out
+
+
+class MarlinModel:
+    """Marlin 2.1.2's host loop, planner and stepper over a stream of MOVE rows.
+
+    ``feed(moves, limits)`` then ``finish()`` return PLAN rows for the rows they settle, in order:
+    ``(n_rows, plan)`` pieces whose concatenation is one PLAN row per MOVE row."""
+
+    def __init__(self, machine, timer_hz: int = MARLIN_TIMER_HZ, e_position_sets=None):
+        self.machine = machine
+        # (line, logical E) of each G92 E, in file order (GcodeReader.interp.e_position_sets): Marlin's E is
+        # logical (G92 E0 resets it, and its step position is re-rounded there); None = E never reset
+        self.e_position_sets = e_position_sets
+        self._e_off = 0.0                        # mm, machine E − Marlin's logical E
+        self.timer_hz = int(timer_hz)
+        self.spm = np.array([machine.axes[a].steps_per_mm for a in _AXES], dtype=np.float32)
+        if not np.all(self.spm > 0):
+            raise ConfigError("marlin-2.1.2: every axis needs steps_per_mm > 0")
+        self.mm_per_step = (np.float32(1) / self.spm).astype(np.float32)
+        self.acc_rate_scale = np.float32(np.float32(16777216.0) / np.float32(self.timer_hz))
+        self.state = mk.new_state()
+        self.row_base = 0                        # absolute number of the window's first row
+        self._moves = None                       # window: rows read, not settled
+        self._arrays = None
+        self._out_i = np.zeros((0, mk.N_OI), dtype=np.int64)
+        self._out_f = np.zeros((0, mk.N_OF), dtype=np.float32)
+        self._last_end = np.zeros(4)             # mm, where the previous row ended (Marlin boots at 0)
+        self._acc = [machine.accel_print or machine.max_accel, machine.accel_travel or machine.max_accel,
+                     machine.accel_retract or machine.max_accel]
+        self._clock_done = 0                     # tick the last settled block ended
+        self.blocks = []                          # (out_i, out_f) of settled rows, when keep_blocks
+        self.keep_blocks = False
+
+    # ------------------------------------------------------------------ inputs
+    def _row_arrays(self, moves: np.ndarray, limits: np.ndarray) -> dict:
+        n = len(moves)
+        kind = np.full(n, mk.ROW_MOVE, dtype=np.int64)
+        k = moves["kind"]
+        kind[(k == KIND_WAIT) | (k == KIND_DWELL)] = mk.ROW_WAIT
+        wait_ticks = np.zeros(n, dtype=np.int64)
+        dw = moves["dwell_t"]
+        wmask = kind == mk.ROW_WAIT
+        wait_ticks[wmask] = np.ceil(np.nan_to_num(dw[wmask]) * self.timer_hz).astype(np.int64)
+        start = np.stack([moves["x0"], moves["y0"], moves["z0"], moves["e0"]], axis=1)
+        end = np.stack([moves["x1"], moves["y1"], moves["z1"], moves["e1"]], axis=1)
+        prev_end = np.vstack([self._last_end[None, :], end[:-1]]) if n else np.zeros((0, 4))
+        # a jump of X/Y/Z between rows (homing) sets the position; the logical E changes only at G92 E
+        diff = start[:, :3] != prev_end[:, :3]
+        reset_bits = (diff * (1 << np.arange(3))).sum(axis=1).astype(np.int64)
+        if n:
+            self._last_end = end[-1].copy()
+        e_off = np.full(n, self._e_off)
+        e_reset = np.zeros(n, dtype=np.float64)
+        sets = self.e_position_sets
+        if sets is not None and n:
+            lines = moves["line"]
+            while sets and sets[0][0] < lines[-1]:
+                line, v = sets.popleft()
+                k = int(np.searchsorted(lines, line, side="right"))   # the first row after the G92
+                cur = np.float32(moves["e0"][k] - e_off[k])           # Marlin's current E (float)
+                new_off = float(moves["e0"][k]) - v
+                e_off[k:] = new_off
+                self._e_off = new_off
+                # G92 E changes nothing unless the value differs (gcode/feature/G92: NEAR_ZERO)
+                if abs(np.float32(np.float32(v) - cur)) >= np.float32(0.000001):
+                    reset_bits[k] |= 8
+                    e_reset[k] = v
+        tgt = end.astype(np.float32)
+        tgt[:, 3] = (end[:, 3] - e_off).astype(np.float32)
+        reset_pos = start.astype(np.float32)
+        reset_pos[:, 3] = e_reset.astype(np.float32)
+        # feed: F (mm/min) as float32, /60, then Marlin's MMS_SCALED (·0.01·100 %)
+        fv = moves["feed_v"]
+        f_mm_min = np.where(np.isfinite(fv), fv * 60.0, 1e9).astype(np.float32)
+        fr = (f_mm_min / np.float32(60)).astype(np.float32)
+        fr = (fr * np.float32(0.01)).astype(np.float32) * np.float32(100)
+        # M204 P / T / R in force: the row's own accel for its class, the last seen for the others
+        acc = np.zeros((n, 3), dtype=np.float32)
+        cls = np.where(k == KIND_EXTRUDE_ONLY, 2, np.where(moves["e1"] != moves["e0"], 0, 1))
+        cur = list(self._acc)
+        accel = moves["accel"]
+        for i in range(n):
+            if kind[i] == mk.ROW_MOVE and math.isfinite(accel[i]):
+                cur[cls[i]] = float(accel[i])
+            acc[i, 0], acc[i, 1], acc[i, 2] = cur
+        self._acc = cur
+        li = moves["limits"]
+        lim = limits[li]
+        vmax = np.stack([lim["axis_v_" + a] for a in _AXES], axis=1)
+        vmax = np.where(np.isfinite(vmax), vmax, 1e30).astype(np.float32)
+        jerk = np.stack([lim["jerk_" + a] for a in _AXES], axis=1).astype(np.float32)
+        amax_tab = _axis_accel_steps(limits, self.spm)
+        amax = amax_tab[li]
+        cutoff_tab = _UINT32_MAX // np.maximum(amax_tab.max(axis=1), 1)
+        cutoff = cutoff_tab[li].astype(np.int64)
+        return dict(kind=kind, tgt=np.ascontiguousarray(tgt), reset_bits=reset_bits,
+                    reset_pos=np.ascontiguousarray(reset_pos), fr=fr.astype(np.float32),
+                    acc_p=np.ascontiguousarray(acc[:, 0]), acc_t=np.ascontiguousarray(acc[:, 1]),
+                    acc_r=np.ascontiguousarray(acc[:, 2]), vmax=np.ascontiguousarray(vmax),
+                    amax=np.ascontiguousarray(amax), cutoff=cutoff, jerk=np.ascontiguousarray(jerk),
+                    min_feed=lim["min_feed_v"].astype(np.float32), min_travel=lim["min_travel_v"].astype(np.float32),
+                    wait_ticks=wait_ticks)
+
+    # ------------------------------------------------------------------ running
+    def feed(self, moves: np.ndarray, limits: np.ndarray):
+        """Add MOVE rows; return ``(moves, plan)`` pieces whose times are final."""
+        if len(moves) == 0:
+            return []
+        arr = self._row_arrays(moves, np.asarray(limits))
+        if self._moves is None or len(self._moves) == 0:
+            self._moves, self._arrays = moves, arr
+        else:
+            self._moves = np.concatenate([self._moves, moves])
+            self._arrays = {k: np.concatenate([self._arrays[k], arr[k]]) for k in arr}
+        self._out_i = np.vstack([self._out_i, np.zeros((len(moves), mk.N_OI), dtype=np.int64)])
+        self._out_f = np.vstack([self._out_f, np.zeros((len(moves), mk.N_OF), dtype=np.float32)])
+        return self._run(final=False)
+
+    def finish(self):
+        """Run everything still queued; the buffer ends empty."""
+        if self._moves is None or len(self._moves) == 0:
+            return []
+        return self._run(final=True)
+
+    def _run(self, final: bool):
+        a = self._arrays
+        bf, bi, gi, gf = self.state
+        first = mk.marlin_run_kernel(a["kind"], a["tgt"], a["reset_bits"], a["reset_pos"], a["fr"], a["acc_p"],
+                                     a["acc_t"], a["acc_r"], a["vmax"], a["amax"], a["cutoff"], a["jerk"],
+                                     a["min_feed"], a["min_travel"], a["wait_ticks"], self.spm, self.mm_per_step,
+                                     MIN_SEGMENT_TIME_US, self.timer_hz, self.acc_rate_scale, final,
+                                     self.row_base, bf, bi, gi, gf, self._out_i, self._out_f)
+        n_done = int(first) - self.row_base
+        if final:
+            n_done = len(self._moves)
+        if n_done <= 0:
+            return []
+        moves_out = self._moves[:n_done]
+        oi, of = self._out_i[:n_done], self._out_f[:n_done]
+        plan = self._plan_rows(moves_out, oi, of)
+        if self.keep_blocks:
+            self.blocks.append((oi.copy(), of.copy(), moves_out["line"].copy()))
+        self._moves = self._moves[n_done:].copy()
+        self._arrays = {k: v[n_done:].copy() for k, v in a.items()}
+        self._out_i = self._out_i[n_done:].copy()
+        self._out_f = self._out_f[n_done:].copy()
+        self.row_base += n_done
+        return [(moves_out, plan)]
+
+    def _plan_rows(self, moves: np.ndarray, oi: np.ndarray, of: np.ndarray) -> np.ndarray:
+        """PLAN rows: blocks as executed; rows without a block last 0 s where the previous one ended."""
+        hz = float(self.timer_hz)
+        n = len(moves)
+        plan = np.zeros(n, dtype=PLAN_DTYPE)
+        timed = oi[:, mk.OI_HAS_BLOCK] != 0             # a block or a wait
+        has = oi[:, mk.OI_HAS_BLOCK] == 1
+        t_end = oi[:, mk.OI_T_END].astype(np.int64)
+        clock = self._clock_done
+        for i in range(n):
+            if timed[i]:
+                clock = int(t_end[i])
+            else:
+                t_end[i] = clock
+        self._clock_done = clock
+        t_pick = np.where(timed, oi[:, mk.OI_T_PICK], t_end)
+        plan["t_start"] = t_pick / hz
+        plan["duration"] = (t_end - t_pick) / hz
+        sec = np.maximum(oi[:, mk.OI_SEC], 1).astype(np.float64)
+        mm = of[:, mk.OF_MM].astype(np.float64)
+        per_step = np.where(has, mm / sec, 0.0)       # mm per leading-axis step
+        v0 = oi[:, mk.OI_INITIAL_RATE] * per_step
+        v1 = oi[:, mk.OI_FINAL_RATE] * per_step
+        ta = oi[:, mk.OI_ACC_T] / hz
+        tc = oi[:, mk.OI_CRUISE_T] / hz
+        td = oi[:, mk.OI_DEC_T] / hz
+        d = moves["move_d"]
+        den = ta / 2 + tc + td / 2
+        with np.errstate(divide="ignore", invalid="ignore"):
+            vc = np.where(den > 0, (d - v0 * ta / 2 - v1 * td / 2) / den, 0.0)
+            vc = np.where(has, np.maximum(vc, 0.0), 0.0)
+            plan["accel"] = np.where(ta > 0, (vc - v0) / ta, 0.0)
+            plan["decel"] = np.where(td > 0, (vc - v1) / td, 0.0)
+        plan["start_v"] = np.where(has, v0, 0.0)
+        plan["cruise_v"] = vc
+        plan["end_v"] = np.where(has, v1, 0.0)
+        plan["accel_t"] = np.where(has, ta, 0.0)
+        plan["cruise_t"] = np.where(has, tc, 0.0)
+        plan["decel_t"] = np.where(has, td, 0.0)
+        wait = (moves["kind"] == KIND_WAIT) | (moves["kind"] == KIND_DWELL)
+        plan["limit"] = np.where(wait, LIMIT_NONE, np.where(oi[:, mk.OI_ACCEL_UNTIL] > 0, LIMIT_ACCEL, LIMIT_FEED))
+        return plan
+
+
+def run_marlin(moves: np.ndarray, limits: np.ndarray, machine, keep_blocks: bool = False, e_position_sets=None):
+    """Whole-program convenience: PLAN rows for ``moves`` (and the model, for its ``blocks``)."""
+    m = MarlinModel(machine, e_position_sets=e_position_sets)
+    m.keep_blocks = keep_blocks
+    outs = m.feed(moves, limits) + m.finish()
+    plan = np.concatenate([p for _, p in outs]) if outs else np.zeros(0, dtype=PLAN_DTYPE)
+    return plan, m

@@ -1,0 +1,557 @@
+"""Marlin 2.1.2's planner as it runs, in numba: block buffer, look-ahead passes, trapezoids, and its stepper.
+
+The functions keep the names and boundaries of Marlin's ``planner.cpp`` (``_populate_block``,
+``reverse_pass_kernel``, ``reverse_pass``, ``forward_pass_kernel``, ``forward_pass``,
+``recalculate_trapezoids``, ``recalculate``, ``calculate_trapezoid_for_block``, ``get_current_block``) so the
+model can be compared with the firmware's next release function by function. Arithmetic is float32 where
+the firmware's is ``float`` and integer where it is ``uint32_t``/``int32_t``: the step counts, rates and
+step boundaries come out as Marlin's, and so do the step times (:mod:`gcodeplan.stepper.marlin_isr`).
+
+What it models (docs/design.md, "Marlin 2.1.2 model"):
+
+* the ring buffer of ``BLOCK_BUFFER_SIZE`` (16) blocks, 15 usable; the block the stepper runs is frozen
+  (``is_block_busy``); the reverse and forward passes run over the queued blocks from
+  ``block_buffer_planned``, Marlin's "already optimal" pointer, so the look-ahead is what the buffer holds;
+* the host of the reference runs: Marlin's main loop takes no time, so the buffer is refilled as soon as a
+  block leaves; a position change (G92) with blocks queued takes a slot as a sync block;
+* ``_populate_block``: targets in whole steps (``lround(mm · steps/mm)``), moves under
+  ``MIN_STEPS_PER_SEGMENT`` (6) steps dropped and carried into the next, distance from the step deltas,
+  ``SLOWDOWN`` (``MIN_SEGMENT_TIME`` 20 ms when 2..7 blocks are queued), per-axis feed limits, acceleration
+  in steps/s² limited per axis (integer or float rule by ``acceleration_long_cutoff``), classic jerk with
+  the Průša safe-speed rule and the coasting / reversal jerk, ``MINIMUM_PLANNER_SPEED``;
+* ``calculate_trapezoid_for_block``: rates rounded up, the 120 steps/s floor, integer step boundaries.
+
+Row kinds handed in (``ROW_*``): a move, a wait (the queue drains first: M400, G4, homing), or nothing.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .._jit import njit
+from ..stepper.marlin_isr import block_ticks_kernel
+
+BLOCK_BUFFER_SIZE = 16
+MIN_STEPS_PER_SEGMENT = 6
+MINIMAL_STEP_RATE = 120          # steps/s, planner.cpp (2.1.2): the timer would overflow below it
+SLOWDOWN_DIVISOR = 2
+
+ROW_MOVE, ROW_WAIT, ROW_SKIP = 0, 1, 2
+
+# block flag bits (planner.h)
+FLAG_RECALCULATE = 1
+FLAG_NOMINAL_LENGTH = 2
+FLAG_SYNC_POSITION = 8
+
+# float32 block fields (bf[slot, ...])
+BF_MM, BF_NOMINAL_SPEED, BF_ENTRY_SQR, BF_MAX_ENTRY_SQR, BF_ACCEL = 0, 1, 2, 3, 4
+N_BF = 5
+# integer block fields (bi[slot, ...])
+(BI_FLAG, BI_SEC, BI_NOMINAL_RATE, BI_INITIAL_RATE, BI_FINAL_RATE, BI_ACCEL_UNTIL, BI_DECEL_AFTER, BI_ACCEL_STEPS,
+ BI_ROW, BI_SX, BI_SY, BI_SZ, BI_SE) = range(13)
+N_BI = 13
+# integer global state (gi[...])
+(GI_HEAD, GI_TAIL, GI_PLANNED, GI_NONBUSY, GI_BUSY, GI_PX, GI_PY, GI_PZ, GI_PE, GI_CLOCK, GI_NEXT_ROW,
+ GI_STARTED, GI_RESET_DONE, GI_SETTINGS_ROW) = range(14)
+N_GI = 14
+# float32 global state (gf[...])
+GF_PREV_SPEED, GF_PREV_NOMINAL, GF_PREV_SAFE = 0, 4, 5
+N_GF = 6
+# per-row outputs
+(OI_HAS_BLOCK, OI_T_PICK, OI_T_END, OI_SEC, OI_NOMINAL_RATE, OI_INITIAL_RATE, OI_FINAL_RATE, OI_ACCEL_UNTIL,
+ OI_DECEL_AFTER, OI_ACCEL_STEPS, OI_ACC_T, OI_CRUISE_T, OI_DEC_T, OI_FLAG, OI_SX, OI_SY, OI_SZ, OI_SE) = range(18)
+N_OI = 18
+OF_ENTRY_SQR, OF_NOMINAL_SPEED, OF_MM, OF_ACCEL, OF_EXIT_SQR = 0, 1, 2, 3, 4
+N_OF = 5
+
+F32 = np.float32
+
+
+def new_state():
+    """(bf, bi, gi, gf): an empty buffer, the stepper idle, position 0 steps."""
+    bf = np.zeros((BLOCK_BUFFER_SIZE, N_BF), dtype=np.float32)
+    bi = np.zeros((BLOCK_BUFFER_SIZE, N_BI), dtype=np.int64)
+    gi = np.zeros(N_GI, dtype=np.int64)
+    gf = np.zeros(N_GF, dtype=np.float32)
+    return bf, bi, gi, gf
+
+
+@njit(cache=True)
+def _next(i):
+    return (i + 1) & (BLOCK_BUFFER_SIZE - 1)
+
+
+@njit(cache=True)
+def _prev(i):
+    return (i - 1) & (BLOCK_BUFFER_SIZE - 1)
+
+
+@njit(cache=True)
+def _ceilf(x):
+    return np.int64(math.ceil(x))
+
+
+@njit(cache=True)
+def _lroundf(x):
+    """C lroundf: halves away from zero."""
+    if x >= 0:
+        return np.int64(math.floor(x + np.float64(0.5)))
+    return -np.int64(math.floor(-x + np.float64(0.5)))
+
+
+@njit(cache=True)
+def _is_busy(gi, slot):
+    return gi[GI_BUSY] != 0 and slot == gi[GI_TAIL]
+
+
+@njit(cache=True)
+def _max_allowable_speed_sqr(accel, target_velocity_sqr, distance):
+    """v² reachable at the start of ``distance`` mm ending at v² = target with −accel (float32, planner.h)."""
+    return F32(target_velocity_sqr - F32(F32(F32(2) * accel) * distance))
+
+
+@njit(cache=True)
+def calculate_trapezoid_for_block(bf, bi, slot, entry_factor, exit_factor):
+    """Rates and step boundaries of a block from its entry and exit speeds as fractions of nominal."""
+    nominal_rate = bi[slot, BI_NOMINAL_RATE]
+    initial_rate = _ceilf(F32(F32(nominal_rate) * entry_factor))
+    final_rate = _ceilf(F32(F32(nominal_rate) * exit_factor))
+    if initial_rate < MINIMAL_STEP_RATE:
+        initial_rate = np.int64(MINIMAL_STEP_RATE)
+    if final_rate < MINIMAL_STEP_RATE:
+        final_rate = np.int64(MINIMAL_STEP_RATE)
+    accel = bi[slot, BI_ACCEL_STEPS]
+    sec = bi[slot, BI_SEC]
+    # steps to accelerate from the initial rate to nominal and to brake from nominal to the final rate,
+    # each (rate² difference) / (2·accel), with one inverse of the acceleration (2.1.2's form)
+    f_nom_sq = F32(F32(nominal_rate) * F32(nominal_rate))
+    half_inverse_accel = F32(F32(0.5) * F32(F32(1) / F32(accel)))
+    decelerate_f = F32(half_inverse_accel * F32(f_nom_sq - F32(F32(final_rate) * F32(final_rate))))
+    accelerate_f = F32(half_inverse_accel * F32(f_nom_sq - F32(F32(initial_rate) * F32(initial_rate))))
+    accelerate_steps = _ceilf(accelerate_f)
+    decelerate_steps = np.int64(math.floor(decelerate_f))
+    plateau_steps = sec - accelerate_steps - decelerate_steps
+    if plateau_steps < 0:
+        # no cruise: accelerate to where the two ramps meet, (steps + accel − decel) / 2
+        acc_f = F32(math.ceil(F32(F32(F32(F32(sec) + accelerate_f) - decelerate_f) * F32(0.5))))
+        if acc_f < 0:
+            acc_f = F32(0)
+        accelerate_steps = np.int64(acc_f)
+        if accelerate_steps > sec:
+            accelerate_steps = sec
+        plateau_steps = np.int64(0)
+    bi[slot, BI_ACCEL_UNTIL] = accelerate_steps
+    bi[slot, BI_DECEL_AFTER] = accelerate_steps + plateau_steps
+    bi[slot, BI_INITIAL_RATE] = initial_rate
+    bi[slot, BI_FINAL_RATE] = final_rate
+
+
+@njit(cache=True)
+def reverse_pass_kernel(bf, bi, gi, cur, nxt):
+    """Lower a block's entry speed to what it can brake from over its length to the next block's entry."""
+    max_entry = bf[cur, BF_MAX_ENTRY_SQR]
+    if bf[cur, BF_ENTRY_SQR] != max_entry or (nxt >= 0 and (bi[nxt, BI_FLAG] & FLAG_RECALCULATE) != 0):
+        if (bi[cur, BI_FLAG] & FLAG_NOMINAL_LENGTH) != 0:
+            new_entry = max_entry
+        else:
+            nxt_entry = bf[nxt, BF_ENTRY_SQR] if nxt >= 0 else F32(F32(0.05) * F32(0.05))
+            new_entry = _max_allowable_speed_sqr(-bf[cur, BF_ACCEL], nxt_entry, bf[cur, BF_MM])
+            if max_entry < new_entry:
+                new_entry = max_entry
+        if bf[cur, BF_ENTRY_SQR] != new_entry:
+            if not _is_busy(gi, cur):
+                bi[cur, BI_FLAG] |= FLAG_RECALCULATE
+                bf[cur, BF_ENTRY_SQR] = new_entry
+
+
+@njit(cache=True)
+def reverse_pass(bf, bi, gi):
+    """From the newest block back to (not including) ``block_buffer_planned``; sync blocks are skipped."""
+    head = gi[GI_HEAD]
+    planned = gi[GI_PLANNED]
+    if planned == head:
+        return
+    idx = _prev(head)
+    nxt = -1
+    while idx != planned:
+        if (bi[idx, BI_FLAG] & FLAG_SYNC_POSITION) == 0:
+            reverse_pass_kernel(bf, bi, gi, idx, nxt)
+            nxt = idx
+        idx = _prev(idx)
+
+
+@njit(cache=True)
+def forward_pass_kernel(bf, bi, gi, prv, cur, idx):
+    """Lower a block's entry speed to what the previous block can reach accelerating over its length; move
+    ``block_buffer_planned`` to blocks whose entry can no longer change."""
+    if prv < 0:
+        return
+    if (bi[prv, BI_FLAG] & FLAG_NOMINAL_LENGTH) == 0 and bf[prv, BF_ENTRY_SQR] < bf[cur, BF_ENTRY_SQR]:
+        new_entry = _max_allowable_speed_sqr(-bf[prv, BF_ACCEL], bf[prv, BF_ENTRY_SQR], bf[prv, BF_MM])
+        if new_entry < bf[cur, BF_ENTRY_SQR]:
+            if not _is_busy(gi, cur):
+                bi[cur, BI_FLAG] |= FLAG_RECALCULATE
+                bf[cur, BF_ENTRY_SQR] = new_entry
+                gi[GI_PLANNED] = idx
+    if bf[cur, BF_ENTRY_SQR] == bf[cur, BF_MAX_ENTRY_SQR]:
+        gi[GI_PLANNED] = idx
+
+
+@njit(cache=True)
+def forward_pass(bf, bi, gi):
+    """From ``block_buffer_planned`` to the newest block; a busy previous block is not looked through."""
+    idx = gi[GI_PLANNED]
+    prv = -1
+    while idx != gi[GI_HEAD]:
+        if (bi[idx, BI_FLAG] & FLAG_SYNC_POSITION) == 0:
+            if prv < 0 or not _is_busy(gi, prv):
+                forward_pass_kernel(bf, bi, gi, prv, idx, idx)
+            prv = idx
+        idx = _next(idx)
+
+
+@njit(cache=True)
+def recalculate_trapezoids(bf, bi, gi):
+    """Trapezoids of the blocks whose entry or exit speed changed; the newest one always (exit at
+    MINIMUM_PLANNER_SPEED); the busy block is left as it runs."""
+    idx = gi[GI_TAIL]
+    head_idx = gi[GI_HEAD]
+    while head_idx != idx:
+        p = _prev(head_idx)
+        if (bi[p, BI_FLAG] & FLAG_SYNC_POSITION) == 0:
+            break
+        head_idx = p
+    block = -1
+    nxt = -1
+    cur_entry = F32(0)
+    nxt_entry = F32(0)
+    while idx != head_idx:
+        nxt = idx
+        if (bi[nxt, BI_FLAG] & FLAG_SYNC_POSITION) == 0:
+            nxt_entry = F32(math.sqrt(bf[nxt, BF_ENTRY_SQR]))
+            if block >= 0:
+                if (bi[block, BI_FLAG] & FLAG_RECALCULATE) != 0 or (bi[nxt, BI_FLAG] & FLAG_RECALCULATE) != 0:
+                    if not _is_busy(gi, block):
+                        nomr = F32(F32(1) / bf[block, BF_NOMINAL_SPEED])
+                        calculate_trapezoid_for_block(bf, bi, block, F32(cur_entry * nomr), F32(nxt_entry * nomr))
+                    bi[block, BI_FLAG] &= ~FLAG_RECALCULATE
+            block = nxt
+            cur_entry = nxt_entry
+        idx = _next(idx)
+    if nxt >= 0 and (bi[nxt, BI_FLAG] & FLAG_SYNC_POSITION) == 0:
+        if block < 0 or not _is_busy(gi, block):
+            nomr = F32(F32(1) / bf[nxt, BF_NOMINAL_SPEED])
+            calculate_trapezoid_for_block(bf, bi, nxt, F32(nxt_entry * nomr), F32(F32(0.05) * nomr))
+        bi[nxt, BI_FLAG] &= ~FLAG_RECALCULATE
+    elif block >= 0:
+        # trailing sync blocks: the last move block is the newest one
+        if not _is_busy(gi, block):
+            nomr = F32(F32(1) / bf[block, BF_NOMINAL_SPEED])
+            calculate_trapezoid_for_block(bf, bi, block, F32(cur_entry * nomr), F32(F32(0.05) * nomr))
+        bi[block, BI_FLAG] &= ~FLAG_RECALCULATE
+
+
+@njit(cache=True)
+def recalculate(bf, bi, gi):
+    """Planner::recalculate(): both passes unless the newest block is the planned one, then trapezoids."""
+    if _prev(gi[GI_HEAD]) != gi[GI_PLANNED]:
+        reverse_pass(bf, bi, gi)
+        forward_pass(bf, bi, gi)
+    recalculate_trapezoids(bf, bi, gi)
+
+
+@njit(cache=True)
+def _queued(gi):
+    return (gi[GI_HEAD] - gi[GI_TAIL]) & (BLOCK_BUFFER_SIZE - 1)
+
+
+@njit(cache=True)
+def _nonbusy_queued(gi):
+    first = _next(gi[GI_TAIL]) if gi[GI_BUSY] != 0 else gi[GI_TAIL]
+    return (gi[GI_HEAD] - first) & (BLOCK_BUFFER_SIZE - 1)
+
+
+@njit(cache=True)
+def buffer_sync_block(bf, bi, gi, row):
+    """A position change queued behind the moves (G92 with blocks in the buffer): takes a slot."""
+    h = gi[GI_HEAD]
+    for k in range(N_BF):
+        bf[h, k] = F32(0)
+    for k in range(N_BI):
+        bi[h, k] = 0
+    bi[h, BI_FLAG] = FLAG_SYNC_POSITION
+    bi[h, BI_ROW] = row
+    gi[GI_HEAD] = _next(h)
+
+
+@njit(cache=True)
+def _populate_block(bf, bi, gi, gf, row, tgt, fr_mm_s, acc_p, acc_t, acc_r, vmax, amax_steps, cutoff, jerk,
+                    min_feed, min_travel, spm, mm_per_step, min_segment_time_us):
+    """Fill the head slot from a move; False (nothing queued, position kept) when under 6 steps."""
+    h = gi[GI_HEAD]
+    da = np.zeros(4, dtype=np.int64)
+    target = np.zeros(4, dtype=np.int64)
+    steps = np.zeros(4, dtype=np.int64)
+    sec = np.int64(0)
+    for a in range(4):
+        target[a] = _lroundf(F32(tgt[a] * spm[a]))
+        da[a] = target[a] - gi[GI_PX + a]
+        steps[a] = abs(da[a])
+        if steps[a] > sec:
+            sec = steps[a]
+    if sec < MIN_STEPS_PER_SEGMENT:
+        return False
+    dist = np.zeros(4, dtype=np.float32)
+    for a in range(4):
+        dist[a] = F32(F32(da[a]) * mm_per_step[a])
+    if steps[0] < MIN_STEPS_PER_SEGMENT and steps[1] < MIN_STEPS_PER_SEGMENT and steps[2] < MIN_STEPS_PER_SEGMENT:
+        millimeters = F32(abs(dist[3]))
+    else:
+        millimeters = F32(math.sqrt(F32(F32(F32(dist[0] * dist[0]) + F32(dist[1] * dist[1])) + F32(dist[2] * dist[2]))))
+    esteps = steps[3]
+    fr = fr_mm_s
+    if esteps != 0:
+        if fr < min_feed:
+            fr = min_feed
+    elif fr < min_travel:
+        fr = min_travel
+    inverse_millimeters = F32(F32(1) / millimeters)
+    inverse_secs = F32(fr * inverse_millimeters)
+    moves_queued = _nonbusy_queued(gi)
+    segment_time_us = _lroundf(F32(F32(1000000) / inverse_secs))
+    if moves_queued >= 2 and moves_queued <= BLOCK_BUFFER_SIZE // SLOWDOWN_DIVISOR - 1:
+        time_diff = min_segment_time_us - segment_time_us
+        if time_diff > 0:
+            # int32 division, as the firmware's LROUND(2 * time_diff / moves_queued)
+            nst = segment_time_us + (2 * time_diff) // moves_queued
+            inverse_secs = F32(F32(1000000) / F32(nst))
+    nominal_speed = F32(millimeters * inverse_secs)
+    nominal_rate = _ceilf(F32(F32(sec) * inverse_secs))
+    current_speed = np.zeros(4, dtype=np.float32)
+    speed_factor = F32(1)
+    for a in range(4):
+        current_speed[a] = F32(dist[a] * inverse_secs)
+        cs = F32(abs(current_speed[a]))
+        if cs > vmax[a]:
+            q = F32(vmax[a] / cs)
+            if q < speed_factor:
+                speed_factor = q
+    if speed_factor < F32(1):
+        for a in range(4):
+            current_speed[a] = F32(current_speed[a] * speed_factor)
+        nominal_rate = np.int64(F32(F32(nominal_rate) * speed_factor))
+        nominal_speed = F32(nominal_speed * speed_factor)
+    # acceleration in steps/s², limited per axis
+    steps_per_mm = F32(F32(sec) * inverse_millimeters)
+    if steps[0] == 0 and steps[1] == 0 and steps[2] == 0:
+        accel = _ceilf(F32(acc_r * steps_per_mm))
+    else:
+        accel = _ceilf(F32((acc_p if esteps != 0 else acc_t) * steps_per_mm))
+        if sec <= cutoff:
+            for a in range(4):
+                if steps[a] != 0 and amax_steps[a] < accel:
+                    max_possible = (amax_steps[a] * sec) // steps[a]
+                    if max_possible < accel:
+                        accel = max_possible
+        else:
+            for a in range(4):
+                if steps[a] != 0 and amax_steps[a] < accel:
+                    max_possible = F32(F32(F32(amax_steps[a]) * F32(sec)) / F32(steps[a]))
+                    if max_possible < F32(accel):
+                        accel = np.int64(max_possible)
+    acceleration = F32(F32(accel) / steps_per_mm)
+    # classic jerk (Průša's rule, planner.cpp): a safe speed to start from / stop at, and the junction speed
+    safe_speed = nominal_speed
+    limited = 0
+    for a in range(4):
+        j = F32(abs(current_speed[a]))
+        maxj = jerk[a]
+        if j > maxj:
+            if limited:
+                mjerk = F32(nominal_speed * maxj)
+                if F32(j * safe_speed) > mjerk:
+                    safe_speed = F32(mjerk / j)
+            else:
+                safe_speed = F32(safe_speed * F32(maxj / j))
+                limited += 1
+    prev_nominal = gf[GF_PREV_NOMINAL]
+    if moves_queued != 0 and not (prev_nominal < F32(0.000001)):
+        v_factor = F32(1)
+        limited = 0
+        vmax_junction = nominal_speed if nominal_speed < prev_nominal else prev_nominal
+        smaller_speed_factor = F32(vmax_junction / prev_nominal)
+        for a in range(4):
+            v_exit = F32(gf[GF_PREV_SPEED + a] * smaller_speed_factor)
+            v_entry = current_speed[a]
+            if limited:
+                v_exit = F32(v_exit * v_factor)
+                v_entry = F32(v_entry * v_factor)
+            if v_exit > v_entry:
+                if v_entry > 0 or v_exit < 0:
+                    j = F32(v_exit - v_entry)       # coasting
+                else:
+                    j = v_exit if v_exit > -v_entry else -v_entry   # reversal
+            else:
+                if v_entry < 0 or v_exit > 0:
+                    j = F32(v_entry - v_exit)
+                else:
+                    j = -v_exit if -v_exit > v_entry else v_entry
+            if j > jerk[a]:
+                v_factor = F32(v_factor * F32(jerk[a] / j))
+                limited += 1
+        if limited:
+            vmax_junction = F32(vmax_junction * v_factor)
+        threshold = F32(vmax_junction * F32(0.99))
+        if gf[GF_PREV_SAFE] > threshold and safe_speed > threshold:
+            vmax_junction = safe_speed
+    else:
+        vmax_junction = safe_speed
+    gf[GF_PREV_SAFE] = safe_speed
+    # the block
+    for k in range(N_BF):
+        bf[h, k] = F32(0)
+    for k in range(N_BI):
+        bi[h, k] = 0
+    bf[h, BF_MM] = millimeters
+    bf[h, BF_NOMINAL_SPEED] = nominal_speed
+    bf[h, BF_ACCEL] = acceleration
+    bf[h, BF_MAX_ENTRY_SQR] = F32(vmax_junction * vmax_junction)
+    min_sqr = F32(F32(0.05) * F32(0.05))
+    v_allowable_sqr = _max_allowable_speed_sqr(-acceleration, min_sqr, millimeters)
+    bf[h, BF_ENTRY_SQR] = min_sqr
+    flag = FLAG_RECALCULATE
+    if F32(nominal_speed * nominal_speed) <= v_allowable_sqr:
+        flag |= FLAG_NOMINAL_LENGTH
+    bi[h, BI_FLAG] = flag
+    bi[h, BI_SEC] = sec
+    bi[h, BI_NOMINAL_RATE] = nominal_rate
+    bi[h, BI_ACCEL_STEPS] = accel
+    bi[h, BI_ROW] = row
+    for a in range(4):
+        bi[h, BI_SX + a] = steps[a]
+        gf[GF_PREV_SPEED + a] = current_speed[a]
+        gi[GI_PX + a] = target[a]
+    gf[GF_PREV_NOMINAL] = nominal_speed
+    return True
+
+
+@njit(cache=True)
+def _pick_and_run(bf, bi, gi, out_i, out_f, timer_hz, acc_rate_scale, row_base):
+    """The stepper: finish the busy block, skip sync blocks, pick up the next move block and time it
+    (get_current_block + block_phase_isr). Returns False when the buffer is empty."""
+    if gi[GI_BUSY] != 0:
+        gi[GI_TAIL] = _next(gi[GI_TAIL])
+        gi[GI_BUSY] = 0
+    while _queued(gi) > 0:
+        t = gi[GI_TAIL]
+        # get_current_block(): the block becomes busy, the planned pointer is pushed past it
+        gi[GI_NONBUSY] = _next(t)
+        if gi[GI_PLANNED] == t:
+            gi[GI_PLANNED] = gi[GI_NONBUSY]
+        if (bi[t, BI_FLAG] & FLAG_SYNC_POSITION) != 0:
+            gi[GI_TAIL] = _next(t)
+            continue
+        gi[GI_BUSY] = 1
+        gi[GI_STARTED] = 1
+        r = bi[t, BI_ROW] - row_base
+        acc_steps = bi[t, BI_ACCEL_STEPS]
+        acc_rate = np.int64(F32(F32(acc_steps) * acc_rate_scale))
+        ph = np.zeros(3, dtype=np.int64)
+        ticks = block_ticks_kernel(bi[t, BI_SEC], bi[t, BI_INITIAL_RATE], bi[t, BI_NOMINAL_RATE],
+                                   bi[t, BI_FINAL_RATE], bi[t, BI_ACCEL_UNTIL], bi[t, BI_DECEL_AFTER], acc_rate,
+                                   timer_hz, ph)
+        out_i[r, OI_HAS_BLOCK] = 1
+        out_i[r, OI_T_PICK] = gi[GI_CLOCK]
+        gi[GI_CLOCK] += ticks
+        out_i[r, OI_T_END] = gi[GI_CLOCK]
+        out_i[r, OI_SEC] = bi[t, BI_SEC]
+        out_i[r, OI_NOMINAL_RATE] = bi[t, BI_NOMINAL_RATE]
+        out_i[r, OI_INITIAL_RATE] = bi[t, BI_INITIAL_RATE]
+        out_i[r, OI_FINAL_RATE] = bi[t, BI_FINAL_RATE]
+        out_i[r, OI_ACCEL_UNTIL] = bi[t, BI_ACCEL_UNTIL]
+        out_i[r, OI_DECEL_AFTER] = bi[t, BI_DECEL_AFTER]
+        out_i[r, OI_ACCEL_STEPS] = acc_steps
+        out_i[r, OI_ACC_T] = ph[0]
+        out_i[r, OI_CRUISE_T] = ph[1]
+        out_i[r, OI_DEC_T] = ph[2]
+        out_i[r, OI_FLAG] = bi[t, BI_FLAG]
+        for a in range(4):
+            out_i[r, OI_SX + a] = bi[t, BI_SX + a]
+        out_f[r, OF_ENTRY_SQR] = bf[t, BF_ENTRY_SQR]
+        out_f[r, OF_NOMINAL_SPEED] = bf[t, BF_NOMINAL_SPEED]
+        out_f[r, OF_MM] = bf[t, BF_MM]
+        out_f[r, OF_ACCEL] = bf[t, BF_ACCEL]
+        # exit speed as executed: final_rate / nominal_rate of nominal speed
+        fr = F32(F32(bi[t, BI_FINAL_RATE]) / F32(bi[t, BI_NOMINAL_RATE]) * bf[t, BF_NOMINAL_SPEED])
+        out_f[r, OF_EXIT_SQR] = F32(fr * fr)
+        return True
+    return False
+
+
+@njit(cache=True)
+def marlin_run_kernel(kind, tgt, reset_bits, reset_pos, fr, acc_p, acc_t, acc_r, vmax, amax_steps, cutoff, jerk,
+                      min_feed, min_travel, wait_ticks, spm, mm_per_step, min_segment_time_us, timer_hz,
+                      acc_rate_scale, final, row_base, bf, bi, gi, gf, out_i, out_f):
+    """Run rows ``gi[GI_NEXT_ROW] - row_base ..`` of this window through Marlin's host loop, planner and
+    stepper until the input runs out (``final``: then until the buffer is empty).
+
+    Row arrays are indexed from ``row_base`` (``bi[., BI_ROW]`` and ``gi[GI_NEXT_ROW]`` are absolute row
+    numbers); times are ticks of ``timer_hz`` from the first pick-up. Returns the absolute number of the
+    first row whose block has not run yet (rows before it are final)."""
+    n = len(kind)
+    end_row = row_base + n
+    while True:
+        # the host: Marlin's main loop fills the buffer (15 usable slots) in no time
+        while gi[GI_NEXT_ROW] < end_row and _queued(gi) < BLOCK_BUFFER_SIZE - 1:
+            r = gi[GI_NEXT_ROW] - row_base
+            k = kind[r]
+            if k == ROW_WAIT:
+                if _queued(gi) > 0 or gi[GI_BUSY] != 0:
+                    break                      # M400 / G4 / G28: wait for the buffer to drain
+                out_i[r, OI_HAS_BLOCK] = 2
+                out_i[r, OI_T_PICK] = gi[GI_CLOCK]
+                if gi[GI_STARTED] != 0:
+                    # idle: the ISR polls every ms; the next block is picked up at the first poll after
+                    per_ms = timer_hz // 1000
+                    nms = (wait_ticks[r] + per_ms - 1) // per_ms
+                    if nms < 1:
+                        nms = 1
+                    gi[GI_CLOCK] += nms * per_ms
+                out_i[r, OI_T_END] = gi[GI_CLOCK]
+                gi[GI_NEXT_ROW] += 1
+                continue
+            if k == ROW_SKIP:
+                gi[GI_NEXT_ROW] += 1
+                continue
+            if reset_bits[r] != 0 and gi[GI_RESET_DONE] == 0:
+                # G92: a new position in steps; with blocks queued it travels as a sync block
+                for a in range(4):
+                    if (reset_bits[r] >> a) & 1:
+                        gi[GI_PX + a] = _lroundf(F32(reset_pos[r, a] * spm[a]))
+                gi[GI_RESET_DONE] = 1
+                if _queued(gi) > 0 or gi[GI_BUSY] != 0:
+                    buffer_sync_block(bf, bi, gi, gi[GI_NEXT_ROW])
+                    continue                   # the move needs a slot of its own
+            gi[GI_RESET_DONE] = 0
+            if _populate_block(bf, bi, gi, gf, gi[GI_NEXT_ROW], tgt[r], fr[r], acc_p[r], acc_t[r], acc_r[r], vmax[r],
+                               amax_steps[r], cutoff[r], jerk[r], min_feed[r], min_travel[r], spm, mm_per_step,
+                               min_segment_time_us):
+                gi[GI_HEAD] = _next(gi[GI_HEAD])
+                recalculate(bf, bi, gi)
+            gi[GI_NEXT_ROW] += 1
+        if not final and gi[GI_NEXT_ROW] >= end_row and _queued(gi) < BLOCK_BUFFER_SIZE - 1:
+            break                              # the host would queue more: wait for the next rows
+        if not _pick_and_run(bf, bi, gi, out_i, out_f, timer_hz, acc_rate_scale, row_base):
+            if gi[GI_NEXT_ROW] >= end_row:
+                break
+    # rows before the oldest block not yet run (or the next row to read) are final
+    first = gi[GI_NEXT_ROW]
+    t = gi[GI_TAIL]
+    if gi[GI_BUSY] != 0:
+        t = _next(t)
+    while t != gi[GI_HEAD]:
+        if bi[t, BI_ROW] < first:
+            first = bi[t, BI_ROW]
+        t = _next(t)
+    return first
