@@ -286,6 +286,9 @@ class Run:
         if exclude_objects:   # objects cancelled as Klipper's exclude_object runs them (gcode/objects.py)
             self.reader.interp.exclude_objects(exclude_objects)
         self.planner = StreamPlanner(machine, policy=self.policy, jerk=jerk)
+        self.planner.e_position_sets = self.reader.interp.e_position_sets   # G92 E, for firmware models
+        if self.planner.firmware != "generic":
+            self.policy = self.planner.firmware       # the summary names the firmware model that planned
         self.progress = progress
         self.rows = 0
         self.finished = False

@@ -23,6 +23,9 @@ def add_machine_arguments(p: argparse.ArgumentParser) -> None:
                           "plans with the linuxcnc policy")
     g.add_argument("--flavor", choices=("marlin", "klipper", "reprap", "grbl", "linuxcnc"),
                    help="G-code dialect, overriding the machine's (G4 P units, M204 meaning, G0 rate)")
+    g.add_argument("--firmware", choices=("generic", "marlin-2.1.2"),
+                   help="firmware model, overriding the machine's: marlin-2.1.2 runs Marlin 2.1.2.4's planner "
+                        "buffer and stepper timing; generic plans with the junction policy")
     g.add_argument("--strict", action="store_true",
                    help="unknown commands are an error instead of being counted")
     g.add_argument("--no-bounds", action="store_true",

@@ -253,3 +253,41 @@ def run_marlin(moves: np.ndarray, limits: np.ndarray, machine, keep_blocks: bool
     outs = m.feed(moves, limits) + m.finish()
     plan = np.concatenate([p for _, p in outs]) if outs else np.zeros(0, dtype=PLAN_DTYPE)
     return plan, m
+
+
+def make_stream_mode(base_cls):
+    """The StreamPlanner mode of a Marlin firmware machine (``base_cls``: planner.stream._Mode): the model
+    settles rows as the firmware's buffer lets them go; their PLAN rows carry the firmware's times."""
+
+    class MarlinMode(base_cls):
+        name = FIRMWARES[0]
+        own_segments = False          # PLAN rows are trapezoids: planner.segments rebuilds the pieces
+        own_prepare = True
+
+        def __init__(self, sp):
+            super().__init__(sp)
+            self.model = MarlinModel(sp.machine, e_position_sets=getattr(sp, "e_position_sets", None))
+            self._ready: list[np.ndarray] = []
+
+        def prepare(self, moves_chunk, limits):
+            from .prepare import PREP_DTYPE
+
+            self._ready.extend(p for _, p in self.model.feed(np.asarray(moves_chunk), np.asarray(limits)))
+            return np.zeros(len(moves_chunk), dtype=PREP_DTYPE)
+
+        def plan(self, final: bool):
+            sp = self.sp
+            if final:
+                self._ready.extend(p for _, p in self.model.finish())
+            if not self._ready:
+                return 0, None, sp._clock, None
+            plan = np.concatenate(self._ready) if len(self._ready) > 1 else self._ready[0]
+            self._ready = []
+            t_end = float(plan["t_start"][-1] + plan["duration"][-1])
+            return len(plan), plan, t_end, None
+
+        def reset(self) -> None:
+            # finish(): the buffer ran empty; a later feed() starts a new program on the same model
+            self.model = MarlinModel(self.sp.machine, e_position_sets=getattr(self.sp, "e_position_sets", None))
+
+    return MarlinMode

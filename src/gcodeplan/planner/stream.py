@@ -217,6 +217,10 @@ class StreamPlanner:
         self._stop_pending = True                         # a full stop precedes the next move
         self._clock = 0.0
         self._emitted: list[tuple[np.ndarray, np.ndarray, np.ndarray, object]] = []  # last call's pieces
+        # a firmware model (machine.firmware) plans unless another policy than the machine's was asked for
+        firmware = getattr(machine, "firmware", "generic")
+        self.firmware = firmware if policy is None or policy == machine.junction_policy else "generic"
+        self.e_position_sets = None                       # G92 E positions for a firmware model (pipeline sets)
 
     # ------------------------------------------------------------------ public
     @property
@@ -275,6 +279,13 @@ class StreamPlanner:
         """plan_moves' dispatch: a jerk (argument, else the limits in force) selects S-curves, then 'blend'."""
         from . import scurve_jerk
 
+        if self.firmware != "generic":
+            if self._jerk is not None:
+                raise ConfigError(f"firmware {self.firmware}: --jerk / max_jerk do not apply (the firmware's own "
+                                  "acceleration profile is modelled)")
+            from .marlin import make_stream_mode as marlin_mode
+
+            return marlin_mode(_Mode)(self)
         if self._jerk is None:
             self._jerk = scurve_jerk(moves, limits, None)
             self._jerk_from_limits = self._jerk is not None
