@@ -111,15 +111,15 @@ class MarlinModel:
             lines = moves["line"]
             while sets and sets[0][0] < lines[-1]:
                 line, v = sets.popleft()
-                k = int(np.searchsorted(lines, line, side="right"))   # the first row after the G92
-                cur = np.float32(moves["e0"][k] - e_off[k])           # Marlin's current E (float)
-                new_off = float(moves["e0"][k]) - v
-                e_off[k:] = new_off
+                j = int(np.searchsorted(lines, line, side="right"))   # the first row after the G92
+                cur = np.float32(moves["e0"][j] - e_off[j])           # Marlin's current E (float)
+                new_off = float(moves["e0"][j]) - v
+                e_off[j:] = new_off
                 self._e_off = new_off
                 # G92 E changes nothing unless the value differs (gcode/feature/G92: NEAR_ZERO)
                 if abs(np.float32(np.float32(v) - cur)) >= np.float32(0.000001):
-                    reset_bits[k] |= 8
-                    e_reset[k] = v
+                    reset_bits[j] |= 8
+                    e_reset[j] = v
         tgt = end.astype(np.float32)
         tgt[:, 3] = (end[:, 3] - e_off).astype(np.float32)
         reset_pos = start.astype(np.float32)
