@@ -44,10 +44,10 @@ def read_csv_gz(path: str) -> dict[str, np.ndarray]:
     return {name: np.array([float(r[i]) for r in body]) for i, name in enumerate(head)}
 
 
-def per_line_check(name: str, machine_spec: str, ref_dir: str):
+def per_line_check(name: str, machine_spec: str, ref_dir: str, policy: str | None):
     import gcodeplan as gp
 
-    est = gp.estimate(os.path.join(GCODE, name + ".gcode"), gp.load_machine(machine_spec))
+    est = gp.estimate(os.path.join(GCODE, name + ".gcode"), gp.load_machine(machine_spec), policy)
     lines, ends = est.line_times()
     ref = read_csv_gz(os.path.join(ref_dir, "per_line", name + ".per_line_end_time.csv.gz"))
     ref_line, ref_end = ref["source_line"].astype(np.int64), ref["end_time_s"]
@@ -58,7 +58,7 @@ def per_line_check(name: str, machine_spec: str, ref_dir: str):
     return est.total_time_s, err, int((~found).sum()), ref_line
 
 
-def block_check(name: str, machine_spec: str, ref_dir: str) -> str:
+def block_check(name: str, machine_spec: str, ref_dir: str, policy: str | None) -> str:
     from gcodeplan.config import load_machine
     from gcodeplan.gcode.reader import read_moves
     from gcodeplan.planner import marlin_kernels as mk
@@ -69,12 +69,15 @@ def block_check(name: str, machine_spec: str, ref_dir: str) -> str:
         return "(no firmware model: no blocks)"
     moves, reader = read_moves(os.path.join(GCODE, name + ".gcode"), machine)
     _, model = run_marlin(moves, reader.limits, machine, keep_blocks=True,
-                          e_position_sets=reader.interp.e_position_sets)
+                          e_position_sets=reader.interp.e_position_sets, junction=policy)
     oi = np.concatenate([b[0] for b in model.blocks])
     lines = np.concatenate([b[2] for b in model.blocks])
     has = oi[:, mk.OI_HAS_BLOCK] == 1
     oi, lines = oi[has], lines[has]
-    ref = read_csv_gz(os.path.join(ref_dir, "blocks", name + ".blocks.csv.gz"))
+    path = os.path.join(ref_dir, "blocks", name + ".blocks.csv.gz")
+    if not os.path.exists(path):
+        return "(the reference has no blocks)"
+    ref = read_csv_gz(path)
     moving = ref["sync"] == 0
     ref = {k: v[moving] for k, v in ref.items()}
     n = min(len(oi), len(ref["seq"]))
@@ -101,28 +104,34 @@ def block_check(name: str, machine_spec: str, ref_dir: str) -> str:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--machine", default="marlin-2.1.2", help="preset or machine TOML (default marlin-2.1.2)")
-    ap.add_argument("--reference", default="", help="reference sub-folder (e.g. bugfix-2.1.x); default 2.1.2.4")
+    ap.add_argument("--reference", default="",
+                    help="reference sub-folder (bugfix-2.1.x, variants/jd, variants/la, ...); default 2.1.2.4")
+    ap.add_argument("--policy", default=None, help="junction policy (junction-deviation for variants/jd)")
     ap.add_argument("--files", nargs="*", default=list(FILES))
     ap.add_argument("--no-blocks", action="store_true", help="skip the per-block check")
     args = ap.parse_args(argv)
     ref_dir = os.path.join(REF, args.reference) if args.reference else REF
     with open(os.path.join(REF, "times.json")) as fh:
         times = json.load(fh)
+    if os.path.exists(os.path.join(ref_dir, "times.json")) and ref_dir != REF:
+        with open(os.path.join(ref_dir, "times.json")) as fh:
+            times = json.load(fh)
     key = "bugfix-2.1.x" if "bugfix" in args.reference else "marlin-2.1.2.4"
-    print(f"machine {args.machine}, reference {key}")
+    print(f"machine {args.machine}, policy {args.policy or 'default'}, reference {args.reference or key}")
     print(f"{'file':34s} {'gcodeplan s':>13s} {'reference s':>13s} {'total err':>10s} {'max line err':>13s}"
           f" {'% of total':>10s}  time")
     for name in args.files:
         t0 = time.perf_counter()
-        total, err, missing, _ = per_line_check(name, args.machine, ref_dir)
+        total, err, missing, _ = per_line_check(name, args.machine, ref_dir, args.policy)
         dt = time.perf_counter() - t0
-        ref_total = times[name + ".gcode"][key]["total_time_s"]
+        entry = times[name + ".gcode"]
+        ref_total = entry[key]["total_time_s"] if key in entry else entry["total_time_s"]
         worst = float(np.nanmax(np.abs(err))) if np.any(np.isfinite(err)) else float("nan")
         print(f"{name:34s} {total:13.6f} {ref_total:13.6f} {100 * (total - ref_total) / ref_total:+9.5f}% "
               f"{worst:12.6f}s {100 * worst / ref_total:9.5f}%  {dt:.1f}s"
               + (f"  ({missing} reference lines without a time)" if missing else ""))
         if not args.no_blocks:
-            print("    blocks:", block_check(name, args.machine, ref_dir))
+            print("    blocks:", block_check(name, args.machine, ref_dir, args.policy))
     return 0
 
 

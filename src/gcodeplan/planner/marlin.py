@@ -31,6 +31,8 @@ FIRMWARES = ("marlin-2.1.2",)
 #: µs, Marlin's DEFAULT_MINSEGMENTTIME (SLOWDOWN)
 MIN_SEGMENT_TIME_US = 20000
 _AXES = ("x", "y", "z", "e")
+#: junction policies a Marlin build has: CLASSIC_JERK on, or off (junction deviation)
+JUNCTIONS = ("classic-jerk", "junction-deviation")
 _UINT32_MAX = 4294967295
 
 
@@ -61,8 +63,15 @@ class MarlinModel:
     ``feed(moves, limits)`` then ``finish()`` return PLAN rows for the rows they settle, in order:
     ``(n_rows, plan)`` pieces whose concatenation is one PLAN row per MOVE row."""
 
-    def __init__(self, machine, timer_hz: int = MARLIN_TIMER_HZ, e_position_sets=None):
+    def __init__(self, machine, timer_hz: int = MARLIN_TIMER_HZ, e_position_sets=None,
+                 junction: str | None = None):
         self.machine = machine
+        # the build's junction rule: CLASSIC_JERK (the reference) or junction deviation (CLASSIC_JERK off)
+        junction = junction or machine.junction_policy
+        if junction not in JUNCTIONS:
+            raise ConfigError(f"firmware {FIRMWARES[0]}: junction policy {junction!r} is not one of Marlin's "
+                              f"({', '.join(JUNCTIONS)})")
+        self.junction_mode = mk.JUNCTION_DEVIATION if junction == "junction-deviation" else mk.JUNCTION_CLASSIC_JERK
         # (line, logical E) of each G92 E, in file order (GcodeReader.interp.e_position_sets): Marlin's E is
         # logical (G92 E0 resets it, and its step position is re-rounded there); None = E never reset
         self.e_position_sets = e_position_sets
@@ -83,6 +92,7 @@ class MarlinModel:
         self._acc = [machine.accel_print or machine.max_accel, machine.accel_travel or machine.max_accel,
                      machine.accel_retract or machine.max_accel]
         self._clock_done = 0                     # tick the last settled block ended
+        self._last_v = 0.0                       # mm/s, the exit speed of the last settled block
         self.blocks = []                          # (out_i, out_f) of settled rows, when keep_blocks
         self.keep_blocks = False
 
@@ -144,6 +154,10 @@ class MarlinModel:
         vmax = np.stack([lim["axis_v_" + a] for a in _AXES], axis=1)
         vmax = np.where(np.isfinite(vmax), vmax, 1e30).astype(np.float32)
         jerk = np.stack([lim["jerk_" + a] for a in _AXES], axis=1).astype(np.float32)
+        amax_mm = np.stack([lim["axis_a_" + a] for a in _AXES], axis=1)
+        # M201 values are whole mm/s² in Marlin (uint32)
+        amax_mm = np.where(np.isfinite(amax_mm), np.floor(np.minimum(amax_mm, 4e9)), 3e38).astype(np.float32)
+        jdev = lim["junction_dev"].astype(np.float32)
         amax_tab = _axis_accel_steps(limits, self.spm)
         amax = amax_tab[li]
         cutoff_tab = _UINT32_MAX // np.maximum(amax_tab.max(axis=1), 1)
@@ -154,7 +168,7 @@ class MarlinModel:
                     acc_r=np.ascontiguousarray(acc[:, 2]), vmax=np.ascontiguousarray(vmax),
                     amax=np.ascontiguousarray(amax), cutoff=cutoff, jerk=np.ascontiguousarray(jerk),
                     min_feed=lim["min_feed_v"].astype(np.float32), min_travel=lim["min_travel_v"].astype(np.float32),
-                    wait_ticks=wait_ticks)
+                    wait_ticks=wait_ticks, amax_mm=np.ascontiguousarray(amax_mm), jdev=jdev)
 
     # ------------------------------------------------------------------ running
     def feed(self, moves: np.ndarray, limits: np.ndarray):
@@ -184,7 +198,8 @@ class MarlinModel:
                                      a["acc_t"], a["acc_r"], a["vmax"], a["amax"], a["cutoff"], a["jerk"],
                                      a["min_feed"], a["min_travel"], a["wait_ticks"], self.spm, self.mm_per_step,
                                      MIN_SEGMENT_TIME_US, self.timer_hz, self.acc_rate_scale, final,
-                                     self.row_base, bf, bi, gi, gf, self._out_i, self._out_f)
+                                     self.row_base, bf, bi, gi, gf, self._out_i, self._out_f, self.junction_mode,
+                                     a["amax_mm"], a["jdev"])
         n_done = int(first) - self.row_base
         if final:
             n_done = len(self._moves)
@@ -235,20 +250,32 @@ class MarlinModel:
             vc = np.where(has, np.maximum(vc, 0.0), 0.0)
             plan["accel"] = np.where(ta > 0, (vc - v0) / ta, 0.0)
             plan["decel"] = np.where(td > 0, (vc - v1) / td, 0.0)
-        plan["start_v"] = np.where(has, v0, 0.0)
-        plan["cruise_v"] = vc
-        plan["end_v"] = np.where(has, v1, 0.0)
+        # a row without a block passes in no time at the speed the block before it ended with
+        carry = np.zeros(n)
+        last_v = self._last_v
+        wait = (moves["kind"] == KIND_WAIT) | (moves["kind"] == KIND_DWELL)
+        for i in range(n):
+            if has[i]:
+                last_v = float(v1[i])
+            elif wait[i]:
+                last_v = 0.0                     # the buffer ran empty: at rest
+            else:
+                carry[i] = last_v
+        self._last_v = last_v
+        plan["start_v"] = np.where(has, v0, carry)
+        plan["cruise_v"] = np.where(has, vc, carry)
+        plan["end_v"] = np.where(has, v1, carry)
         plan["accel_t"] = np.where(has, ta, 0.0)
         plan["cruise_t"] = np.where(has, tc, 0.0)
         plan["decel_t"] = np.where(has, td, 0.0)
-        wait = (moves["kind"] == KIND_WAIT) | (moves["kind"] == KIND_DWELL)
         plan["limit"] = np.where(wait, LIMIT_NONE, np.where(oi[:, mk.OI_ACCEL_UNTIL] > 0, LIMIT_ACCEL, LIMIT_FEED))
         return plan
 
 
-def run_marlin(moves: np.ndarray, limits: np.ndarray, machine, keep_blocks: bool = False, e_position_sets=None):
+def run_marlin(moves: np.ndarray, limits: np.ndarray, machine, keep_blocks: bool = False, e_position_sets=None,
+               junction: str | None = None):
     """Whole-program convenience: PLAN rows for ``moves`` (and the model, for its ``blocks``)."""
-    m = MarlinModel(machine, e_position_sets=e_position_sets)
+    m = MarlinModel(machine, e_position_sets=e_position_sets, junction=junction)
     m.keep_blocks = keep_blocks
     outs = m.feed(moves, limits) + m.finish()
     plan = np.concatenate([p for _, p in outs]) if outs else np.zeros(0, dtype=PLAN_DTYPE)
@@ -266,8 +293,12 @@ def make_stream_mode(base_cls):
 
         def __init__(self, sp):
             super().__init__(sp)
-            self.model = MarlinModel(sp.machine, e_position_sets=getattr(sp, "e_position_sets", None))
+            self.model = self._new_model()
             self._ready: list[np.ndarray] = []
+
+        def _new_model(self):
+            sp = self.sp
+            return MarlinModel(sp.machine, e_position_sets=getattr(sp, "e_position_sets", None), junction=sp.policy)
 
         def prepare(self, moves_chunk, limits):
             from .prepare import PREP_DTYPE
@@ -288,6 +319,6 @@ def make_stream_mode(base_cls):
 
         def reset(self) -> None:
             # finish(): the buffer ran empty; a later feed() starts a new program on the same model
-            self.model = MarlinModel(self.sp.machine, e_position_sets=getattr(self.sp, "e_position_sets", None))
+            self.model = self._new_model()
 
     return MarlinMode

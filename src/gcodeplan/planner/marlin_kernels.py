@@ -56,8 +56,10 @@ N_BI = 13
  GI_STARTED, GI_RESET_DONE, GI_SETTINGS_ROW) = range(14)
 N_GI = 14
 # float32 global state (gf[...])
-GF_PREV_SPEED, GF_PREV_NOMINAL, GF_PREV_SAFE = 0, 4, 5
-N_GF = 6
+GF_PREV_SPEED, GF_PREV_NOMINAL, GF_PREV_SAFE, GF_PREV_UNIT = 0, 4, 5, 6
+N_GF = 10
+# junction rule of the build
+JUNCTION_CLASSIC_JERK, JUNCTION_DEVIATION = 0, 1
 # per-row outputs
 (OI_HAS_BLOCK, OI_T_PICK, OI_T_END, OI_SEC, OI_NOMINAL_RATE, OI_INITIAL_RATE, OI_FINAL_RATE, OI_ACCEL_UNTIL,
  OI_DECEL_AFTER, OI_ACCEL_STEPS, OI_ACC_T, OI_CRUISE_T, OI_DEC_T, OI_FLAG, OI_SX, OI_SY, OI_SZ, OI_SE) = range(18)
@@ -286,8 +288,91 @@ def buffer_sync_block(bf, bi, gi, row):
 
 
 @njit(cache=True)
+def _normalize_junction_vector(v):
+    """v / |v| over its non-zero components (planner.h normalize_junction_vector)."""
+    magnitude_sq = F32(0)
+    for a in range(4):
+        if v[a] != 0:
+            magnitude_sq = F32(magnitude_sq + F32(v[a] * v[a]))
+    if magnitude_sq == 0:
+        return          # a straight continuation: the firmware's NaNs leave the acceleration unlimited
+    inv = F32(F32(1) / F32(math.sqrt(magnitude_sq)))
+    for a in range(4):
+        v[a] = F32(v[a] * inv)
+
+
+@njit(cache=True)
+def _limit_value_by_axis_maximum(max_value, unit_vec, amax_mm):
+    """The largest value ≤ max_value whose projection on each axis of unit_vec is within its M201 limit."""
+    limit_value = max_value
+    for a in range(4):
+        if unit_vec[a] != 0:
+            if F32(limit_value * F32(abs(unit_vec[a]))) > amax_mm[a]:
+                limit_value = F32(abs(F32(amax_mm[a] / unit_vec[a])))
+    return limit_value
+
+
+@njit(cache=True)
+def _junction_deviation_sqr(gf, dist, inverse_millimeters, esteps, millimeters, acceleration, nominal_speed,
+                            moves_queued, amax_mm, junction_deviation_mm):
+    """max_entry_speed² by junction deviation (HAS_JUNCTION_DEVIATION, JD_HANDLE_SMALL_SEGMENTS on): the
+    centripetal speed on a circle deviating junction_deviation_mm from the corner, with the acceleration the
+    axes allow along the junction; short moves at sharp corners are held to an approximate arc."""
+    unit_vec = np.zeros(4, dtype=np.float32)
+    for a in range(4):
+        unit_vec[a] = dist[a]
+    if esteps > 0:
+        _normalize_junction_vector(unit_vec)      # with E: normalise the XYZE vector
+    else:
+        for a in range(4):
+            unit_vec[a] = F32(unit_vec[a] * inverse_millimeters)
+    prev_nominal = gf[GF_PREV_NOMINAL]
+    if moves_queued != 0 and not (prev_nominal < F32(0.000001)):
+        # cosine of the angle between the previous and this move (E term first, as LOGICAL_AXIS_GANG)
+        c = F32(-gf[GF_PREV_UNIT + 3] * unit_vec[3])
+        for a in range(3):
+            c = F32(c + F32(-gf[GF_PREV_UNIT + a] * unit_vec[a]))
+        if c > F32(0.999999):
+            vmax_junction_sqr = F32(F32(0.05) * F32(0.05))     # a reversal: MINIMUM_PLANNER_SPEED
+        else:
+            if c < F32(-0.999999):
+                c = F32(-0.999999)
+            junction_unit_vec = np.zeros(4, dtype=np.float32)
+            for a in range(4):
+                junction_unit_vec[a] = F32(unit_vec[a] - gf[GF_PREV_UNIT + a])
+            _normalize_junction_vector(junction_unit_vec)
+            junction_acceleration = _limit_value_by_axis_maximum(acceleration, junction_unit_vec, amax_mm)
+            sin_theta_d2 = F32(math.sqrt(F32(F32(0.5) * F32(F32(1) - c))))
+            vmax_junction_sqr = F32(F32(F32(junction_acceleration * junction_deviation_mm) * sin_theta_d2)
+                                    / F32(F32(1) - sin_theta_d2))
+            if millimeters < F32(1) and c < F32(-0.7071067812):
+                # fast acos(-t) (a MinMax polynomial, max. error 0.033 rad), as planner.cpp
+                neg = F32(-1) if c < 0 else F32(1)
+                t = F32(neg * c)
+                asinx = F32(84.31466202)
+                for coef in (-242.7199627, 262.8130562, -131.1123477, 29.66153956, -1.451838349):
+                    asinx = F32(F32(coef) + F32(t * asinx))
+                asinx = F32(F32(0.032843707) + F32(t * asinx))
+                junction_theta = F32(F32(F32(F32(90) * F32(math.pi)) / F32(180)) + F32(neg * asinx))   # RADIANS(90)
+                limit_sqr = F32(F32(millimeters * junction_acceleration) / junction_theta)
+                if limit_sqr < vmax_junction_sqr:
+                    vmax_junction_sqr = limit_sqr
+        nsq = F32(nominal_speed * nominal_speed)
+        psq = F32(prev_nominal * prev_nominal)
+        if nsq < vmax_junction_sqr:
+            vmax_junction_sqr = nsq
+        if psq < vmax_junction_sqr:
+            vmax_junction_sqr = psq
+    else:
+        vmax_junction_sqr = F32(0)
+    for a in range(4):
+        gf[GF_PREV_UNIT + a] = unit_vec[a]
+    return vmax_junction_sqr
+
+
+@njit(cache=True)
 def _populate_block(bf, bi, gi, gf, row, tgt, fr_mm_s, acc_p, acc_t, acc_r, vmax, amax_steps, cutoff, jerk,
-                    min_feed, min_travel, spm, mm_per_step, min_segment_time_us):
+                    min_feed, min_travel, spm, mm_per_step, min_segment_time_us, junction_mode, amax_mm, jdev):
     """Fill the head slot from a move; False (nothing queued, position kept) when under 6 steps."""
     h = gi[GI_HEAD]
     da = np.zeros(4, dtype=np.int64)
@@ -361,7 +446,43 @@ def _populate_block(bf, bi, gi, gf, row, tgt, fr_mm_s, acc_p, acc_t, acc_r, vmax
                     if max_possible < F32(accel):
                         accel = np.int64(max_possible)
     acceleration = F32(F32(accel) / steps_per_mm)
-    # classic jerk (Průša's rule, planner.cpp): a safe speed to start from / stop at, and the junction speed
+    if junction_mode == JUNCTION_DEVIATION:
+        max_entry_sqr = _junction_deviation_sqr(gf, dist, inverse_millimeters, esteps, millimeters, acceleration,
+                                                nominal_speed, moves_queued, amax_mm, jdev)
+    else:
+        max_entry_sqr = _classic_jerk_sqr(gf, current_speed, nominal_speed, moves_queued, jerk)
+    # the block
+    for k in range(N_BF):
+        bf[h, k] = F32(0)
+    for k in range(N_BI):
+        bi[h, k] = 0
+    bf[h, BF_MM] = millimeters
+    bf[h, BF_NOMINAL_SPEED] = nominal_speed
+    bf[h, BF_ACCEL] = acceleration
+    bf[h, BF_MAX_ENTRY_SQR] = max_entry_sqr
+    min_sqr = F32(F32(0.05) * F32(0.05))
+    v_allowable_sqr = _max_allowable_speed_sqr(-acceleration, min_sqr, millimeters)
+    bf[h, BF_ENTRY_SQR] = min_sqr
+    flag = FLAG_RECALCULATE
+    if F32(nominal_speed * nominal_speed) <= v_allowable_sqr:
+        flag |= FLAG_NOMINAL_LENGTH
+    bi[h, BI_FLAG] = flag
+    bi[h, BI_SEC] = sec
+    bi[h, BI_NOMINAL_RATE] = nominal_rate
+    bi[h, BI_ACCEL_STEPS] = accel
+    bi[h, BI_ROW] = row
+    for a in range(4):
+        bi[h, BI_SX + a] = steps[a]
+        gf[GF_PREV_SPEED + a] = current_speed[a]
+        gi[GI_PX + a] = target[a]
+    gf[GF_PREV_NOMINAL] = nominal_speed
+    return True
+
+
+@njit(cache=True)
+def _classic_jerk_sqr(gf, current_speed, nominal_speed, moves_queued, jerk):
+    """max_entry_speed² by classic jerk (Průša's rule, planner.cpp): a safe speed to start from / stop at,
+    and the junction speed at which no axis changes speed by more than its jerk (coasting or reversing)."""
     safe_speed = nominal_speed
     limited = 0
     for a in range(4):
@@ -408,32 +529,7 @@ def _populate_block(bf, bi, gi, gf, row, tgt, fr_mm_s, acc_p, acc_t, acc_r, vmax
     else:
         vmax_junction = safe_speed
     gf[GF_PREV_SAFE] = safe_speed
-    # the block
-    for k in range(N_BF):
-        bf[h, k] = F32(0)
-    for k in range(N_BI):
-        bi[h, k] = 0
-    bf[h, BF_MM] = millimeters
-    bf[h, BF_NOMINAL_SPEED] = nominal_speed
-    bf[h, BF_ACCEL] = acceleration
-    bf[h, BF_MAX_ENTRY_SQR] = F32(vmax_junction * vmax_junction)
-    min_sqr = F32(F32(0.05) * F32(0.05))
-    v_allowable_sqr = _max_allowable_speed_sqr(-acceleration, min_sqr, millimeters)
-    bf[h, BF_ENTRY_SQR] = min_sqr
-    flag = FLAG_RECALCULATE
-    if F32(nominal_speed * nominal_speed) <= v_allowable_sqr:
-        flag |= FLAG_NOMINAL_LENGTH
-    bi[h, BI_FLAG] = flag
-    bi[h, BI_SEC] = sec
-    bi[h, BI_NOMINAL_RATE] = nominal_rate
-    bi[h, BI_ACCEL_STEPS] = accel
-    bi[h, BI_ROW] = row
-    for a in range(4):
-        bi[h, BI_SX + a] = steps[a]
-        gf[GF_PREV_SPEED + a] = current_speed[a]
-        gi[GI_PX + a] = target[a]
-    gf[GF_PREV_NOMINAL] = nominal_speed
-    return True
+    return F32(vmax_junction * vmax_junction)
 
 
 @njit(cache=True)
@@ -492,7 +588,7 @@ def _pick_and_run(bf, bi, gi, out_i, out_f, timer_hz, acc_rate_scale, row_base):
 @njit(cache=True)
 def marlin_run_kernel(kind, tgt, reset_bits, reset_pos, fr, acc_p, acc_t, acc_r, vmax, amax_steps, cutoff, jerk,
                       min_feed, min_travel, wait_ticks, spm, mm_per_step, min_segment_time_us, timer_hz,
-                      acc_rate_scale, final, row_base, bf, bi, gi, gf, out_i, out_f):
+                      acc_rate_scale, final, row_base, bf, bi, gi, gf, out_i, out_f, junction_mode, amax_mm, jdev):
     """Run rows ``gi[GI_NEXT_ROW] - row_base ..`` of this window through Marlin's host loop, planner and
     stepper until the input runs out (``final``: then until the buffer is empty).
 
@@ -536,7 +632,7 @@ def marlin_run_kernel(kind, tgt, reset_bits, reset_pos, fr, acc_p, acc_t, acc_r,
             gi[GI_RESET_DONE] = 0
             if _populate_block(bf, bi, gi, gf, gi[GI_NEXT_ROW], tgt[r], fr[r], acc_p[r], acc_t[r], acc_r[r], vmax[r],
                                amax_steps[r], cutoff[r], jerk[r], min_feed[r], min_travel[r], spm, mm_per_step,
-                               min_segment_time_us):
+                               min_segment_time_us, junction_mode, amax_mm[r], jdev[r]):
                 gi[GI_HEAD] = _next(gi[GI_HEAD])
                 recalculate(bf, bi, gi)
             gi[GI_NEXT_ROW] += 1

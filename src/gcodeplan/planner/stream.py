@@ -217,9 +217,10 @@ class StreamPlanner:
         self._stop_pending = True                         # a full stop precedes the next move
         self._clock = 0.0
         self._emitted: list[tuple[np.ndarray, np.ndarray, np.ndarray, object]] = []  # last call's pieces
-        # a firmware model (machine.firmware) plans unless another policy than the machine's was asked for
+        # a firmware model (machine.firmware) plans with the junction rules the firmware has (Marlin: classic
+        # jerk or junction deviation); another policy asked for plans without the model
         firmware = getattr(machine, "firmware", "generic")
-        self.firmware = firmware if policy is None or policy == machine.junction_policy else "generic"
+        self.firmware = firmware if self.policy in ("classic-jerk", "junction-deviation") else "generic"
         self.e_position_sets = None                       # G92 E positions for a firmware model (pipeline sets)
 
     # ------------------------------------------------------------------ public
