@@ -60,6 +60,14 @@ GF_PREV_SPEED, GF_PREV_NOMINAL, GF_PREV_SAFE, GF_PREV_UNIT = 0, 4, 5, 6
 N_GF = 10
 # junction rule of the build
 JUNCTION_CLASSIC_JERK, JUNCTION_DEVIATION = 0, 1
+# planner.h's acos table for JD_HANDLE_SMALL_SEGMENTS (JD_USE_LOOKUP_TABLE, on by default): slope and offset of
+# 16 chords of acos(t), entry i covering 1 − t in [2^-(i+1), 2^-i)
+JD_LUT_K = np.array([-1.03145837, -1.30760646, -1.75205851, -2.41705704, -3.37769222, -4.74888992, -6.69649887,
+                     -9.45661736, -13.3640480, -18.8928222, -26.7136841, -37.7754593, -53.4201813, -75.5458374,
+                     -106.836761, -218.532821], dtype=np.float32)
+JD_LUT_B = np.array([1.57079637, 1.70887053, 2.04220939, 2.62408352, 3.52467871, 4.85302639, 6.77020454,
+                     9.50875854, 13.4009285, 18.9188995, 26.7321243, 37.7885055, 53.4293975, 75.5523529,
+                     106.841369, 218.534011], dtype=np.float32)
 # per-row outputs
 (OI_HAS_BLOCK, OI_T_PICK, OI_T_END, OI_SEC, OI_NOMINAL_RATE, OI_INITIAL_RATE, OI_FINAL_RATE, OI_ACCEL_UNTIL,
  OI_DECEL_AFTER, OI_ACCEL_STEPS, OI_ACC_T, OI_CRUISE_T, OI_DEC_T, OI_FLAG, OI_SX, OI_SY, OI_SZ, OI_SE) = range(18)
@@ -346,14 +354,20 @@ def _junction_deviation_sqr(gf, dist, inverse_millimeters, esteps, millimeters, 
             vmax_junction_sqr = F32(F32(F32(junction_acceleration * junction_deviation_mm) * sin_theta_d2)
                                     / F32(F32(1) - sin_theta_d2))
             if millimeters < F32(1) and c < F32(-0.7071067812):
-                # fast acos(-t) (a MinMax polynomial, max. error 0.033 rad), as planner.cpp
+                # acos by Marlin's 16-entry table and linear interpolation (planner.h: JD_USE_LOOKUP_TABLE),
+                # the entry picked by the leading zeros of (1 − t)·2^15
                 neg = F32(-1) if c < 0 else F32(1)
                 t = F32(neg * c)
-                asinx = F32(84.31466202)
-                for coef in (-242.7199627, 262.8130562, -131.1123477, 29.66153956, -1.451838349):
-                    asinx = F32(F32(coef) + F32(t * asinx))
-                asinx = F32(F32(0.032843707) + F32(t * asinx))
-                junction_theta = F32(F32(F32(F32(90) * F32(math.pi)) / F32(180)) + F32(neg * asinx))   # RADIANS(90)
+                if t < F32(0.00000003):
+                    idx = 0
+                else:
+                    x = np.int64(F32(F32(F32(1) - t) * F32(32768)))
+                    idx = 15 if x <= 0 else 14 - int(math.floor(math.log2(x)))
+                    if idx < 0:
+                        idx = 0
+                junction_theta = F32(F32(t * JD_LUT_K[idx]) + JD_LUT_B[idx])
+                if neg > 0:
+                    junction_theta = F32(F32(F32(F32(180) * F32(math.pi)) / F32(180)) - junction_theta)
                 limit_sqr = F32(F32(millimeters * junction_acceleration) / junction_theta)
                 if limit_sqr < vmax_junction_sqr:
                     vmax_junction_sqr = limit_sqr
