@@ -168,7 +168,8 @@ class MarlinModel:
                     acc_r=np.ascontiguousarray(acc[:, 2]), vmax=np.ascontiguousarray(vmax),
                     amax=np.ascontiguousarray(amax), cutoff=cutoff, jerk=np.ascontiguousarray(jerk),
                     min_feed=lim["min_feed_v"].astype(np.float32), min_travel=lim["min_travel_v"].astype(np.float32),
-                    wait_ticks=wait_ticks, amax_mm=np.ascontiguousarray(amax_mm), jdev=jdev)
+                    wait_ticks=wait_ticks, amax_mm=np.ascontiguousarray(amax_mm), jdev=jdev,
+                    advance_k=lim["pa_k"].astype(np.float32))
 
     # ------------------------------------------------------------------ running
     def feed(self, moves: np.ndarray, limits: np.ndarray):
@@ -199,7 +200,7 @@ class MarlinModel:
                                      a["min_feed"], a["min_travel"], a["wait_ticks"], self.spm, self.mm_per_step,
                                      MIN_SEGMENT_TIME_US, self.timer_hz, self.acc_rate_scale, final,
                                      self.row_base, bf, bi, gi, gf, self._out_i, self._out_f, self.junction_mode,
-                                     a["amax_mm"], a["jdev"])
+                                     a["amax_mm"], a["jdev"], a["advance_k"])
         n_done = int(first) - self.row_base
         if final:
             n_done = len(self._moves)

@@ -56,8 +56,8 @@ N_BI = 13
  GI_STARTED, GI_RESET_DONE, GI_SETTINGS_ROW) = range(14)
 N_GI = 14
 # float32 global state (gf[...])
-GF_PREV_SPEED, GF_PREV_NOMINAL, GF_PREV_SAFE, GF_PREV_UNIT = 0, 4, 5, 6
-N_GF = 10
+GF_PREV_SPEED, GF_PREV_NOMINAL, GF_PREV_SAFE, GF_PREV_UNIT, GF_POS_FLOAT = 0, 4, 5, 6, 10
+N_GF = 14
 # junction rule of the build
 JUNCTION_CLASSIC_JERK, JUNCTION_DEVIATION = 0, 1
 # planner.h's acos table for JD_HANDLE_SMALL_SEGMENTS (JD_USE_LOOKUP_TABLE, on by default): slope and offset of
@@ -386,7 +386,8 @@ def _junction_deviation_sqr(gf, dist, inverse_millimeters, esteps, millimeters, 
 
 @njit(cache=True)
 def _populate_block(bf, bi, gi, gf, row, tgt, fr_mm_s, acc_p, acc_t, acc_r, vmax, amax_steps, cutoff, jerk,
-                    min_feed, min_travel, spm, mm_per_step, min_segment_time_us, junction_mode, amax_mm, jdev):
+                    min_feed, min_travel, spm, mm_per_step, min_segment_time_us, junction_mode, amax_mm, jdev,
+                    advance_k):
     """Fill the head slot from a move; False (nothing queued, position kept) when under 6 steps."""
     h = gi[GI_HEAD]
     da = np.zeros(4, dtype=np.int64)
@@ -447,6 +448,19 @@ def _populate_block(bf, bi, gi, gf, row, tgt, fr_mm_s, acc_p, acc_t, acc_r, vmax
         accel = _ceilf(F32(acc_r * steps_per_mm))
     else:
         accel = _ceilf(F32((acc_p if esteps != 0 else acc_t) * steps_per_mm))
+        if advance_k > 0 and esteps != 0 and da[3] > 0:
+            # LIN_ADVANCE: the acceleration at which the extruder can jump to the advance speed within its
+            # jerk, E jerk / (K · e/D), from the float positions (position_float); e/D > 3 is a retract
+            # merged into a print move and gets no advance
+            dxf = F32(tgt[0] - gf[GF_POS_FLOAT])
+            dyf = F32(tgt[1] - gf[GF_POS_FLOAT + 1])
+            dzf = F32(tgt[2] - gf[GF_POS_FLOAT + 2])
+            e_d_ratio = F32(F32(tgt[3] - gf[GF_POS_FLOAT + 3]) / F32(math.sqrt(
+                F32(F32(F32(dxf * dxf) + F32(dyf * dyf)) + F32(dzf * dzf)))))
+            if not e_d_ratio > F32(3):
+                cap = np.int64(F32(F32(jerk[3] / F32(advance_k * e_d_ratio)) * steps_per_mm))
+                if cap < accel:
+                    accel = cap
         if sec <= cutoff:
             for a in range(4):
                 if steps[a] != 0 and amax_steps[a] < accel:
@@ -490,6 +504,8 @@ def _populate_block(bf, bi, gi, gf, row, tgt, fr_mm_s, acc_p, acc_t, acc_r, vmax
         gf[GF_PREV_SPEED + a] = current_speed[a]
         gi[GI_PX + a] = target[a]
     gf[GF_PREV_NOMINAL] = nominal_speed
+    for a in range(4):
+        gf[GF_POS_FLOAT + a] = tgt[a]
     return True
 
 
@@ -602,7 +618,8 @@ def _pick_and_run(bf, bi, gi, out_i, out_f, timer_hz, acc_rate_scale, row_base):
 @njit(cache=True)
 def marlin_run_kernel(kind, tgt, reset_bits, reset_pos, fr, acc_p, acc_t, acc_r, vmax, amax_steps, cutoff, jerk,
                       min_feed, min_travel, wait_ticks, spm, mm_per_step, min_segment_time_us, timer_hz,
-                      acc_rate_scale, final, row_base, bf, bi, gi, gf, out_i, out_f, junction_mode, amax_mm, jdev):
+                      acc_rate_scale, final, row_base, bf, bi, gi, gf, out_i, out_f, junction_mode, amax_mm, jdev,
+                      advance_k):
     """Run rows ``gi[GI_NEXT_ROW] - row_base ..`` of this window through Marlin's host loop, planner and
     stepper until the input runs out (``final``: then until the buffer is empty).
 
@@ -639,6 +656,7 @@ def marlin_run_kernel(kind, tgt, reset_bits, reset_pos, fr, acc_p, acc_t, acc_r,
                 for a in range(4):
                     if (reset_bits[r] >> a) & 1:
                         gi[GI_PX + a] = _lroundf(F32(reset_pos[r, a] * spm[a]))
+                        gf[GF_POS_FLOAT + a] = reset_pos[r, a]
                 gi[GI_RESET_DONE] = 1
                 if _queued(gi) > 0 or gi[GI_BUSY] != 0:
                     buffer_sync_block(bf, bi, gi, gi[GI_NEXT_ROW])
@@ -646,7 +664,7 @@ def marlin_run_kernel(kind, tgt, reset_bits, reset_pos, fr, acc_p, acc_t, acc_r,
             gi[GI_RESET_DONE] = 0
             if _populate_block(bf, bi, gi, gf, gi[GI_NEXT_ROW], tgt[r], fr[r], acc_p[r], acc_t[r], acc_r[r], vmax[r],
                                amax_steps[r], cutoff[r], jerk[r], min_feed[r], min_travel[r], spm, mm_per_step,
-                               min_segment_time_us, junction_mode, amax_mm[r], jdev[r]):
+                               min_segment_time_us, junction_mode, amax_mm[r], jdev[r], advance_k[r]):
                 gi[GI_HEAD] = _next(gi[GI_HEAD])
                 recalculate(bf, bi, gi)
             gi[GI_NEXT_ROW] += 1
