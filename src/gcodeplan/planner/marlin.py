@@ -48,12 +48,11 @@ def _axis_accel_steps(limits: np.ndarray, spm32: np.ndarray) -> np.ndarray:
     (uint32), times steps/mm in float32, truncated."""
     out = np.empty((len(limits), 4), dtype=np.int64)
     for a, name in enumerate(_AXES):
-        v = limits["axis_a_" + name]
-        for i, x in enumerate(v):
-            if not math.isfinite(x) or x * float(spm32[a]) >= _UINT32_MAX:
-                out[i, a] = _UINT32_MAX // 4
-            else:
-                out[i, a] = int(np.float32(np.float32(int(x)) * spm32[a]))
+        v = np.asarray(limits["axis_a_" + name], dtype=np.float64)
+        ok = np.isfinite(v) & (v * float(spm32[a]) < _UINT32_MAX)
+        whole = np.trunc(np.where(ok, v, 0.0)).astype(np.float32)
+        prod = (whole * spm32[a]).astype(np.float32)
+        out[:, a] = np.where(ok, np.trunc(prod).astype(np.int64), _UINT32_MAX // 4)
     return out
 
 
@@ -93,6 +92,7 @@ class MarlinModel:
                      machine.accel_retract or machine.max_accel]
         self._clock_done = 0                     # tick the last settled block ended
         self._last_v = 0.0                       # mm/s, the exit speed of the last settled block
+        self._amax_cache = None                  # (LIMITS bytes, max_acceleration_steps_per_s2 per row)
         self.blocks = []                          # (out_i, out_f) of settled rows, when keep_blocks
         self.keep_blocks = False
 
@@ -142,13 +142,16 @@ class MarlinModel:
         # M204 P / T / R in force: the row's own accel for its class, the last seen for the others
         acc = np.zeros((n, 3), dtype=np.float32)
         cls = np.where(k == KIND_EXTRUDE_ONLY, 2, np.where(moves["e1"] != moves["e0"], 0, 1))
-        cur = list(self._acc)
         accel = moves["accel"]
-        for i in range(n):
-            if kind[i] == mk.ROW_MOVE and math.isfinite(accel[i]):
-                cur[cls[i]] = float(accel[i])
-            acc[i, 0], acc[i, 1], acc[i, 2] = cur
-        self._acc = cur
+        usable = (kind == mk.ROW_MOVE) & np.isfinite(accel)
+        idx = np.arange(n)
+        for c in range(3):
+            # forward fill: the accel of the last row of class c up to each row (the previous batch's before)
+            own = usable & (cls == c)
+            last = np.maximum.accumulate(np.where(own, idx, -1)) if n else idx
+            acc[:, c] = np.where(last >= 0, accel[np.maximum(last, 0)], self._acc[c])
+            if n and last[-1] >= 0:
+                self._acc[c] = float(accel[last[-1]])
         li = moves["limits"]
         lim = limits[li]
         vmax = np.stack([lim["axis_v_" + a] for a in _AXES], axis=1)
@@ -158,7 +161,9 @@ class MarlinModel:
         # M201 values are whole mm/s² in Marlin (uint32)
         amax_mm = np.where(np.isfinite(amax_mm), np.floor(np.minimum(amax_mm, 4e9)), 3e38).astype(np.float32)
         jdev = lim["junction_dev"].astype(np.float32)
-        amax_tab = _axis_accel_steps(limits, self.spm)
+        if self._amax_cache is None or self._amax_cache[0] != limits.tobytes():
+            self._amax_cache = (limits.tobytes(), _axis_accel_steps(limits, self.spm))
+        amax_tab = self._amax_cache[1]
         amax = amax_tab[li]
         cutoff_tab = _UINT32_MAX // np.maximum(amax_tab.max(axis=1), 1)
         cutoff = cutoff_tab[li].astype(np.int64)
@@ -225,14 +230,12 @@ class MarlinModel:
         plan = np.zeros(n, dtype=PLAN_DTYPE)
         timed = oi[:, mk.OI_HAS_BLOCK] != 0             # a block or a wait
         has = oi[:, mk.OI_HAS_BLOCK] == 1
-        t_end = oi[:, mk.OI_T_END].astype(np.int64)
-        clock = self._clock_done
-        for i in range(n):
-            if timed[i]:
-                clock = int(t_end[i])
-            else:
-                t_end[i] = clock
-        self._clock_done = clock
+        idx = np.arange(n)
+        last_timed = np.maximum.accumulate(np.where(timed, idx, -1))
+        t_end = np.where(timed, oi[:, mk.OI_T_END],
+                         np.where(last_timed >= 0, oi[np.maximum(last_timed, 0), mk.OI_T_END], self._clock_done))
+        t_end = t_end.astype(np.int64)
+        self._clock_done = int(t_end[-1])
         t_pick = np.where(timed, oi[:, mk.OI_T_PICK], t_end)
         plan["t_start"] = t_pick / hz
         plan["duration"] = (t_end - t_pick) / hz
@@ -252,17 +255,12 @@ class MarlinModel:
             plan["accel"] = np.where(ta > 0, (vc - v0) / ta, 0.0)
             plan["decel"] = np.where(td > 0, (vc - v1) / td, 0.0)
         # a row without a block passes in no time at the speed the block before it ended with
-        carry = np.zeros(n)
-        last_v = self._last_v
         wait = (moves["kind"] == KIND_WAIT) | (moves["kind"] == KIND_DWELL)
-        for i in range(n):
-            if has[i]:
-                last_v = float(v1[i])
-            elif wait[i]:
-                last_v = 0.0                     # the buffer ran empty: at rest
-            else:
-                carry[i] = last_v
-        self._last_v = last_v
+        v_at = np.where(has, v1, 0.0)                  # after a wait the buffer ran empty: at rest
+        last_set = np.maximum.accumulate(np.where(has | wait, idx, -1))
+        carry = np.where(last_set >= 0, v_at[np.maximum(last_set, 0)], self._last_v)
+        carry = np.where(has | wait, 0.0, carry)
+        self._last_v = float(v_at[last_set[-1]]) if last_set[-1] >= 0 else self._last_v
         plan["start_v"] = np.where(has, v0, carry)
         plan["cruise_v"] = np.where(has, vc, carry)
         plan["end_v"] = np.where(has, v1, carry)
