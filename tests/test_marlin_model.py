@@ -160,3 +160,26 @@ def test_firmware_key_option_and_errors(tmp_path):
     assert gp.estimate(str(g), gp.load_machine("marlin-2.1.2"), "klipper").policy == "klipper"
     with pytest.raises(ConfigError, match="jerk"):
         gp.estimate(str(g), gp.load_machine("marlin-2.1.2"), jerk=1000.0)
+
+
+@pytest.mark.parametrize("name", FILES)
+@pytest.mark.parametrize("variant", ["jd", "la"])
+def test_variant_builds_match_marlin(name, variant, tmp_path):
+    """The reference's junction-deviation build (CLASSIC_JERK off, JD_HANDLE_SMALL_SEGMENTS with Marlin's acos
+    table) and linear-advance build (ADVANCE_K 0.05: its acceleration cap): totals and per-line end times."""
+    times = json.loads(shared_path("reference", "marlin", "variants", variant, "times.json").read_text())
+    if variant == "la":
+        m = tmp_path / "la.toml"
+        m.write_text('base = "marlin-2.1.2"\n[extruder]\npressure_advance = 0.05\n')
+        machine, policy = gp.load_machine(str(m)), None
+    else:
+        machine, policy = gp.load_machine("marlin-2.1.2"), "junction-deviation"
+    est = gp.estimate(str(shared_path("gcode", name + ".gcode")), machine, policy)
+    assert est.policy == "marlin-2.1.2"
+    assert est.time.total_time_s == pytest.approx(times[name + ".gcode"]["total_time_s"], abs=1e-8)
+    ref = _csv(shared_path("reference", "marlin", "variants", variant, "per_line",
+                           name + ".per_line_end_time.csv.gz"))
+    lines, ends = est.line_times()
+    idx = np.searchsorted(lines, ref["source_line"].astype(np.int64))
+    # la: the reference's extruder interrupt may issue a block's last E pulse up to 1 µs after its last X/Y step
+    assert np.max(np.abs(ends[idx] - ref["end_time_s"])) < (2e-6 if variant == "la" else 1e-8)
