@@ -60,32 +60,38 @@ def block_ticks_kernel(n_steps, initial_rate, nominal_rate, final_rate, accelera
     dec_time = np.int64(0)
     acc_step_rate = np.int64(initial_rate)
     ticks_nominal = np.int64(-1)
-    for n in range(1, n_steps):
-        if n <= accelerate_until:
-            r = ((acc_time * acc_rate + _HALF_24) >> 24) + initial_rate
-            if r > nominal_rate:
-                r = nominal_rate
-            acc_step_rate = r
-            interval = np.int64(timer_hz) // r
-            acc_time += interval
-            phase_ticks[0] += interval
-        elif n > decelerate_after:
-            s = (dec_time * acc_rate + _HALF_24) >> 24
-            if s < acc_step_rate:
-                s = acc_step_rate - s
-                if s < final_rate:
-                    s = final_rate
-            else:
+    # the phases are contiguous runs of step numbers: accelerating 1..accelerate_until, cruising up to
+    # decelerate_after (every interval the same: counted, not looped), decelerating after it
+    last = n_steps - 1
+    acc_end = accelerate_until if accelerate_until < last else last
+    for n in range(1, acc_end + 1):
+        r = ((acc_time * acc_rate + _HALF_24) >> 24) + initial_rate
+        if r > nominal_rate:
+            r = nominal_rate
+        acc_step_rate = r
+        interval = np.int64(timer_hz) // r
+        acc_time += interval
+        phase_ticks[0] += interval
+        total += interval
+    cruise_lo = accelerate_until + 1 if accelerate_until + 1 > 1 else 1
+    cruise_hi = decelerate_after if decelerate_after < last else last
+    if cruise_hi >= cruise_lo:
+        ticks_nominal = np.int64(timer_hz) // np.int64(nominal_rate)
+        acc_step_rate = np.int64(nominal_rate)
+        phase_ticks[1] += ticks_nominal * (cruise_hi - cruise_lo + 1)
+        total += ticks_nominal * (cruise_hi - cruise_lo + 1)
+    dec_lo = decelerate_after + 1 if decelerate_after + 1 > 1 else 1
+    for n in range(dec_lo, last + 1):
+        s = (dec_time * acc_rate + _HALF_24) >> 24
+        if s < acc_step_rate:
+            s = acc_step_rate - s
+            if s < final_rate:
                 s = final_rate
-            interval = np.int64(timer_hz) // s
-            dec_time += interval
-            phase_ticks[2] += interval
         else:
-            if ticks_nominal < 0:
-                ticks_nominal = np.int64(timer_hz) // np.int64(nominal_rate)
-                acc_step_rate = np.int64(nominal_rate)
-            interval = ticks_nominal
-            phase_ticks[1] += interval
+            s = final_rate
+        interval = np.int64(timer_hz) // s
+        dec_time += interval
+        phase_ticks[2] += interval
         total += interval
     return total
 
