@@ -92,7 +92,7 @@ class MarlinModel:
                      machine.accel_retract or machine.max_accel]
         self._clock_done = 0                     # tick the last settled block ended
         self._last_v = 0.0                       # mm/s, the exit speed of the last settled block
-        self._amax_cache = None                  # (LIMITS bytes, max_acceleration_steps_per_s2 per row)
+        self._tables = None                      # (key, per-LIMITS-row settings): _limit_tables
         self.blocks = []                          # (out_i, out_f) of settled rows, when keep_blocks
         self.keep_blocks = False
 
@@ -114,7 +114,8 @@ class MarlinModel:
         reset_bits = (diff * (1 << np.arange(3))).sum(axis=1).astype(np.int64)
         if n:
             self._last_end = end[-1].copy()
-        e_off = np.full(n, self._e_off)
+        e_off = np.empty(n)
+        e_off.fill(self._e_off)
         e_reset = np.zeros(n, dtype=np.float64)
         sets = self.e_position_sets
         if sets is not None and n:
@@ -153,28 +154,39 @@ class MarlinModel:
             if n and last[-1] >= 0:
                 self._acc[c] = float(accel[last[-1]])
         li = moves["limits"]
-        lim = limits[li]
-        vmax = np.stack([lim["axis_v_" + a] for a in _AXES], axis=1)
-        vmax = np.where(np.isfinite(vmax), vmax, 1e30).astype(np.float32)
-        jerk = np.stack([lim["jerk_" + a] for a in _AXES], axis=1).astype(np.float32)
-        amax_mm = np.stack([lim["axis_a_" + a] for a in _AXES], axis=1)
-        # M201 values are whole mm/s² in Marlin (uint32)
-        amax_mm = np.where(np.isfinite(amax_mm), np.floor(np.minimum(amax_mm, 4e9)), 3e38).astype(np.float32)
-        jdev = lim["junction_dev"].astype(np.float32)
-        if self._amax_cache is None or self._amax_cache[0] != limits.tobytes():
-            self._amax_cache = (limits.tobytes(), _axis_accel_steps(limits, self.spm))
-        amax_tab = self._amax_cache[1]
-        amax = amax_tab[li]
-        cutoff_tab = _UINT32_MAX // np.maximum(amax_tab.max(axis=1), 1)
-        cutoff = cutoff_tab[li].astype(np.int64)
+        tab = self._limit_tables(limits)
+        vmax, jerk, amax_mm, amax = tab["vmax"][li], tab["jerk"][li], tab["amax_mm"][li], tab["amax"][li]
+        cutoff = tab["cutoff"][li]
         return dict(kind=kind, tgt=np.ascontiguousarray(tgt), reset_bits=reset_bits,
                     reset_pos=np.ascontiguousarray(reset_pos), fr=fr.astype(np.float32),
                     acc_p=np.ascontiguousarray(acc[:, 0]), acc_t=np.ascontiguousarray(acc[:, 1]),
                     acc_r=np.ascontiguousarray(acc[:, 2]), vmax=np.ascontiguousarray(vmax),
                     amax=np.ascontiguousarray(amax), cutoff=cutoff, jerk=np.ascontiguousarray(jerk),
-                    min_feed=lim["min_feed_v"].astype(np.float32), min_travel=lim["min_travel_v"].astype(np.float32),
-                    wait_ticks=wait_ticks, amax_mm=np.ascontiguousarray(amax_mm), jdev=jdev,
-                    advance_k=lim["pa_k"].astype(np.float32))
+                    min_feed=tab["min_feed"][li], min_travel=tab["min_travel"][li],
+                    wait_ticks=wait_ticks, amax_mm=np.ascontiguousarray(amax_mm), jdev=tab["jdev"][li],
+                    advance_k=tab["advance_k"][li])
+
+    def _limit_tables(self, limits: np.ndarray) -> dict:
+        """Per LIMITS row, the firmware's settings (float32 / integer as Marlin stores them); the table only
+        grows, so it is rebuilt when its length or last row changes."""
+        key = (len(limits), limits[-1:].tobytes())
+        if self._tables is not None and self._tables[0] == key:
+            return self._tables[1]
+        vmax = np.stack([limits["axis_v_" + a] for a in _AXES], axis=1)
+        amax_mm = np.stack([limits["axis_a_" + a] for a in _AXES], axis=1)
+        amax = _axis_accel_steps(limits, self.spm)
+        tab = dict(
+            vmax=np.ascontiguousarray(np.where(np.isfinite(vmax), vmax, 1e30).astype(np.float32)),
+            jerk=np.ascontiguousarray(np.stack([limits["jerk_" + a] for a in _AXES], axis=1).astype(np.float32)),
+            # M201 values are whole mm/s² in Marlin (uint32)
+            amax_mm=np.ascontiguousarray(np.where(np.isfinite(amax_mm), np.floor(np.minimum(amax_mm, 4e9)),
+                                                  3e38).astype(np.float32)),
+            amax=amax,
+            cutoff=(_UINT32_MAX // np.maximum(amax.max(axis=1), 1)).astype(np.int64),
+            jdev=limits["junction_dev"].astype(np.float32), advance_k=limits["pa_k"].astype(np.float32),
+            min_feed=limits["min_feed_v"].astype(np.float32), min_travel=limits["min_travel_v"].astype(np.float32))
+        self._tables = (key, tab)
+        return tab
 
     # ------------------------------------------------------------------ running
     def feed(self, moves: np.ndarray, limits: np.ndarray):
