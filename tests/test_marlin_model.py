@@ -163,14 +163,19 @@ def test_firmware_key_option_and_errors(tmp_path):
 
 
 @pytest.mark.parametrize("name", FILES)
-@pytest.mark.parametrize("variant", ["jd", "la"])
+@pytest.mark.parametrize("variant", ["jd", "la", "scurve"])
 def test_variant_builds_match_marlin(name, variant, tmp_path):
     """The reference's junction-deviation build (CLASSIC_JERK off, JD_HANDLE_SMALL_SEGMENTS with Marlin's acos
-    table) and linear-advance build (ADVANCE_K 0.05: its acceleration cap): totals and per-line end times."""
+    table), linear-advance build (ADVANCE_K 0.05: its acceleration cap) and S_CURVE_ACCELERATION build (the
+    Bézier ramps of the stepper interrupt): totals and per-line end times."""
     times = json.loads(shared_path("reference", "marlin", "variants", variant, "times.json").read_text())
     if variant == "la":
         m = tmp_path / "la.toml"
         m.write_text('base = "marlin-2.1.2"\n[extruder]\npressure_advance = 0.05\n')
+        machine, policy = gp.load_machine(str(m)), None
+    elif variant == "scurve":
+        m = tmp_path / "scurve.toml"
+        m.write_text('base = "marlin-2.1.2"\nacceleration_profile = "s-curve"\n')
         machine, policy = gp.load_machine(str(m)), None
     else:
         machine, policy = gp.load_machine("marlin-2.1.2"), "junction-deviation"

@@ -26,6 +26,7 @@ POLICIES = ("klipper", "junction-deviation", "classic-jerk", "blend", "exact-sto
 # firmware models: "generic" = planned by the junction policy; the others run the firmware's own planner and
 # stepper timing (planner/marlin.py)
 FIRMWARES = ("generic", "marlin-2.1.2")
+ACCELERATION_PROFILES = ("trapezoid", "s-curve")
 AXES = ("x", "y", "z", "e")
 
 
@@ -51,6 +52,8 @@ class Machine:
     # firmware model (FIRMWARES): "generic" plans with junction_policy; "marlin-2.1.2" runs Marlin 2.1.2.4's
     # planner buffer and stepper timing (planner/marlin.py), junction_policy is then not used
     firmware: str = "generic"
+    # a firmware model's speed ramps (ACCELERATION_PROFILES): "s-curve" = Marlin's S_CURVE_ACCELERATION
+    acceleration_profile: str = "trapezoid"
 
     # toolhead
     max_velocity: float = 300.0          # mm/s

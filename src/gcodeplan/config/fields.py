@@ -11,7 +11,7 @@ from dataclasses import dataclass
 from typing import Any, Callable
 
 from ..errors import ConfigError
-from ..machine import AXES, FIRMWARES, FLAVORS, KINEMATICS, POLICIES, SHAPER_TYPES, Axis, Machine
+from ..machine import ACCELERATION_PROFILES, AXES, FIRMWARES, FLAVORS, KINEMATICS, POLICIES, SHAPER_TYPES, Axis, Machine
 
 
 # Kinematics Klipper and others offer that we know about but cannot plan yet.
@@ -193,6 +193,7 @@ FIELDS: tuple[Field, ...] = (
     Field("", "kinematics", "kinematics", rule_choice(KINEMATICS, UNSUPPORTED_KINEMATICS), "string", ""),
     Field("", "flavor", "flavor", rule_choice(FLAVORS), "string", ""),
     Field("", "firmware", "firmware", rule_choice(FIRMWARES), "string", ""),
+    Field("", "acceleration_profile", "acceleration_profile", rule_choice(ACCELERATION_PROFILES), "string", ""),
     Field("toolhead", "max_velocity", "max_velocity", rule_positive_or_inf, "number", "mm/s"),
     Field("toolhead", "max_accel", "max_accel", rule_positive_or_inf, "number", "mm/s²"),
     Field("toolhead", "accel_print", "accel_print", _rule_optional_positive_or_inf, "number", "mm/s²"),

@@ -71,6 +71,8 @@ class MarlinModel:
             raise ConfigError(f"firmware {FIRMWARES[0]}: junction policy {junction!r} is not one of Marlin's "
                               f"({', '.join(JUNCTIONS)})")
         self.junction_mode = mk.JUNCTION_DEVIATION if junction == "junction-deviation" else mk.JUNCTION_CLASSIC_JERK
+        # S_CURVE_ACCELERATION: the same blocks, Bézier speed ramps in the stepper interrupt
+        self.s_curve = getattr(machine, "acceleration_profile", "trapezoid") == "s-curve"
         # (line, logical E) of each G92 E, in file order (GcodeReader.interp.e_position_sets): Marlin's E is
         # logical (G92 E0 resets it, and its step position is re-rounded there); None = E never reset
         self.e_position_sets = e_position_sets
@@ -217,7 +219,7 @@ class MarlinModel:
                                      a["min_feed"], a["min_travel"], a["wait_ticks"], self.spm, self.mm_per_step,
                                      MIN_SEGMENT_TIME_US, self.timer_hz, self.acc_rate_scale, final,
                                      self.row_base, bf, bi, gi, gf, self._out_i, self._out_f, self.junction_mode,
-                                     a["amax_mm"], a["jdev"], a["advance_k"])
+                                     a["amax_mm"], a["jdev"], a["advance_k"], self.s_curve)
         n_done = int(first) - self.row_base
         if final:
             n_done = len(self._moves)

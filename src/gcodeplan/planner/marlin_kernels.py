@@ -30,7 +30,7 @@ import math
 import numpy as np
 
 from .._jit import njit
-from ..stepper.marlin_isr import block_ticks_kernel
+from ..stepper.marlin_isr import block_ticks_kernel, block_ticks_scurve_kernel
 
 BLOCK_BUFFER_SIZE = 16
 MIN_STEPS_PER_SEGMENT = 6
@@ -49,8 +49,9 @@ BF_MM, BF_NOMINAL_SPEED, BF_ENTRY_SQR, BF_MAX_ENTRY_SQR, BF_ACCEL = 0, 1, 2, 3, 
 N_BF = 5
 # integer block fields (bi[slot, ...])
 (BI_FLAG, BI_SEC, BI_NOMINAL_RATE, BI_INITIAL_RATE, BI_FINAL_RATE, BI_ACCEL_UNTIL, BI_DECEL_AFTER, BI_ACCEL_STEPS,
- BI_ROW, BI_SX, BI_SY, BI_SZ, BI_SE) = range(13)
-N_BI = 13
+ BI_ROW, BI_SX, BI_SY, BI_SZ, BI_SE, BI_CRUISE_RATE, BI_ACC_TIME, BI_DEC_TIME, BI_ACC_TIME_INV,
+ BI_DEC_TIME_INV) = range(18)
+N_BI = 18
 # integer global state (gi[...])
 (GI_HEAD, GI_TAIL, GI_PLANNED, GI_NONBUSY, GI_BUSY, GI_PX, GI_PY, GI_PZ, GI_PE, GI_CLOCK, GI_NEXT_ROW,
  GI_STARTED, GI_RESET_DONE, GI_SETTINGS_ROW) = range(14)
@@ -122,7 +123,7 @@ def _max_allowable_speed_sqr(accel, target_velocity_sqr, distance):
 
 
 @njit(cache=True)
-def calculate_trapezoid_for_block(bf, bi, slot, entry_factor, exit_factor):
+def calculate_trapezoid_for_block(bf, bi, slot, entry_factor, exit_factor, timer_hz=25000000):
     """Rates and step boundaries of a block from its entry and exit speeds as fractions of nominal."""
     nominal_rate = bi[slot, BI_NOMINAL_RATE]
     initial_rate = _ceilf(F32(F32(nominal_rate) * entry_factor))
@@ -151,6 +152,20 @@ def calculate_trapezoid_for_block(bf, bi, slot, entry_factor, exit_factor):
         if accelerate_steps > sec:
             accelerate_steps = sec
         plateau_steps = np.int64(0)
+        # S_CURVE_ACCELERATION: the rate reached where the ramps meet, final_speed() = √(v0² + 2·a·d)
+        cruise_rate = np.int64(F32(math.sqrt(F32(F32(F32(initial_rate) * F32(initial_rate))
+                                                + F32(F32(F32(2) * F32(accel)) * F32(accelerate_steps))))))
+    else:
+        cruise_rate = nominal_rate
+    # S_CURVE_ACCELERATION: each ramp's duration in timer ticks and its 32-bit inverse (get_period_inverse)
+    rate_factor = F32(F32(F32(1) / F32(accel)) * F32(timer_hz))
+    acc_time = np.int64(F32(rate_factor * F32(cruise_rate - initial_rate)))
+    dec_time = np.int64(F32(rate_factor * F32(cruise_rate - final_rate)))
+    bi[slot, BI_CRUISE_RATE] = cruise_rate
+    bi[slot, BI_ACC_TIME] = acc_time
+    bi[slot, BI_DEC_TIME] = dec_time
+    bi[slot, BI_ACC_TIME_INV] = 0xFFFFFFFF // acc_time if acc_time > 0 else 0xFFFFFFFF
+    bi[slot, BI_DEC_TIME_INV] = 0xFFFFFFFF // dec_time if dec_time > 0 else 0xFFFFFFFF
     bi[slot, BI_ACCEL_UNTIL] = accelerate_steps
     bi[slot, BI_DECEL_AFTER] = accelerate_steps + plateau_steps
     bi[slot, BI_INITIAL_RATE] = initial_rate
@@ -563,7 +578,7 @@ def _classic_jerk_sqr(gf, current_speed, nominal_speed, moves_queued, jerk):
 
 
 @njit(cache=True)
-def _pick_and_run(bf, bi, gi, out_i, out_f, timer_hz, acc_rate_scale, row_base):
+def _pick_and_run(bf, bi, gi, out_i, out_f, timer_hz, acc_rate_scale, row_base, s_curve):
     """The stepper: finish the busy block, skip sync blocks, pick up the next move block and time it
     (get_current_block + block_phase_isr). Returns False when the buffer is empty."""
     if gi[GI_BUSY] != 0:
@@ -584,9 +599,15 @@ def _pick_and_run(bf, bi, gi, out_i, out_f, timer_hz, acc_rate_scale, row_base):
         acc_steps = bi[t, BI_ACCEL_STEPS]
         acc_rate = np.int64(F32(F32(acc_steps) * acc_rate_scale))
         ph = np.zeros(3, dtype=np.int64)
-        ticks = block_ticks_kernel(bi[t, BI_SEC], bi[t, BI_INITIAL_RATE], bi[t, BI_NOMINAL_RATE],
-                                   bi[t, BI_FINAL_RATE], bi[t, BI_ACCEL_UNTIL], bi[t, BI_DECEL_AFTER], acc_rate,
-                                   timer_hz, ph)
+        if s_curve:
+            ticks = block_ticks_scurve_kernel(bi[t, BI_SEC], bi[t, BI_INITIAL_RATE], bi[t, BI_NOMINAL_RATE],
+                                              bi[t, BI_FINAL_RATE], bi[t, BI_ACCEL_UNTIL], bi[t, BI_DECEL_AFTER],
+                                              bi[t, BI_CRUISE_RATE], bi[t, BI_ACC_TIME], bi[t, BI_DEC_TIME],
+                                              bi[t, BI_ACC_TIME_INV], bi[t, BI_DEC_TIME_INV], timer_hz, ph)
+        else:
+            ticks = block_ticks_kernel(bi[t, BI_SEC], bi[t, BI_INITIAL_RATE], bi[t, BI_NOMINAL_RATE],
+                                       bi[t, BI_FINAL_RATE], bi[t, BI_ACCEL_UNTIL], bi[t, BI_DECEL_AFTER], acc_rate,
+                                       timer_hz, ph)
         out_i[r, OI_HAS_BLOCK] = 1
         out_i[r, OI_T_PICK] = gi[GI_CLOCK]
         gi[GI_CLOCK] += ticks
@@ -619,7 +640,7 @@ def _pick_and_run(bf, bi, gi, out_i, out_f, timer_hz, acc_rate_scale, row_base):
 def marlin_run_kernel(kind, tgt, reset_bits, reset_pos, fr, acc_p, acc_t, acc_r, vmax, amax_steps, cutoff, jerk,
                       min_feed, min_travel, wait_ticks, spm, mm_per_step, min_segment_time_us, timer_hz,
                       acc_rate_scale, final, row_base, bf, bi, gi, gf, out_i, out_f, junction_mode, amax_mm, jdev,
-                      advance_k):
+                      advance_k, s_curve):
     """Run rows ``gi[GI_NEXT_ROW] - row_base ..`` of this window through Marlin's host loop, planner and
     stepper until the input runs out (``final``: then until the buffer is empty).
 
@@ -670,7 +691,7 @@ def marlin_run_kernel(kind, tgt, reset_bits, reset_pos, fr, acc_p, acc_t, acc_r,
             gi[GI_NEXT_ROW] += 1
         if not final and gi[GI_NEXT_ROW] >= end_row and _queued(gi) < BLOCK_BUFFER_SIZE - 1:
             break                              # the host would queue more: wait for the next rows
-        if not _pick_and_run(bf, bi, gi, out_i, out_f, timer_hz, acc_rate_scale, row_base):
+        if not _pick_and_run(bf, bi, gi, out_i, out_f, timer_hz, acc_rate_scale, row_base, s_curve):
             if gi[GI_NEXT_ROW] >= end_row:
                 break
     # rows before the oldest block not yet run (or the next row to read) are final

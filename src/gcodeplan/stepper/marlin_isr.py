@@ -135,3 +135,81 @@ def block_step_times_kernel(n_steps, initial_rate, nominal_rate, final_rate, acc
             interval = ticks_nominal
         t += interval
         out[n] = t
+
+
+@njit(cache=True)
+def _eval_bezier_curve(a, b, c, f0, av, curr_step):
+    """Marlin's Bézier speed at ``curr_step`` ticks into a ramp (stepper.cpp ``_eval_bezier_curve``, the
+    portable integer version): t = av·curr_step as a 32-bit fraction of the ramp, then the quintic
+    A·t⁵ + B·t⁴ + C·t³ + F in 64-bit fixed point."""
+    m32 = np.uint64(0xFFFFFFFF)
+    t = (np.uint64(av) * np.uint64(curr_step)) & m32
+    f = t
+    f = (f * t) >> np.uint64(32)
+    f = (f * t) >> np.uint64(32)
+    acc = np.int64(f0) << 31
+    acc += np.int64((f & m32) >> np.uint64(1)) * np.int64(c)
+    f = (f * t) >> np.uint64(32)
+    acc += np.int64((f & m32) >> np.uint64(1)) * np.int64(b)
+    f = (f * t) >> np.uint64(32)
+    acc += np.int64((f & m32) >> np.uint64(1)) * np.int64(a)
+    acc >>= 38
+    return np.int64(np.int32(acc))
+
+
+@njit(cache=True)
+def block_ticks_scurve_kernel(n_steps, initial_rate, nominal_rate, final_rate, accelerate_until, decelerate_after,
+                              cruise_rate, acceleration_time, deceleration_time, acceleration_time_inverse,
+                              deceleration_time_inverse, timer_hz, phase_ticks):
+    """Ticks from pick-up to last step with S_CURVE_ACCELERATION: each ramp's rate follows Marlin's quintic
+    Bézier in time (initial → cruise over ``acceleration_time`` ticks, cruise → final over
+    ``deceleration_time``), read at the start of each step interval; the same phase switching by step count
+    as :func:`block_ticks_kernel`."""
+    phase_ticks[0] = 0
+    phase_ticks[1] = 0
+    phase_ticks[2] = 0
+    if n_steps <= 0:
+        return np.int64(0)
+    # _calc_bezier_curve_coeffs(initial, cruise, acceleration_time_inverse)
+    v0 = np.int64(initial_rate)
+    v1 = np.int64(cruise_rate)
+    ba, bb, bc, bf = 768 * (v1 - v0), 1920 * (v0 - v1), 1280 * (v1 - v0), 128 * v0
+    bav = np.int64(acceleration_time_inverse)
+    second_half = False
+    interval = np.int64(timer_hz) // np.int64(initial_rate)
+    total = interval
+    phase_ticks[0] += interval
+    acc_time = interval
+    dec_time = np.int64(0)
+    ticks_nominal = np.int64(-1)
+    for n in range(1, n_steps):
+        if n <= accelerate_until:
+            if acc_time < acceleration_time:
+                r = _eval_bezier_curve(ba, bb, bc, bf, bav, acc_time)
+            else:
+                r = np.int64(cruise_rate)
+            interval = np.int64(timer_hz) // r
+            acc_time += interval
+            phase_ticks[0] += interval
+        elif n > decelerate_after:
+            if not second_half:
+                v0 = np.int64(cruise_rate)
+                v1 = np.int64(final_rate)
+                ba, bb, bc, bf = 768 * (v1 - v0), 1920 * (v0 - v1), 1280 * (v1 - v0), 128 * v0
+                bav = np.int64(deceleration_time_inverse)
+                second_half = True
+                s = np.int64(cruise_rate)
+            elif dec_time < deceleration_time:
+                s = _eval_bezier_curve(ba, bb, bc, bf, bav, dec_time)
+            else:
+                s = np.int64(final_rate)
+            interval = np.int64(timer_hz) // s
+            dec_time += interval
+            phase_ticks[2] += interval
+        else:
+            if ticks_nominal < 0:
+                ticks_nominal = np.int64(timer_hz) // np.int64(nominal_rate)
+            interval = ticks_nominal
+            phase_ticks[1] += interval
+        total += interval
+    return total
