@@ -188,3 +188,18 @@ def test_variant_builds_match_marlin(name, variant, tmp_path):
     idx = np.searchsorted(lines, ref["source_line"].astype(np.int64))
     # la: the reference's extruder interrupt may issue a block's last E pulse up to 1 µs after its last X/Y step
     assert np.max(np.abs(ends[idx] - ref["end_time_s"])) < (2e-6 if variant == "la" else 1e-8)
+
+
+def test_toolhead_line_by_line_equals_plan_for_the_firmware_model():
+    """gp.Toolhead (the library's line-by-line door) hands G92 E to the model as the pipeline does: the same
+    PLAN rows as gp.plan on the whole file."""
+    path = shared_path("gcode", "prusaslicer25_cube20_marlin2.gcode")
+    machine = gp.load_machine("marlin-2.1.2")
+    ref = gp.plan(str(path), machine)
+    th = gp.Toolhead(machine, block_lines=97)
+    for line in path.read_text().splitlines(keepends=True):
+        th.gcode(line)
+    th.close()
+    moves, plan = th.committed_arrays()
+    for f in ("t_start", "duration", "start_v", "end_v"):
+        assert np.array_equal(plan[f], ref.plan[f]), f
