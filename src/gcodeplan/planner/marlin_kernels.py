@@ -337,11 +337,11 @@ def _limit_value_by_axis_maximum(max_value, unit_vec, amax_mm):
 
 @njit(cache=True)
 def _junction_deviation_sqr(gf, dist, inverse_millimeters, esteps, millimeters, acceleration, nominal_speed,
-                            moves_queued, amax_mm, junction_deviation_mm):
+                            moves_queued, amax_mm, junction_deviation_mm, scratch_f):
     """max_entry_speed² by junction deviation (HAS_JUNCTION_DEVIATION, JD_HANDLE_SMALL_SEGMENTS on): the
     centripetal speed on a circle deviating junction_deviation_mm from the corner, with the acceleration the
     axes allow along the junction; short moves at sharp corners are held to an approximate arc."""
-    unit_vec = np.zeros(4, dtype=np.float32)
+    unit_vec = scratch_f[2]
     for a in range(4):
         unit_vec[a] = dist[a]
     if esteps > 0:
@@ -360,7 +360,7 @@ def _junction_deviation_sqr(gf, dist, inverse_millimeters, esteps, millimeters, 
         else:
             if c < F32(-0.999999):
                 c = F32(-0.999999)
-            junction_unit_vec = np.zeros(4, dtype=np.float32)
+            junction_unit_vec = scratch_f[3]
             for a in range(4):
                 junction_unit_vec[a] = F32(unit_vec[a] - gf[GF_PREV_UNIT + a])
             _normalize_junction_vector(junction_unit_vec)
@@ -402,12 +402,13 @@ def _junction_deviation_sqr(gf, dist, inverse_millimeters, esteps, millimeters, 
 @njit(cache=True)
 def _populate_block(bf, bi, gi, gf, row, tgt, fr_mm_s, acc_p, acc_t, acc_r, vmax, amax_steps, cutoff, jerk,
                     min_feed, min_travel, spm, mm_per_step, min_segment_time_us, junction_mode, amax_mm, jdev,
-                    advance_k):
+                    advance_k, scratch_f, scratch_i):
     """Fill the head slot from a move; False (nothing queued, position kept) when under 6 steps."""
     h = gi[GI_HEAD]
-    da = np.zeros(4, dtype=np.int64)
-    target = np.zeros(4, dtype=np.int64)
-    steps = np.zeros(4, dtype=np.int64)
+    # scratch rows (no allocation per block): steps, targets and deltas; distances, speeds, unit vectors
+    da = scratch_i[0]
+    target = scratch_i[1]
+    steps = scratch_i[2]
     sec = np.int64(0)
     for a in range(4):
         target[a] = _lroundf(F32(tgt[a] * spm[a]))
@@ -417,7 +418,7 @@ def _populate_block(bf, bi, gi, gf, row, tgt, fr_mm_s, acc_p, acc_t, acc_r, vmax
             sec = steps[a]
     if sec < MIN_STEPS_PER_SEGMENT:
         return False
-    dist = np.zeros(4, dtype=np.float32)
+    dist = scratch_f[0]
     for a in range(4):
         dist[a] = F32(F32(da[a]) * mm_per_step[a])
     if steps[0] < MIN_STEPS_PER_SEGMENT and steps[1] < MIN_STEPS_PER_SEGMENT and steps[2] < MIN_STEPS_PER_SEGMENT:
@@ -443,7 +444,7 @@ def _populate_block(bf, bi, gi, gf, row, tgt, fr_mm_s, acc_p, acc_t, acc_r, vmax
             inverse_secs = F32(F32(1000000) / F32(nst))
     nominal_speed = F32(millimeters * inverse_secs)
     nominal_rate = _ceilf(F32(F32(sec) * inverse_secs))
-    current_speed = np.zeros(4, dtype=np.float32)
+    current_speed = scratch_f[1]
     speed_factor = F32(1)
     for a in range(4):
         current_speed[a] = F32(dist[a] * inverse_secs)
@@ -491,7 +492,7 @@ def _populate_block(bf, bi, gi, gf, row, tgt, fr_mm_s, acc_p, acc_t, acc_r, vmax
     acceleration = F32(F32(accel) / steps_per_mm)
     if junction_mode == JUNCTION_DEVIATION:
         max_entry_sqr = _junction_deviation_sqr(gf, dist, inverse_millimeters, esteps, millimeters, acceleration,
-                                                nominal_speed, moves_queued, amax_mm, jdev)
+                                                nominal_speed, moves_queued, amax_mm, jdev, scratch_f)
     else:
         max_entry_sqr = _classic_jerk_sqr(gf, current_speed, nominal_speed, moves_queued, jerk)
     # the block
@@ -578,7 +579,7 @@ def _classic_jerk_sqr(gf, current_speed, nominal_speed, moves_queued, jerk):
 
 
 @njit(cache=True)
-def _pick_and_run(bf, bi, gi, out_i, out_f, timer_hz, acc_rate_scale, row_base, s_curve):
+def _pick_and_run(bf, bi, gi, out_i, out_f, timer_hz, acc_rate_scale, row_base, s_curve, scratch_i):
     """The stepper: finish the busy block, skip sync blocks, pick up the next move block and time it
     (get_current_block + block_phase_isr). Returns False when the buffer is empty."""
     if gi[GI_BUSY] != 0:
@@ -598,7 +599,7 @@ def _pick_and_run(bf, bi, gi, out_i, out_f, timer_hz, acc_rate_scale, row_base, 
         r = bi[t, BI_ROW] - row_base
         acc_steps = bi[t, BI_ACCEL_STEPS]
         acc_rate = np.int64(F32(F32(acc_steps) * acc_rate_scale))
-        ph = np.zeros(3, dtype=np.int64)
+        ph = scratch_i[3]
         if s_curve:
             ticks = block_ticks_scurve_kernel(bi[t, BI_SEC], bi[t, BI_INITIAL_RATE], bi[t, BI_NOMINAL_RATE],
                                               bi[t, BI_FINAL_RATE], bi[t, BI_ACCEL_UNTIL], bi[t, BI_DECEL_AFTER],
@@ -649,6 +650,8 @@ def marlin_run_kernel(kind, tgt, reset_bits, reset_pos, fr, acc_p, acc_t, acc_r,
     first row whose block has not run yet (rows before it are final)."""
     n = len(kind)
     end_row = row_base + n
+    scratch_f = np.zeros((4, 4), dtype=np.float32)
+    scratch_i = np.zeros((4, 4), dtype=np.int64)
     while True:
         # the host: Marlin's main loop fills the buffer (15 usable slots) in no time
         while gi[GI_NEXT_ROW] < end_row and _queued(gi) < BLOCK_BUFFER_SIZE - 1:
@@ -685,13 +688,14 @@ def marlin_run_kernel(kind, tgt, reset_bits, reset_pos, fr, acc_p, acc_t, acc_r,
             gi[GI_RESET_DONE] = 0
             if _populate_block(bf, bi, gi, gf, gi[GI_NEXT_ROW], tgt[r], fr[r], acc_p[r], acc_t[r], acc_r[r], vmax[r],
                                amax_steps[r], cutoff[r], jerk[r], min_feed[r], min_travel[r], spm, mm_per_step,
-                               min_segment_time_us, junction_mode, amax_mm[r], jdev[r], advance_k[r]):
+                               min_segment_time_us, junction_mode, amax_mm[r], jdev[r], advance_k[r], scratch_f,
+                               scratch_i):
                 gi[GI_HEAD] = _next(gi[GI_HEAD])
                 recalculate(bf, bi, gi)
             gi[GI_NEXT_ROW] += 1
         if not final and gi[GI_NEXT_ROW] >= end_row and _queued(gi) < BLOCK_BUFFER_SIZE - 1:
             break                              # the host would queue more: wait for the next rows
-        if not _pick_and_run(bf, bi, gi, out_i, out_f, timer_hz, acc_rate_scale, row_base, s_curve):
+        if not _pick_and_run(bf, bi, gi, out_i, out_f, timer_hz, acc_rate_scale, row_base, s_curve, scratch_i):
             if gi[GI_NEXT_ROW] >= end_row:
                 break
     # rows before the oldest block not yet run (or the next row to read) are final
