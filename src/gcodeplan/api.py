@@ -13,13 +13,16 @@ import numpy as np
 from . import pipeline
 
 
+_FIRMWARE_MODELS = ("grbl-1.1", "marlin-2.1.2")
+
+
 def load_machine(spec: str | None = None, *, klipper_config: str | None = None, linuxcnc_ini: str | None = None,
                  flavor: str | None = None, firmware: str | None = None):
     """A :class:`~gcodeplan.machine.Machine`: a preset name (``klipper``, ``marlin``, ``grbl``), a machine
     ``.toml`` path, or ``klipper_config=`` a Klipper ``printer.cfg`` (includes followed; the G-code then
     has Klipper's meanings), or ``linuxcnc_ini=`` a LinuxCNC machine ``.ini`` (planned with the ``linuxcnc``
-    policy). ``flavor`` overrides the G-code dialect; ``firmware`` the firmware model (``grbl-1.1``, or
-    ``none`` for the junction policy alone). Default: the ``klipper`` preset.
+    policy). ``flavor`` overrides the G-code dialect; ``firmware`` the firmware model (``grbl-1.1``,
+    ``marlin-2.1.2``, or ``generic`` for the junction policy alone). Default: the ``klipper`` preset.
     Its limits are in mm, mm/s, mm/s² (docs/machine.md lists every key)."""
     from dataclasses import replace
 
@@ -48,11 +51,9 @@ def load_machine(spec: str | None = None, *, klipper_config: str | None = None, 
     if firmware is not None:
         from .machine import FIRMWARES
 
-        name = "" if firmware == "none" else firmware
-        if name not in FIRMWARES:
-            raise ConfigError(f"firmware: unknown value {firmware!r} (one of none, "
-                              f"{', '.join(f for f in FIRMWARES if f)})")
-        machine = replace(machine, firmware=name)
+        if firmware not in FIRMWARES:
+            raise ConfigError(f"firmware: unknown value {firmware!r} (one of {', '.join(FIRMWARES)})")
+        machine = replace(machine, firmware=firmware)
     return machine
 
 
@@ -100,7 +101,7 @@ def estimate(source, machine=None, policy: str | None = None, jerk: float | None
                     line_ends=sink.lines.arrays() if sink.lines is not None else (None, None), objects=list(r.interp.objects.names),
                     wait_time_s=dict(r.interp.wait_time_s),
                     filament_diameter_mm=r.interp.filament_diameter_mm,   # the E figures' filament (M200 / UltiGCode)
-                    firmware=res.machine.firmware)
+                    firmware=res.policy if res.policy in _FIRMWARE_MODELS else "")
 
 
 @dataclass

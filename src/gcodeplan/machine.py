@@ -23,9 +23,10 @@ FLAVORS = ("marlin", "klipper", "reprap", "grbl", "linuxcnc")
 SHAPER_TYPES = ("none", "zv", "mzv", "zvd", "ei", "2hump_ei", "3hump_ei")
 SHAPER_TYPE_CODES = {name: i for i, name in enumerate(SHAPER_TYPES)}
 POLICIES = ("klipper", "junction-deviation", "classic-jerk", "blend", "exact-stop", "linuxcnc")
-# firmware models: "" = the junction policy alone (a generic planner); "grbl-1.1" = grbl 1.1's planner, segment
-# generator and stepper as they run (planner/grbl.py)
-FIRMWARES = ("", "grbl-1.1")
+# firmware models: "generic" = planned by the junction policy alone; the others run the firmware's own planner
+# and step timing: grbl 1.1 (planner/grbl.py), Marlin 2.1.2.4 (planner/marlin.py)
+FIRMWARES = ("generic", "grbl-1.1", "marlin-2.1.2")
+ACCELERATION_PROFILES = ("trapezoid", "s-curve")
 AXES = ("x", "y", "z", "e")
 
 
@@ -48,8 +49,11 @@ class Machine:
     kinematics: str = "cartesian"
     # G-code dialect: G4 P unit, M204 meaning, whether M201/M203/M205 apply, G0 rapid rate
     flavor: str = "marlin"
-    # firmware model (FIRMWARES): when set, the firmware's own planning and step timing replace the policy
-    firmware: str = ""
+    # firmware model (FIRMWARES): "generic" plans with junction_policy; a firmware's own planning and step timing
+    # replace it otherwise (grbl-1.1: planner/grbl.py, marlin-2.1.2: planner/marlin.py)
+    firmware: str = "generic"
+    # a firmware model's speed ramps (ACCELERATION_PROFILES): "s-curve" = Marlin's S_CURVE_ACCELERATION
+    acceleration_profile: str = "trapezoid"
     grbl_idle_lock_ms: float = 255.0     # grbl $1: ms the stepper ISR holds at every stop; 255 = keep enabled (none)
 
     # toolhead

@@ -360,16 +360,15 @@ class Run:
                  exclude_objects: Sequence[str] = ()):
         from .planner import StreamPlanner
 
-        if policy is not None and getattr(machine, "firmware", ""):
-            from dataclasses import replace
-
-            machine = replace(machine, firmware="")   # an explicit policy plans instead of the firmware model
         self.machine = machine
         self.policy = policy or machine.junction_policy
         self.reader, self.small = open_reader(source, machine, strict=strict, batch_moves=batch_moves)
         if exclude_objects:   # objects cancelled as Klipper's exclude_object runs them (gcode/objects.py)
             self.reader.interp.exclude_objects(exclude_objects)
         self.planner = StreamPlanner(machine, policy=self.policy, jerk=jerk)
+        self.planner.e_position_sets = self.reader.interp.e_position_sets   # G92 E, for firmware models
+        if self.planner.firmware != "generic":
+            self.policy = self.planner.firmware       # the summary names the firmware model that planned
         self.progress = progress
         self.rows = 0
         self.finished = False

@@ -92,6 +92,7 @@ class Toolhead:
         self._reader = GcodeReader([], self.machine, strict=strict)
         self._reader.path = self._reader.interp.path = name
         self._planner = StreamPlanner(self.machine, policy=self.policy, jerk=jerk)
+        self._planner.e_position_sets = self._reader.interp.e_position_sets   # G92 E, for firmware models
         self.block_lines = max(1, int(block_lines))
         self._text: list[bytes] = []
         self._lines_waiting = 0

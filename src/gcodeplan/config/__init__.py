@@ -55,7 +55,12 @@ def machine_from_args(args: Any) -> Machine:
         machine = replace(machine, flavor=flavor)
     firmware = getattr(args, "firmware", None)
     if firmware:
-        machine = replace(machine, firmware="" if firmware == "none" else firmware)
+        from ..machine import FIRMWARES
+
+        problem = rule_choice(FIRMWARES)(firmware)
+        if problem is not None:
+            raise ConfigError(f"--firmware: {problem}")
+        machine = replace(machine, firmware=firmware)
     if getattr(args, "no_bounds", False):
         machine = without_bounds(machine)
     return machine

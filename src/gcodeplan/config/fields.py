@@ -11,7 +11,7 @@ from dataclasses import dataclass
 from typing import Any, Callable
 
 from ..errors import ConfigError
-from ..machine import AXES, FIRMWARES, FLAVORS, KINEMATICS, POLICIES, SHAPER_TYPES, Axis, Machine
+from ..machine import ACCELERATION_PROFILES, AXES, FIRMWARES, FLAVORS, KINEMATICS, POLICIES, SHAPER_TYPES, Axis, Machine
 
 
 # Kinematics Klipper and others offer that we know about but cannot plan yet.
@@ -234,6 +234,7 @@ FIELDS: tuple[Field, ...] = (
     Field("", "flavor", "flavor", rule_choice(FLAVORS), "string", ""),
     Field("", "firmware", "firmware", rule_choice(FIRMWARES), "string", ""),
     Field("", "grbl_idle_lock_ms", "grbl_idle_lock_ms", _rule_non_negative, "number", "ms"),
+    Field("", "acceleration_profile", "acceleration_profile", rule_choice(ACCELERATION_PROFILES), "string", ""),
     Field("toolhead", "max_velocity", "max_velocity", _SPEED, "number", "mm/s"),
     Field("toolhead", "max_accel", "max_accel", _ACCEL, "number", "mm/s²"),
     Field("toolhead", "accel_print", "accel_print", _OPT_ACCEL, "number", "mm/s²"),

@@ -142,6 +142,8 @@ class MotionCommands:
         for k, v in given.items():
             if k == "E":
                 st[S.S_ELOG] = v * scale
+                if self._keep_e_sets:
+                    self.e_position_sets.append((self.line, v * scale))
             else:
                 a = "XYZ".index(k)
                 extra = self.tool_z if a == 2 else 0.0

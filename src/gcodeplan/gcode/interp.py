@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import math
 import re
+from collections import deque
 
 import numpy as np
 
@@ -115,6 +116,10 @@ class Interpreter(StateCommands, MotionCommands, Rs274Commands):
         self.ignored: dict[str, int] = {}
         self.waits: dict[str, int] = {}
         self.events: list[tuple[int, str]] = []
+        # (line, logical E in mm) of each "G92 E": a firmware model (planner/marlin.py) takes them in order, as
+        # Marlin resets its E position there; kept only for such machines, and emptied as they are used
+        self.e_position_sets: deque[tuple[int, float]] = deque()
+        self._keep_e_sets = getattr(machine, "firmware", "generic") != "generic"
         self.warnings: list[str] = []
         self.warning_count = 0
         self.arcs = 0

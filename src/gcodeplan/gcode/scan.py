@@ -508,9 +508,8 @@ def scan_chunk(buf, pos, end, st, ist, out, n_out, feat_raw, feat_len, feat_idx)
                 if ist[I_G90_SETS_E] != 0:
                     ist[I_ABS_E] = ist[I_ABS_COORD]
             elif code == 92:
-                if has != 8:   # only "G92 E<v>" here
-                    return ST_PYTHON, line_start, n_out
-                st[S_ELOG] = ve * st[S_UNIT]
+                # the interpreter sets positions (and notes "G92 E" for firmware models: planner/marlin.py)
+                return ST_PYTHON, line_start, n_out
             elif code == 4:
                 if has & ~(32 | 64):
                     return ST_PYTHON, line_start, n_out

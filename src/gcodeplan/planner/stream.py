@@ -217,6 +217,12 @@ class StreamPlanner:
         self._stop_pending = True                         # a full stop precedes the next move
         self._clock = 0.0
         self._emitted: list[tuple[np.ndarray, np.ndarray, np.ndarray, object]] = []  # last call's pieces
+        # a firmware model (machine.firmware) plans with the junction rules the firmware has (Marlin: classic
+        # jerk or junction deviation; grbl: junction deviation); another policy asked for plans without the model
+        firmware = getattr(machine, "firmware", "generic")
+        allowed = {"marlin-2.1.2": ("classic-jerk", "junction-deviation"), "grbl-1.1": ("junction-deviation",)}
+        self.firmware = firmware if self.policy in allowed.get(firmware, ()) else "generic"
+        self.e_position_sets = None                       # G92 E positions for a firmware model (pipeline sets)
         self.want_firmware_steps = False                  # a firmware model keeps its own step pulses
 
     # ------------------------------------------------------------------ public
@@ -285,12 +291,17 @@ class StreamPlanner:
         """plan_moves' dispatch: a jerk (argument, else the limits in force) selects S-curves, then 'blend'."""
         from . import scurve_jerk
 
-        # a firmware model plans unless a policy other than the machine's, or a jerk, was asked for
-        if (getattr(self.machine, "firmware", "") == "grbl-1.1" and self._jerk is None
-                and self.policy == self.machine.junction_policy):
-            from .grbl import make_stream_mode as grbl_mode
+        if self.firmware != "generic":
+            if self._jerk is not None:
+                raise ConfigError(f"firmware {self.firmware}: --jerk / max_jerk do not apply (the firmware's own "
+                                  "acceleration profile is modelled)")
+            if self.firmware == "grbl-1.1":
+                from .grbl import make_stream_mode as grbl_mode
 
-            return grbl_mode(_Mode)(self)
+                return grbl_mode(_Mode)(self)
+            from .marlin import make_stream_mode as marlin_mode
+
+            return marlin_mode(_Mode)(self)
         if self._jerk is None:
             self._jerk = scurve_jerk(moves, limits, None)
             self._jerk_from_limits = self._jerk is not None

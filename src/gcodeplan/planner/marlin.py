@@ -1,0 +1,337 @@
+"""The ``marlin-2.1.2`` firmware model: plan and time a program as Marlin 2.1.2.4 runs it.
+
+A machine whose ``firmware`` is ``"marlin-2.1.2"`` is planned by this module instead of a junction policy:
+every MOVE row goes through Marlin's own host loop, planner and stepper interrupt
+(:mod:`gcodeplan.planner.marlin_kernels`, :mod:`gcodeplan.stepper.marlin_isr`), and its PLAN row carries the
+firmware's real start and end time: the tick its block was picked up and the tick of its last step, on the
+25 MHz stepper timer. The trapezoid fields of the PLAN row are the block's as executed (entry and exit
+speeds from its step rates, phase times from the interrupt), with the cruise speed fitted so that the
+row's distance is covered in its time.
+
+Rows that make no block (under 6 steps: Marlin carries them into the next move) last 0 s at the end of
+the block before them. Waits (M400, G4, G28, heater waits) drain the buffer; the next block is picked up
+at the stepper's next 1 ms idle poll after the wait (the dwell rounded up to whole ms).
+
+Reference: ``shared/reference/marlin`` (Marlin 2.1.2.4's planner.cpp / stepper.cpp on a simulated clock);
+``tools/compare_marlin.py`` prints the agreement.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ..errors import ConfigError
+from ..schema import (KIND_DWELL, KIND_EXTRUDE_ONLY, KIND_WAIT, LIMIT_ACCEL, LIMIT_FEED, LIMIT_NONE, PLAN_DTYPE)
+from ..stepper.marlin_isr import MARLIN_TIMER_HZ
+from . import marlin_kernels as mk
+
+#: firmware names this module models (machine TOML ``firmware``, CLI ``--firmware``)
+FIRMWARES = ("marlin-2.1.2",)
+#: µs, Marlin's DEFAULT_MINSEGMENTTIME (SLOWDOWN)
+MIN_SEGMENT_TIME_US = 20000
+_AXES = ("x", "y", "z", "e")
+#: junction policies a Marlin build has: CLASSIC_JERK on, or off (junction deviation)
+JUNCTIONS = ("classic-jerk", "junction-deviation")
+_UINT32_MAX = 4294967295
+
+
+def check_firmware(name: str | None) -> str | None:
+    """``name`` if it is a firmware model gcodeplan runs (None passes), else a ConfigError."""
+    if name is None or name in FIRMWARES:
+        return name
+    raise ConfigError(f"firmware: unknown value {name!r} (one of {', '.join(FIRMWARES)})")
+
+
+def _axis_accel_steps(limits: np.ndarray, spm32: np.ndarray) -> np.ndarray:
+    """max_acceleration_steps_per_s2 per LIMITS row and axis: M201 values are whole mm/s² in Marlin
+    (uint32), times steps/mm in float32, truncated."""
+    out = np.empty((len(limits), 4), dtype=np.int64)
+    for a, name in enumerate(_AXES):
+        v = np.asarray(limits["axis_a_" + name], dtype=np.float64)
+        ok = np.isfinite(v) & (v * float(spm32[a]) < _UINT32_MAX)
+        whole = np.trunc(np.where(ok, v, 0.0)).astype(np.float32)
+        prod = (whole * spm32[a]).astype(np.float32)
+        out[:, a] = np.where(ok, np.trunc(prod).astype(np.int64), _UINT32_MAX // 4)
+    return out
+
+
+class MarlinModel:
+    """Marlin 2.1.2's host loop, planner and stepper over a stream of MOVE rows.
+
+    ``feed(moves, limits)`` then ``finish()`` return PLAN rows for the rows they settle, in order:
+    ``(n_rows, plan)`` pieces whose concatenation is one PLAN row per MOVE row."""
+
+    def __init__(self, machine, timer_hz: int = MARLIN_TIMER_HZ, e_position_sets=None,
+                 junction: str | None = None):
+        self.machine = machine
+        # the build's junction rule: CLASSIC_JERK (the reference) or junction deviation (CLASSIC_JERK off)
+        junction = junction or machine.junction_policy
+        if junction not in JUNCTIONS:
+            raise ConfigError(f"firmware {FIRMWARES[0]}: junction policy {junction!r} is not one of Marlin's "
+                              f"({', '.join(JUNCTIONS)})")
+        self.junction_mode = mk.JUNCTION_DEVIATION if junction == "junction-deviation" else mk.JUNCTION_CLASSIC_JERK
+        # S_CURVE_ACCELERATION: the same blocks, Bézier speed ramps in the stepper interrupt
+        self.s_curve = getattr(machine, "acceleration_profile", "trapezoid") == "s-curve"
+        # (line, logical E) of each G92 E, in file order (GcodeReader.interp.e_position_sets): Marlin's E is
+        # logical (G92 E0 resets it, and its step position is re-rounded there); None = E never reset
+        self.e_position_sets = e_position_sets
+        self._e_off = 0.0                        # mm, machine E − Marlin's logical E
+        self.timer_hz = int(timer_hz)
+        self.spm = np.array([machine.axes[a].steps_per_mm for a in _AXES], dtype=np.float32)
+        if not np.all(self.spm > 0):
+            raise ConfigError("marlin-2.1.2: every axis needs steps_per_mm > 0")
+        self.mm_per_step = (np.float32(1) / self.spm).astype(np.float32)
+        self.acc_rate_scale = np.float32(np.float32(16777216.0) / np.float32(self.timer_hz))
+        self.state = mk.new_state()
+        self.row_base = 0                        # absolute number of the window's first row
+        self._moves = None                       # window: rows read, not settled
+        self._arrays = None
+        self._out_i = np.zeros((0, mk.N_OI), dtype=np.int64)
+        self._out_f = np.zeros((0, mk.N_OF), dtype=np.float32)
+        self._last_end = np.zeros(4)             # mm, where the previous row ended (Marlin boots at 0)
+        self._acc = [machine.accel_print or machine.max_accel, machine.accel_travel or machine.max_accel,
+                     machine.accel_retract or machine.max_accel]
+        self._clock_done = 0                     # tick the last settled block ended
+        self._last_v = 0.0                       # mm/s, the exit speed of the last settled block
+        self._tables = None                      # (key, per-LIMITS-row settings): _limit_tables
+        self.blocks = []                          # (out_i, out_f) of settled rows, when keep_blocks
+        self.keep_blocks = False
+
+    # ------------------------------------------------------------------ inputs
+    def _row_arrays(self, moves: np.ndarray, limits: np.ndarray) -> dict:
+        n = len(moves)
+        kind = np.full(n, mk.ROW_MOVE, dtype=np.int64)
+        k = moves["kind"]
+        kind[(k == KIND_WAIT) | (k == KIND_DWELL)] = mk.ROW_WAIT
+        wait_ticks = np.zeros(n, dtype=np.int64)
+        dw = moves["dwell_t"]
+        wmask = kind == mk.ROW_WAIT
+        wait_ticks[wmask] = np.ceil(np.nan_to_num(dw[wmask]) * self.timer_hz).astype(np.int64)
+        start = np.stack([moves["x0"], moves["y0"], moves["z0"], moves["e0"]], axis=1)
+        end = np.stack([moves["x1"], moves["y1"], moves["z1"], moves["e1"]], axis=1)
+        prev_end = np.vstack([self._last_end[None, :], end[:-1]]) if n else np.zeros((0, 4))
+        # a jump of X/Y/Z between rows (homing) sets the position; the logical E changes only at G92 E
+        diff = start[:, :3] != prev_end[:, :3]
+        reset_bits = (diff * (1 << np.arange(3))).sum(axis=1).astype(np.int64)
+        if n:
+            self._last_end = end[-1].copy()
+        e_off = np.empty(n)
+        e_off.fill(self._e_off)
+        e_reset = np.zeros(n, dtype=np.float64)
+        sets = self.e_position_sets
+        if sets is not None and n:
+            lines = moves["line"]
+            while sets and sets[0][0] < lines[-1]:
+                line, v = sets.popleft()
+                j = int(np.searchsorted(lines, line, side="right"))   # the first row after the G92
+                cur = np.float32(moves["e0"][j] - e_off[j])           # Marlin's current E (float)
+                new_off = float(moves["e0"][j]) - v
+                e_off[j:] = new_off
+                self._e_off = new_off
+                # G92 E changes nothing unless the value differs (gcode/feature/G92: NEAR_ZERO)
+                if abs(np.float32(np.float32(v) - cur)) >= np.float32(0.000001):
+                    reset_bits[j] |= 8
+                    e_reset[j] = v
+        tgt = end.astype(np.float32)
+        tgt[:, 3] = (end[:, 3] - e_off).astype(np.float32)
+        reset_pos = start.astype(np.float32)
+        reset_pos[:, 3] = e_reset.astype(np.float32)
+        # feed: F (mm/min) as float32, /60, then Marlin's MMS_SCALED (·0.01·100 %)
+        fv = moves["feed_v"]
+        f_mm_min = np.where(np.isfinite(fv), fv * 60.0, 1e9).astype(np.float32)
+        fr = (f_mm_min / np.float32(60)).astype(np.float32)
+        fr = (fr * np.float32(0.01)).astype(np.float32) * np.float32(100)
+        # M204 P / T / R in force: the row's own accel for its class, the last seen for the others
+        acc = np.zeros((n, 3), dtype=np.float32)
+        cls = np.where(k == KIND_EXTRUDE_ONLY, 2, np.where(moves["e1"] != moves["e0"], 0, 1))
+        accel = moves["accel"]
+        usable = (kind == mk.ROW_MOVE) & np.isfinite(accel)
+        idx = np.arange(n)
+        for c in range(3):
+            # forward fill: the accel of the last row of class c up to each row (the previous batch's before)
+            own = usable & (cls == c)
+            last = np.maximum.accumulate(np.where(own, idx, -1)) if n else idx
+            acc[:, c] = np.where(last >= 0, accel[np.maximum(last, 0)], self._acc[c])
+            if n and last[-1] >= 0:
+                self._acc[c] = float(accel[last[-1]])
+        li = moves["limits"]
+        tab = self._limit_tables(limits)
+        vmax, jerk, amax_mm, amax = tab["vmax"][li], tab["jerk"][li], tab["amax_mm"][li], tab["amax"][li]
+        cutoff = tab["cutoff"][li]
+        return dict(kind=kind, tgt=np.ascontiguousarray(tgt), reset_bits=reset_bits,
+                    reset_pos=np.ascontiguousarray(reset_pos), fr=fr.astype(np.float32),
+                    acc_p=np.ascontiguousarray(acc[:, 0]), acc_t=np.ascontiguousarray(acc[:, 1]),
+                    acc_r=np.ascontiguousarray(acc[:, 2]), vmax=np.ascontiguousarray(vmax),
+                    amax=np.ascontiguousarray(amax), cutoff=cutoff, jerk=np.ascontiguousarray(jerk),
+                    min_feed=tab["min_feed"][li], min_travel=tab["min_travel"][li],
+                    wait_ticks=wait_ticks, amax_mm=np.ascontiguousarray(amax_mm), jdev=tab["jdev"][li],
+                    advance_k=tab["advance_k"][li])
+
+    def _limit_tables(self, limits: np.ndarray) -> dict:
+        """Per LIMITS row, the firmware's settings (float32 / integer as Marlin stores them); the table only
+        grows, so it is rebuilt when its length or last row changes."""
+        key = (len(limits), limits[-1:].tobytes())
+        if self._tables is not None and self._tables[0] == key:
+            return self._tables[1]
+        vmax = np.stack([limits["axis_v_" + a] for a in _AXES], axis=1)
+        amax_mm = np.stack([limits["axis_a_" + a] for a in _AXES], axis=1)
+        amax = _axis_accel_steps(limits, self.spm)
+        tab = dict(
+            vmax=np.ascontiguousarray(np.where(np.isfinite(vmax), vmax, 1e30).astype(np.float32)),
+            jerk=np.ascontiguousarray(np.stack([limits["jerk_" + a] for a in _AXES], axis=1).astype(np.float32)),
+            # M201 values are whole mm/s² in Marlin (uint32)
+            amax_mm=np.ascontiguousarray(np.where(np.isfinite(amax_mm), np.floor(np.minimum(amax_mm, 4e9)),
+                                                  3e38).astype(np.float32)),
+            amax=amax,
+            cutoff=(_UINT32_MAX // np.maximum(amax.max(axis=1), 1)).astype(np.int64),
+            jdev=limits["junction_dev"].astype(np.float32), advance_k=limits["pa_k"].astype(np.float32),
+            min_feed=limits["min_feed_v"].astype(np.float32), min_travel=limits["min_travel_v"].astype(np.float32))
+        self._tables = (key, tab)
+        return tab
+
+    # ------------------------------------------------------------------ running
+    def feed(self, moves: np.ndarray, limits: np.ndarray):
+        """Add MOVE rows; return ``(moves, plan)`` pieces whose times are final."""
+        if len(moves) == 0:
+            return []
+        arr = self._row_arrays(moves, np.asarray(limits))
+        if self._moves is None or len(self._moves) == 0:
+            self._moves, self._arrays = moves, arr
+        else:
+            self._moves = np.concatenate([self._moves, moves])
+            self._arrays = {k: np.concatenate([self._arrays[k], arr[k]]) for k in arr}
+        self._out_i = np.vstack([self._out_i, np.zeros((len(moves), mk.N_OI), dtype=np.int64)])
+        self._out_f = np.vstack([self._out_f, np.zeros((len(moves), mk.N_OF), dtype=np.float32)])
+        return self._run(final=False)
+
+    def finish(self):
+        """Run everything still queued; the buffer ends empty."""
+        if self._moves is None or len(self._moves) == 0:
+            return []
+        return self._run(final=True)
+
+    def _run(self, final: bool):
+        a = self._arrays
+        bf, bi, gi, gf = self.state
+        first = mk.marlin_run_kernel(a["kind"], a["tgt"], a["reset_bits"], a["reset_pos"], a["fr"], a["acc_p"],
+                                     a["acc_t"], a["acc_r"], a["vmax"], a["amax"], a["cutoff"], a["jerk"],
+                                     a["min_feed"], a["min_travel"], a["wait_ticks"], self.spm, self.mm_per_step,
+                                     MIN_SEGMENT_TIME_US, self.timer_hz, self.acc_rate_scale, final,
+                                     self.row_base, bf, bi, gi, gf, self._out_i, self._out_f, self.junction_mode,
+                                     a["amax_mm"], a["jdev"], a["advance_k"], self.s_curve)
+        n_done = int(first) - self.row_base
+        if final:
+            n_done = len(self._moves)
+        if n_done <= 0:
+            return []
+        moves_out = self._moves[:n_done]
+        oi, of = self._out_i[:n_done], self._out_f[:n_done]
+        plan = self._plan_rows(moves_out, oi, of)
+        if self.keep_blocks:
+            self.blocks.append((oi.copy(), of.copy(), moves_out["line"].copy()))
+        self._moves = self._moves[n_done:].copy()
+        self._arrays = {k: v[n_done:].copy() for k, v in a.items()}
+        self._out_i = self._out_i[n_done:].copy()
+        self._out_f = self._out_f[n_done:].copy()
+        self.row_base += n_done
+        return [(moves_out, plan)]
+
+    def _plan_rows(self, moves: np.ndarray, oi: np.ndarray, of: np.ndarray) -> np.ndarray:
+        """PLAN rows: blocks as executed; rows without a block last 0 s where the previous one ended."""
+        hz = float(self.timer_hz)
+        n = len(moves)
+        plan = np.zeros(n, dtype=PLAN_DTYPE)
+        timed = oi[:, mk.OI_HAS_BLOCK] != 0             # a block or a wait
+        has = oi[:, mk.OI_HAS_BLOCK] == 1
+        idx = np.arange(n)
+        last_timed = np.maximum.accumulate(np.where(timed, idx, -1))
+        t_end = np.where(timed, oi[:, mk.OI_T_END],
+                         np.where(last_timed >= 0, oi[np.maximum(last_timed, 0), mk.OI_T_END], self._clock_done))
+        t_end = t_end.astype(np.int64)
+        self._clock_done = int(t_end[-1])
+        t_pick = np.where(timed, oi[:, mk.OI_T_PICK], t_end)
+        plan["t_start"] = t_pick / hz
+        plan["duration"] = (t_end - t_pick) / hz
+        sec = np.maximum(oi[:, mk.OI_SEC], 1).astype(np.float64)
+        mm = of[:, mk.OF_MM].astype(np.float64)
+        per_step = np.where(has, mm / sec, 0.0)       # mm per leading-axis step
+        v0 = oi[:, mk.OI_INITIAL_RATE] * per_step
+        v1 = oi[:, mk.OI_FINAL_RATE] * per_step
+        ta = oi[:, mk.OI_ACC_T] / hz
+        tc = oi[:, mk.OI_CRUISE_T] / hz
+        td = oi[:, mk.OI_DEC_T] / hz
+        d = moves["move_d"]
+        den = ta / 2 + tc + td / 2
+        with np.errstate(divide="ignore", invalid="ignore"):
+            vc = np.where(den > 0, (d - v0 * ta / 2 - v1 * td / 2) / den, 0.0)
+            vc = np.where(has, np.maximum(vc, 0.0), 0.0)
+            plan["accel"] = np.where(ta > 0, (vc - v0) / ta, 0.0)
+            plan["decel"] = np.where(td > 0, (vc - v1) / td, 0.0)
+        # a row without a block passes in no time at the speed the block before it ended with
+        wait = (moves["kind"] == KIND_WAIT) | (moves["kind"] == KIND_DWELL)
+        v_at = np.where(has, v1, 0.0)                  # after a wait the buffer ran empty: at rest
+        last_set = np.maximum.accumulate(np.where(has | wait, idx, -1))
+        carry = np.where(last_set >= 0, v_at[np.maximum(last_set, 0)], self._last_v)
+        carry = np.where(has | wait, 0.0, carry)
+        self._last_v = float(v_at[last_set[-1]]) if last_set[-1] >= 0 else self._last_v
+        plan["start_v"] = np.where(has, v0, carry)
+        plan["cruise_v"] = np.where(has, vc, carry)
+        plan["end_v"] = np.where(has, v1, carry)
+        plan["accel_t"] = np.where(has, ta, 0.0)
+        plan["cruise_t"] = np.where(has, tc, 0.0)
+        plan["decel_t"] = np.where(has, td, 0.0)
+        plan["limit"] = np.where(wait, LIMIT_NONE, np.where(oi[:, mk.OI_ACCEL_UNTIL] > 0, LIMIT_ACCEL, LIMIT_FEED))
+        return plan
+
+
+def run_marlin(moves: np.ndarray, limits: np.ndarray, machine, keep_blocks: bool = False, e_position_sets=None,
+               junction: str | None = None):
+    """Whole-program convenience: PLAN rows for ``moves`` (and the model, for its ``blocks``)."""
+    m = MarlinModel(machine, e_position_sets=e_position_sets, junction=junction)
+    m.keep_blocks = keep_blocks
+    outs = m.feed(moves, limits) + m.finish()
+    plan = np.concatenate([p for _, p in outs]) if outs else np.zeros(0, dtype=PLAN_DTYPE)
+    return plan, m
+
+
+def make_stream_mode(base_cls):
+    """The StreamPlanner mode of a Marlin firmware machine (``base_cls``: planner.stream._Mode): the model
+    settles rows as the firmware's buffer lets them go; their PLAN rows carry the firmware's times."""
+
+    class MarlinMode(base_cls):
+        name = FIRMWARES[0]
+        own_segments = False          # PLAN rows are trapezoids: planner.segments rebuilds the pieces
+        own_prepare = True
+
+        def __init__(self, sp):
+            super().__init__(sp)
+            self.model = self._new_model()
+            self._ready: list[np.ndarray] = []
+
+        def _new_model(self):
+            sp = self.sp
+            return MarlinModel(sp.machine, e_position_sets=getattr(sp, "e_position_sets", None), junction=sp.policy)
+
+        def prepare(self, moves_chunk, limits):
+            from .prepare import PREP_DTYPE
+
+            self._ready.extend(p for _, p in self.model.feed(np.asarray(moves_chunk), np.asarray(limits)))
+            return np.zeros(len(moves_chunk), dtype=PREP_DTYPE)
+
+        def plan(self, final: bool):
+            sp = self.sp
+            if final:
+                self._ready.extend(p for _, p in self.model.finish())
+            if not self._ready:
+                return 0, None, sp._clock, None
+            plan = np.concatenate(self._ready) if len(self._ready) > 1 else self._ready[0]
+            self._ready = []
+            t_end = float(plan["t_start"][-1] + plan["duration"][-1])
+            return len(plan), plan, t_end, None
+
+        def reset(self) -> None:
+            # finish(): the buffer ran empty; a later feed() starts a new program on the same model
+            self.model = self._new_model()
+
+    return MarlinMode

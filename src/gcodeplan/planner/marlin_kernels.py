@@ -1,0 +1,710 @@
+"""Marlin 2.1.2's planner as it runs, in numba: block buffer, look-ahead passes, trapezoids, and its stepper.
+
+The functions keep the names and boundaries of Marlin's ``planner.cpp`` (``_populate_block``,
+``reverse_pass_kernel``, ``reverse_pass``, ``forward_pass_kernel``, ``forward_pass``,
+``recalculate_trapezoids``, ``recalculate``, ``calculate_trapezoid_for_block``, ``get_current_block``) so the
+model can be compared with the firmware's next release function by function. Arithmetic is float32 where
+the firmware's is ``float`` and integer where it is ``uint32_t``/``int32_t``: the step counts, rates and
+step boundaries come out as Marlin's, and so do the step times (:mod:`gcodeplan.stepper.marlin_isr`).
+
+What it models (docs/design.md, "Marlin 2.1.2 model"):
+
+* the ring buffer of ``BLOCK_BUFFER_SIZE`` (16) blocks, 15 usable; the block the stepper runs is frozen
+  (``is_block_busy``); the reverse and forward passes run over the queued blocks from
+  ``block_buffer_planned``, Marlin's "already optimal" pointer, so the look-ahead is what the buffer holds;
+* the host of the reference runs: Marlin's main loop takes no time, so the buffer is refilled as soon as a
+  block leaves; a position change (G92) with blocks queued takes a slot as a sync block;
+* ``_populate_block``: targets in whole steps (``lround(mm · steps/mm)``), moves under
+  ``MIN_STEPS_PER_SEGMENT`` (6) steps dropped and carried into the next, distance from the step deltas,
+  ``SLOWDOWN`` (``MIN_SEGMENT_TIME`` 20 ms when 2..7 blocks are queued), per-axis feed limits, acceleration
+  in steps/s² limited per axis (integer or float rule by ``acceleration_long_cutoff``), classic jerk with
+  the Průša safe-speed rule and the coasting / reversal jerk, ``MINIMUM_PLANNER_SPEED``;
+* ``calculate_trapezoid_for_block``: rates rounded up, the 120 steps/s floor, integer step boundaries.
+
+Row kinds handed in (``ROW_*``): a move, a wait (the queue drains first: M400, G4, homing), or nothing.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .._jit import njit
+from ..stepper.marlin_isr import block_ticks_kernel, block_ticks_scurve_kernel
+
+BLOCK_BUFFER_SIZE = 16
+MIN_STEPS_PER_SEGMENT = 6
+MINIMAL_STEP_RATE = 120          # steps/s, planner.cpp (2.1.2): the timer would overflow below it
+SLOWDOWN_DIVISOR = 2
+
+ROW_MOVE, ROW_WAIT, ROW_SKIP = 0, 1, 2
+
+# block flag bits (planner.h)
+FLAG_RECALCULATE = 1
+FLAG_NOMINAL_LENGTH = 2
+FLAG_SYNC_POSITION = 8
+
+# float32 block fields (bf[slot, ...])
+BF_MM, BF_NOMINAL_SPEED, BF_ENTRY_SQR, BF_MAX_ENTRY_SQR, BF_ACCEL = 0, 1, 2, 3, 4
+N_BF = 5
+# integer block fields (bi[slot, ...])
+(BI_FLAG, BI_SEC, BI_NOMINAL_RATE, BI_INITIAL_RATE, BI_FINAL_RATE, BI_ACCEL_UNTIL, BI_DECEL_AFTER, BI_ACCEL_STEPS,
+ BI_ROW, BI_SX, BI_SY, BI_SZ, BI_SE, BI_CRUISE_RATE, BI_ACC_TIME, BI_DEC_TIME, BI_ACC_TIME_INV,
+ BI_DEC_TIME_INV) = range(18)
+N_BI = 18
+# integer global state (gi[...])
+(GI_HEAD, GI_TAIL, GI_PLANNED, GI_NONBUSY, GI_BUSY, GI_PX, GI_PY, GI_PZ, GI_PE, GI_CLOCK, GI_NEXT_ROW,
+ GI_STARTED, GI_RESET_DONE, GI_SETTINGS_ROW) = range(14)
+N_GI = 14
+# float32 global state (gf[...])
+GF_PREV_SPEED, GF_PREV_NOMINAL, GF_PREV_SAFE, GF_PREV_UNIT, GF_POS_FLOAT = 0, 4, 5, 6, 10
+N_GF = 14
+# junction rule of the build
+JUNCTION_CLASSIC_JERK, JUNCTION_DEVIATION = 0, 1
+# planner.h's acos table for JD_HANDLE_SMALL_SEGMENTS (JD_USE_LOOKUP_TABLE, on by default): slope and offset of
+# 16 chords of acos(t), entry i covering 1 − t in [2^-(i+1), 2^-i)
+JD_LUT_K = np.array([-1.03145837, -1.30760646, -1.75205851, -2.41705704, -3.37769222, -4.74888992, -6.69649887,
+                     -9.45661736, -13.3640480, -18.8928222, -26.7136841, -37.7754593, -53.4201813, -75.5458374,
+                     -106.836761, -218.532821], dtype=np.float32)
+JD_LUT_B = np.array([1.57079637, 1.70887053, 2.04220939, 2.62408352, 3.52467871, 4.85302639, 6.77020454,
+                     9.50875854, 13.4009285, 18.9188995, 26.7321243, 37.7885055, 53.4293975, 75.5523529,
+                     106.841369, 218.534011], dtype=np.float32)
+# per-row outputs
+(OI_HAS_BLOCK, OI_T_PICK, OI_T_END, OI_SEC, OI_NOMINAL_RATE, OI_INITIAL_RATE, OI_FINAL_RATE, OI_ACCEL_UNTIL,
+ OI_DECEL_AFTER, OI_ACCEL_STEPS, OI_ACC_T, OI_CRUISE_T, OI_DEC_T, OI_FLAG, OI_SX, OI_SY, OI_SZ, OI_SE) = range(18)
+N_OI = 18
+OF_ENTRY_SQR, OF_NOMINAL_SPEED, OF_MM, OF_ACCEL, OF_EXIT_SQR = 0, 1, 2, 3, 4
+N_OF = 5
+
+F32 = np.float32
+
+
+def new_state():
+    """(bf, bi, gi, gf): an empty buffer, the stepper idle, position 0 steps."""
+    bf = np.zeros((BLOCK_BUFFER_SIZE, N_BF), dtype=np.float32)
+    bi = np.zeros((BLOCK_BUFFER_SIZE, N_BI), dtype=np.int64)
+    gi = np.zeros(N_GI, dtype=np.int64)
+    gf = np.zeros(N_GF, dtype=np.float32)
+    return bf, bi, gi, gf
+
+
+@njit(cache=True)
+def _next(i):
+    return (i + 1) & (BLOCK_BUFFER_SIZE - 1)
+
+
+@njit(cache=True)
+def _prev(i):
+    return (i - 1) & (BLOCK_BUFFER_SIZE - 1)
+
+
+@njit(cache=True)
+def _ceilf(x):
+    return np.int64(math.ceil(x))
+
+
+@njit(cache=True)
+def _lroundf(x):
+    """C lroundf: halves away from zero."""
+    if x >= 0:
+        return np.int64(math.floor(x + np.float64(0.5)))
+    return -np.int64(math.floor(-x + np.float64(0.5)))
+
+
+@njit(cache=True)
+def _is_busy(gi, slot):
+    return gi[GI_BUSY] != 0 and slot == gi[GI_TAIL]
+
+
+@njit(cache=True)
+def _max_allowable_speed_sqr(accel, target_velocity_sqr, distance):
+    """v² reachable at the start of ``distance`` mm ending at v² = target with −accel (float32, planner.h)."""
+    return F32(target_velocity_sqr - F32(F32(F32(2) * accel) * distance))
+
+
+@njit(cache=True)
+def calculate_trapezoid_for_block(bf, bi, slot, entry_factor, exit_factor, timer_hz=25000000):
+    """Rates and step boundaries of a block from its entry and exit speeds as fractions of nominal."""
+    nominal_rate = bi[slot, BI_NOMINAL_RATE]
+    initial_rate = _ceilf(F32(F32(nominal_rate) * entry_factor))
+    final_rate = _ceilf(F32(F32(nominal_rate) * exit_factor))
+    if initial_rate < MINIMAL_STEP_RATE:
+        initial_rate = np.int64(MINIMAL_STEP_RATE)
+    if final_rate < MINIMAL_STEP_RATE:
+        final_rate = np.int64(MINIMAL_STEP_RATE)
+    accel = bi[slot, BI_ACCEL_STEPS]
+    sec = bi[slot, BI_SEC]
+    # steps to accelerate from the initial rate to nominal and to brake from nominal to the final rate,
+    # each (rate² difference) / (2·accel), with one inverse of the acceleration (2.1.2's form)
+    f_nom_sq = F32(F32(nominal_rate) * F32(nominal_rate))
+    half_inverse_accel = F32(F32(0.5) * F32(F32(1) / F32(accel)))
+    decelerate_f = F32(half_inverse_accel * F32(f_nom_sq - F32(F32(final_rate) * F32(final_rate))))
+    accelerate_f = F32(half_inverse_accel * F32(f_nom_sq - F32(F32(initial_rate) * F32(initial_rate))))
+    accelerate_steps = _ceilf(accelerate_f)
+    decelerate_steps = np.int64(math.floor(decelerate_f))
+    plateau_steps = sec - accelerate_steps - decelerate_steps
+    if plateau_steps < 0:
+        # no cruise: accelerate to where the two ramps meet, (steps + accel − decel) / 2
+        acc_f = F32(math.ceil(F32(F32(F32(F32(sec) + accelerate_f) - decelerate_f) * F32(0.5))))
+        if acc_f < 0:
+            acc_f = F32(0)
+        accelerate_steps = np.int64(acc_f)
+        if accelerate_steps > sec:
+            accelerate_steps = sec
+        plateau_steps = np.int64(0)
+        # S_CURVE_ACCELERATION: the rate reached where the ramps meet, final_speed() = √(v0² + 2·a·d)
+        cruise_rate = np.int64(F32(math.sqrt(F32(F32(F32(initial_rate) * F32(initial_rate))
+                                                + F32(F32(F32(2) * F32(accel)) * F32(accelerate_steps))))))
+    else:
+        cruise_rate = nominal_rate
+    # S_CURVE_ACCELERATION: each ramp's duration in timer ticks and its 32-bit inverse (get_period_inverse)
+    rate_factor = F32(F32(F32(1) / F32(accel)) * F32(timer_hz))
+    acc_time = np.int64(F32(rate_factor * F32(cruise_rate - initial_rate)))
+    dec_time = np.int64(F32(rate_factor * F32(cruise_rate - final_rate)))
+    bi[slot, BI_CRUISE_RATE] = cruise_rate
+    bi[slot, BI_ACC_TIME] = acc_time
+    bi[slot, BI_DEC_TIME] = dec_time
+    bi[slot, BI_ACC_TIME_INV] = 0xFFFFFFFF // acc_time if acc_time > 0 else 0xFFFFFFFF
+    bi[slot, BI_DEC_TIME_INV] = 0xFFFFFFFF // dec_time if dec_time > 0 else 0xFFFFFFFF
+    bi[slot, BI_ACCEL_UNTIL] = accelerate_steps
+    bi[slot, BI_DECEL_AFTER] = accelerate_steps + plateau_steps
+    bi[slot, BI_INITIAL_RATE] = initial_rate
+    bi[slot, BI_FINAL_RATE] = final_rate
+
+
+@njit(cache=True)
+def reverse_pass_kernel(bf, bi, gi, cur, nxt):
+    """Lower a block's entry speed to what it can brake from over its length to the next block's entry."""
+    max_entry = bf[cur, BF_MAX_ENTRY_SQR]
+    if bf[cur, BF_ENTRY_SQR] != max_entry or (nxt >= 0 and (bi[nxt, BI_FLAG] & FLAG_RECALCULATE) != 0):
+        if (bi[cur, BI_FLAG] & FLAG_NOMINAL_LENGTH) != 0:
+            new_entry = max_entry
+        else:
+            nxt_entry = bf[nxt, BF_ENTRY_SQR] if nxt >= 0 else F32(F32(0.05) * F32(0.05))
+            new_entry = _max_allowable_speed_sqr(-bf[cur, BF_ACCEL], nxt_entry, bf[cur, BF_MM])
+            if max_entry < new_entry:
+                new_entry = max_entry
+        if bf[cur, BF_ENTRY_SQR] != new_entry:
+            if not _is_busy(gi, cur):
+                bi[cur, BI_FLAG] |= FLAG_RECALCULATE
+                bf[cur, BF_ENTRY_SQR] = new_entry
+
+
+@njit(cache=True)
+def reverse_pass(bf, bi, gi):
+    """From the newest block back to (not including) ``block_buffer_planned``; sync blocks are skipped."""
+    head = gi[GI_HEAD]
+    planned = gi[GI_PLANNED]
+    if planned == head:
+        return
+    idx = _prev(head)
+    nxt = -1
+    while idx != planned:
+        if (bi[idx, BI_FLAG] & FLAG_SYNC_POSITION) == 0:
+            reverse_pass_kernel(bf, bi, gi, idx, nxt)
+            nxt = idx
+        idx = _prev(idx)
+
+
+@njit(cache=True)
+def forward_pass_kernel(bf, bi, gi, prv, cur, idx):
+    """Lower a block's entry speed to what the previous block can reach accelerating over its length; move
+    ``block_buffer_planned`` to blocks whose entry can no longer change."""
+    if prv < 0:
+        return
+    if (bi[prv, BI_FLAG] & FLAG_NOMINAL_LENGTH) == 0 and bf[prv, BF_ENTRY_SQR] < bf[cur, BF_ENTRY_SQR]:
+        new_entry = _max_allowable_speed_sqr(-bf[prv, BF_ACCEL], bf[prv, BF_ENTRY_SQR], bf[prv, BF_MM])
+        if new_entry < bf[cur, BF_ENTRY_SQR]:
+            if not _is_busy(gi, cur):
+                bi[cur, BI_FLAG] |= FLAG_RECALCULATE
+                bf[cur, BF_ENTRY_SQR] = new_entry
+                gi[GI_PLANNED] = idx
+    if bf[cur, BF_ENTRY_SQR] == bf[cur, BF_MAX_ENTRY_SQR]:
+        gi[GI_PLANNED] = idx
+
+
+@njit(cache=True)
+def forward_pass(bf, bi, gi):
+    """From ``block_buffer_planned`` to the newest block; a busy previous block is not looked through."""
+    idx = gi[GI_PLANNED]
+    prv = -1
+    while idx != gi[GI_HEAD]:
+        if (bi[idx, BI_FLAG] & FLAG_SYNC_POSITION) == 0:
+            if prv < 0 or not _is_busy(gi, prv):
+                forward_pass_kernel(bf, bi, gi, prv, idx, idx)
+            prv = idx
+        idx = _next(idx)
+
+
+@njit(cache=True)
+def recalculate_trapezoids(bf, bi, gi):
+    """Trapezoids of the blocks whose entry or exit speed changed; the newest one always (exit at
+    MINIMUM_PLANNER_SPEED); the busy block is left as it runs."""
+    idx = gi[GI_TAIL]
+    head_idx = gi[GI_HEAD]
+    while head_idx != idx:
+        p = _prev(head_idx)
+        if (bi[p, BI_FLAG] & FLAG_SYNC_POSITION) == 0:
+            break
+        head_idx = p
+    block = -1
+    nxt = -1
+    cur_entry = F32(0)
+    nxt_entry = F32(0)
+    while idx != head_idx:
+        nxt = idx
+        if (bi[nxt, BI_FLAG] & FLAG_SYNC_POSITION) == 0:
+            nxt_entry = F32(math.sqrt(bf[nxt, BF_ENTRY_SQR]))
+            if block >= 0:
+                if (bi[block, BI_FLAG] & FLAG_RECALCULATE) != 0 or (bi[nxt, BI_FLAG] & FLAG_RECALCULATE) != 0:
+                    if not _is_busy(gi, block):
+                        nomr = F32(F32(1) / bf[block, BF_NOMINAL_SPEED])
+                        calculate_trapezoid_for_block(bf, bi, block, F32(cur_entry * nomr), F32(nxt_entry * nomr))
+                    bi[block, BI_FLAG] &= ~FLAG_RECALCULATE
+            block = nxt
+            cur_entry = nxt_entry
+        idx = _next(idx)
+    if nxt >= 0 and (bi[nxt, BI_FLAG] & FLAG_SYNC_POSITION) == 0:
+        if block < 0 or not _is_busy(gi, block):
+            nomr = F32(F32(1) / bf[nxt, BF_NOMINAL_SPEED])
+            calculate_trapezoid_for_block(bf, bi, nxt, F32(nxt_entry * nomr), F32(F32(0.05) * nomr))
+        bi[nxt, BI_FLAG] &= ~FLAG_RECALCULATE
+    elif block >= 0:
+        # trailing sync blocks: the last move block is the newest one
+        if not _is_busy(gi, block):
+            nomr = F32(F32(1) / bf[block, BF_NOMINAL_SPEED])
+            calculate_trapezoid_for_block(bf, bi, block, F32(cur_entry * nomr), F32(F32(0.05) * nomr))
+        bi[block, BI_FLAG] &= ~FLAG_RECALCULATE
+
+
+@njit(cache=True)
+def recalculate(bf, bi, gi):
+    """Planner::recalculate(): both passes unless the newest block is the planned one, then trapezoids."""
+    if _prev(gi[GI_HEAD]) != gi[GI_PLANNED]:
+        reverse_pass(bf, bi, gi)
+        forward_pass(bf, bi, gi)
+    recalculate_trapezoids(bf, bi, gi)
+
+
+@njit(cache=True)
+def _queued(gi):
+    return (gi[GI_HEAD] - gi[GI_TAIL]) & (BLOCK_BUFFER_SIZE - 1)
+
+
+@njit(cache=True)
+def _nonbusy_queued(gi):
+    first = _next(gi[GI_TAIL]) if gi[GI_BUSY] != 0 else gi[GI_TAIL]
+    return (gi[GI_HEAD] - first) & (BLOCK_BUFFER_SIZE - 1)
+
+
+@njit(cache=True)
+def buffer_sync_block(bf, bi, gi, row):
+    """A position change queued behind the moves (G92 with blocks in the buffer): takes a slot."""
+    h = gi[GI_HEAD]
+    for k in range(N_BF):
+        bf[h, k] = F32(0)
+    for k in range(N_BI):
+        bi[h, k] = 0
+    bi[h, BI_FLAG] = FLAG_SYNC_POSITION
+    bi[h, BI_ROW] = row
+    gi[GI_HEAD] = _next(h)
+
+
+@njit(cache=True)
+def _normalize_junction_vector(v):
+    """v / |v| over its non-zero components (planner.h normalize_junction_vector)."""
+    magnitude_sq = F32(0)
+    for a in range(4):
+        if v[a] != 0:
+            magnitude_sq = F32(magnitude_sq + F32(v[a] * v[a]))
+    if magnitude_sq == 0:
+        return          # a straight continuation: the firmware's NaNs leave the acceleration unlimited
+    inv = F32(F32(1) / F32(math.sqrt(magnitude_sq)))
+    for a in range(4):
+        v[a] = F32(v[a] * inv)
+
+
+@njit(cache=True)
+def _limit_value_by_axis_maximum(max_value, unit_vec, amax_mm):
+    """The largest value ≤ max_value whose projection on each axis of unit_vec is within its M201 limit."""
+    limit_value = max_value
+    for a in range(4):
+        if unit_vec[a] != 0:
+            if F32(limit_value * F32(abs(unit_vec[a]))) > amax_mm[a]:
+                limit_value = F32(abs(F32(amax_mm[a] / unit_vec[a])))
+    return limit_value
+
+
+@njit(cache=True)
+def _junction_deviation_sqr(gf, dist, inverse_millimeters, esteps, millimeters, acceleration, nominal_speed,
+                            moves_queued, amax_mm, junction_deviation_mm, scratch_f):
+    """max_entry_speed² by junction deviation (HAS_JUNCTION_DEVIATION, JD_HANDLE_SMALL_SEGMENTS on): the
+    centripetal speed on a circle deviating junction_deviation_mm from the corner, with the acceleration the
+    axes allow along the junction; short moves at sharp corners are held to an approximate arc."""
+    unit_vec = scratch_f[2]
+    for a in range(4):
+        unit_vec[a] = dist[a]
+    if esteps > 0:
+        _normalize_junction_vector(unit_vec)      # with E: normalise the XYZE vector
+    else:
+        for a in range(4):
+            unit_vec[a] = F32(unit_vec[a] * inverse_millimeters)
+    prev_nominal = gf[GF_PREV_NOMINAL]
+    if moves_queued != 0 and not (prev_nominal < F32(0.000001)):
+        # cosine of the angle between the previous and this move (E term first, as LOGICAL_AXIS_GANG)
+        c = F32(-gf[GF_PREV_UNIT + 3] * unit_vec[3])
+        for a in range(3):
+            c = F32(c + F32(-gf[GF_PREV_UNIT + a] * unit_vec[a]))
+        if c > F32(0.999999):
+            vmax_junction_sqr = F32(F32(0.05) * F32(0.05))     # a reversal: MINIMUM_PLANNER_SPEED
+        else:
+            if c < F32(-0.999999):
+                c = F32(-0.999999)
+            junction_unit_vec = scratch_f[3]
+            for a in range(4):
+                junction_unit_vec[a] = F32(unit_vec[a] - gf[GF_PREV_UNIT + a])
+            _normalize_junction_vector(junction_unit_vec)
+            junction_acceleration = _limit_value_by_axis_maximum(acceleration, junction_unit_vec, amax_mm)
+            sin_theta_d2 = F32(math.sqrt(F32(F32(0.5) * F32(F32(1) - c))))
+            vmax_junction_sqr = F32(F32(F32(junction_acceleration * junction_deviation_mm) * sin_theta_d2)
+                                    / F32(F32(1) - sin_theta_d2))
+            if millimeters < F32(1) and c < F32(-0.7071067812):
+                # acos by Marlin's 16-entry table and linear interpolation (planner.h: JD_USE_LOOKUP_TABLE),
+                # the entry picked by the leading zeros of (1 − t)·2^15
+                neg = F32(-1) if c < 0 else F32(1)
+                t = F32(neg * c)
+                if t < F32(0.00000003):
+                    idx = 0
+                else:
+                    x = np.int64(F32(F32(F32(1) - t) * F32(32768)))
+                    idx = 15 if x <= 0 else 14 - int(math.floor(math.log2(x)))
+                    if idx < 0:
+                        idx = 0
+                junction_theta = F32(F32(t * JD_LUT_K[idx]) + JD_LUT_B[idx])
+                if neg > 0:
+                    junction_theta = F32(F32(F32(F32(180) * F32(math.pi)) / F32(180)) - junction_theta)
+                limit_sqr = F32(F32(millimeters * junction_acceleration) / junction_theta)
+                if limit_sqr < vmax_junction_sqr:
+                    vmax_junction_sqr = limit_sqr
+        nsq = F32(nominal_speed * nominal_speed)
+        psq = F32(prev_nominal * prev_nominal)
+        if nsq < vmax_junction_sqr:
+            vmax_junction_sqr = nsq
+        if psq < vmax_junction_sqr:
+            vmax_junction_sqr = psq
+    else:
+        vmax_junction_sqr = F32(0)
+    for a in range(4):
+        gf[GF_PREV_UNIT + a] = unit_vec[a]
+    return vmax_junction_sqr
+
+
+@njit(cache=True)
+def _populate_block(bf, bi, gi, gf, row, tgt, fr_mm_s, acc_p, acc_t, acc_r, vmax, amax_steps, cutoff, jerk,
+                    min_feed, min_travel, spm, mm_per_step, min_segment_time_us, junction_mode, amax_mm, jdev,
+                    advance_k, scratch_f, scratch_i):
+    """Fill the head slot from a move; False (nothing queued, position kept) when under 6 steps."""
+    h = gi[GI_HEAD]
+    # scratch rows (no allocation per block): steps, targets and deltas; distances, speeds, unit vectors
+    da = scratch_i[0]
+    target = scratch_i[1]
+    steps = scratch_i[2]
+    sec = np.int64(0)
+    for a in range(4):
+        target[a] = _lroundf(F32(tgt[a] * spm[a]))
+        da[a] = target[a] - gi[GI_PX + a]
+        steps[a] = abs(da[a])
+        if steps[a] > sec:
+            sec = steps[a]
+    if sec < MIN_STEPS_PER_SEGMENT:
+        return False
+    dist = scratch_f[0]
+    for a in range(4):
+        dist[a] = F32(F32(da[a]) * mm_per_step[a])
+    if steps[0] < MIN_STEPS_PER_SEGMENT and steps[1] < MIN_STEPS_PER_SEGMENT and steps[2] < MIN_STEPS_PER_SEGMENT:
+        millimeters = F32(abs(dist[3]))
+    else:
+        millimeters = F32(math.sqrt(F32(F32(F32(dist[0] * dist[0]) + F32(dist[1] * dist[1])) + F32(dist[2] * dist[2]))))
+    esteps = steps[3]
+    fr = fr_mm_s
+    if esteps != 0:
+        if fr < min_feed:
+            fr = min_feed
+    elif fr < min_travel:
+        fr = min_travel
+    inverse_millimeters = F32(F32(1) / millimeters)
+    inverse_secs = F32(fr * inverse_millimeters)
+    moves_queued = _nonbusy_queued(gi)
+    segment_time_us = _lroundf(F32(F32(1000000) / inverse_secs))
+    if moves_queued >= 2 and moves_queued <= BLOCK_BUFFER_SIZE // SLOWDOWN_DIVISOR - 1:
+        time_diff = min_segment_time_us - segment_time_us
+        if time_diff > 0:
+            # int32 division, as the firmware's LROUND(2 * time_diff / moves_queued)
+            nst = segment_time_us + (2 * time_diff) // moves_queued
+            inverse_secs = F32(F32(1000000) / F32(nst))
+    nominal_speed = F32(millimeters * inverse_secs)
+    nominal_rate = _ceilf(F32(F32(sec) * inverse_secs))
+    current_speed = scratch_f[1]
+    speed_factor = F32(1)
+    for a in range(4):
+        current_speed[a] = F32(dist[a] * inverse_secs)
+        cs = F32(abs(current_speed[a]))
+        if cs > vmax[a]:
+            q = F32(vmax[a] / cs)
+            if q < speed_factor:
+                speed_factor = q
+    if speed_factor < F32(1):
+        for a in range(4):
+            current_speed[a] = F32(current_speed[a] * speed_factor)
+        nominal_rate = np.int64(F32(F32(nominal_rate) * speed_factor))
+        nominal_speed = F32(nominal_speed * speed_factor)
+    # acceleration in steps/s², limited per axis
+    steps_per_mm = F32(F32(sec) * inverse_millimeters)
+    if steps[0] == 0 and steps[1] == 0 and steps[2] == 0:
+        accel = _ceilf(F32(acc_r * steps_per_mm))
+    else:
+        accel = _ceilf(F32((acc_p if esteps != 0 else acc_t) * steps_per_mm))
+        if advance_k > 0 and esteps != 0 and da[3] > 0:
+            # LIN_ADVANCE: the acceleration at which the extruder can jump to the advance speed within its
+            # jerk, E jerk / (K · e/D), from the float positions (position_float); e/D > 3 is a retract
+            # merged into a print move and gets no advance
+            dxf = F32(tgt[0] - gf[GF_POS_FLOAT])
+            dyf = F32(tgt[1] - gf[GF_POS_FLOAT + 1])
+            dzf = F32(tgt[2] - gf[GF_POS_FLOAT + 2])
+            e_d_ratio = F32(F32(tgt[3] - gf[GF_POS_FLOAT + 3]) / F32(math.sqrt(
+                F32(F32(F32(dxf * dxf) + F32(dyf * dyf)) + F32(dzf * dzf)))))
+            if not e_d_ratio > F32(3):
+                cap = np.int64(F32(F32(jerk[3] / F32(advance_k * e_d_ratio)) * steps_per_mm))
+                if cap < accel:
+                    accel = cap
+        if sec <= cutoff:
+            for a in range(4):
+                if steps[a] != 0 and amax_steps[a] < accel:
+                    max_possible = (amax_steps[a] * sec) // steps[a]
+                    if max_possible < accel:
+                        accel = max_possible
+        else:
+            for a in range(4):
+                if steps[a] != 0 and amax_steps[a] < accel:
+                    max_possible = F32(F32(F32(amax_steps[a]) * F32(sec)) / F32(steps[a]))
+                    if max_possible < F32(accel):
+                        accel = np.int64(max_possible)
+    acceleration = F32(F32(accel) / steps_per_mm)
+    if junction_mode == JUNCTION_DEVIATION:
+        max_entry_sqr = _junction_deviation_sqr(gf, dist, inverse_millimeters, esteps, millimeters, acceleration,
+                                                nominal_speed, moves_queued, amax_mm, jdev, scratch_f)
+    else:
+        max_entry_sqr = _classic_jerk_sqr(gf, current_speed, nominal_speed, moves_queued, jerk)
+    # the block
+    for k in range(N_BF):
+        bf[h, k] = F32(0)
+    for k in range(N_BI):
+        bi[h, k] = 0
+    bf[h, BF_MM] = millimeters
+    bf[h, BF_NOMINAL_SPEED] = nominal_speed
+    bf[h, BF_ACCEL] = acceleration
+    bf[h, BF_MAX_ENTRY_SQR] = max_entry_sqr
+    min_sqr = F32(F32(0.05) * F32(0.05))
+    v_allowable_sqr = _max_allowable_speed_sqr(-acceleration, min_sqr, millimeters)
+    bf[h, BF_ENTRY_SQR] = min_sqr
+    flag = FLAG_RECALCULATE
+    if F32(nominal_speed * nominal_speed) <= v_allowable_sqr:
+        flag |= FLAG_NOMINAL_LENGTH
+    bi[h, BI_FLAG] = flag
+    bi[h, BI_SEC] = sec
+    bi[h, BI_NOMINAL_RATE] = nominal_rate
+    bi[h, BI_ACCEL_STEPS] = accel
+    bi[h, BI_ROW] = row
+    for a in range(4):
+        bi[h, BI_SX + a] = steps[a]
+        gf[GF_PREV_SPEED + a] = current_speed[a]
+        gi[GI_PX + a] = target[a]
+    gf[GF_PREV_NOMINAL] = nominal_speed
+    for a in range(4):
+        gf[GF_POS_FLOAT + a] = tgt[a]
+    return True
+
+
+@njit(cache=True)
+def _classic_jerk_sqr(gf, current_speed, nominal_speed, moves_queued, jerk):
+    """max_entry_speed² by classic jerk (Průša's rule, planner.cpp): a safe speed to start from / stop at,
+    and the junction speed at which no axis changes speed by more than its jerk (coasting or reversing)."""
+    safe_speed = nominal_speed
+    limited = 0
+    for a in range(4):
+        j = F32(abs(current_speed[a]))
+        maxj = jerk[a]
+        if j > maxj:
+            if limited:
+                mjerk = F32(nominal_speed * maxj)
+                if F32(j * safe_speed) > mjerk:
+                    safe_speed = F32(mjerk / j)
+            else:
+                safe_speed = F32(safe_speed * F32(maxj / j))
+                limited += 1
+    prev_nominal = gf[GF_PREV_NOMINAL]
+    if moves_queued != 0 and not (prev_nominal < F32(0.000001)):
+        v_factor = F32(1)
+        limited = 0
+        vmax_junction = nominal_speed if nominal_speed < prev_nominal else prev_nominal
+        smaller_speed_factor = F32(vmax_junction / prev_nominal)
+        for a in range(4):
+            v_exit = F32(gf[GF_PREV_SPEED + a] * smaller_speed_factor)
+            v_entry = current_speed[a]
+            if limited:
+                v_exit = F32(v_exit * v_factor)
+                v_entry = F32(v_entry * v_factor)
+            if v_exit > v_entry:
+                if v_entry > 0 or v_exit < 0:
+                    j = F32(v_exit - v_entry)       # coasting
+                else:
+                    j = v_exit if v_exit > -v_entry else -v_entry   # reversal
+            else:
+                if v_entry < 0 or v_exit > 0:
+                    j = F32(v_entry - v_exit)
+                else:
+                    j = -v_exit if -v_exit > v_entry else v_entry
+            if j > jerk[a]:
+                v_factor = F32(v_factor * F32(jerk[a] / j))
+                limited += 1
+        if limited:
+            vmax_junction = F32(vmax_junction * v_factor)
+        threshold = F32(vmax_junction * F32(0.99))
+        if gf[GF_PREV_SAFE] > threshold and safe_speed > threshold:
+            vmax_junction = safe_speed
+    else:
+        vmax_junction = safe_speed
+    gf[GF_PREV_SAFE] = safe_speed
+    return F32(vmax_junction * vmax_junction)
+
+
+@njit(cache=True)
+def _pick_and_run(bf, bi, gi, out_i, out_f, timer_hz, acc_rate_scale, row_base, s_curve, scratch_i):
+    """The stepper: finish the busy block, skip sync blocks, pick up the next move block and time it
+    (get_current_block + block_phase_isr). Returns False when the buffer is empty."""
+    if gi[GI_BUSY] != 0:
+        gi[GI_TAIL] = _next(gi[GI_TAIL])
+        gi[GI_BUSY] = 0
+    while _queued(gi) > 0:
+        t = gi[GI_TAIL]
+        # get_current_block(): the block becomes busy, the planned pointer is pushed past it
+        gi[GI_NONBUSY] = _next(t)
+        if gi[GI_PLANNED] == t:
+            gi[GI_PLANNED] = gi[GI_NONBUSY]
+        if (bi[t, BI_FLAG] & FLAG_SYNC_POSITION) != 0:
+            gi[GI_TAIL] = _next(t)
+            continue
+        gi[GI_BUSY] = 1
+        gi[GI_STARTED] = 1
+        r = bi[t, BI_ROW] - row_base
+        acc_steps = bi[t, BI_ACCEL_STEPS]
+        acc_rate = np.int64(F32(F32(acc_steps) * acc_rate_scale))
+        ph = scratch_i[3]
+        if s_curve:
+            ticks = block_ticks_scurve_kernel(bi[t, BI_SEC], bi[t, BI_INITIAL_RATE], bi[t, BI_NOMINAL_RATE],
+                                              bi[t, BI_FINAL_RATE], bi[t, BI_ACCEL_UNTIL], bi[t, BI_DECEL_AFTER],
+                                              bi[t, BI_CRUISE_RATE], bi[t, BI_ACC_TIME], bi[t, BI_DEC_TIME],
+                                              bi[t, BI_ACC_TIME_INV], bi[t, BI_DEC_TIME_INV], timer_hz, ph)
+        else:
+            ticks = block_ticks_kernel(bi[t, BI_SEC], bi[t, BI_INITIAL_RATE], bi[t, BI_NOMINAL_RATE],
+                                       bi[t, BI_FINAL_RATE], bi[t, BI_ACCEL_UNTIL], bi[t, BI_DECEL_AFTER], acc_rate,
+                                       timer_hz, ph)
+        out_i[r, OI_HAS_BLOCK] = 1
+        out_i[r, OI_T_PICK] = gi[GI_CLOCK]
+        gi[GI_CLOCK] += ticks
+        out_i[r, OI_T_END] = gi[GI_CLOCK]
+        out_i[r, OI_SEC] = bi[t, BI_SEC]
+        out_i[r, OI_NOMINAL_RATE] = bi[t, BI_NOMINAL_RATE]
+        out_i[r, OI_INITIAL_RATE] = bi[t, BI_INITIAL_RATE]
+        out_i[r, OI_FINAL_RATE] = bi[t, BI_FINAL_RATE]
+        out_i[r, OI_ACCEL_UNTIL] = bi[t, BI_ACCEL_UNTIL]
+        out_i[r, OI_DECEL_AFTER] = bi[t, BI_DECEL_AFTER]
+        out_i[r, OI_ACCEL_STEPS] = acc_steps
+        out_i[r, OI_ACC_T] = ph[0]
+        out_i[r, OI_CRUISE_T] = ph[1]
+        out_i[r, OI_DEC_T] = ph[2]
+        out_i[r, OI_FLAG] = bi[t, BI_FLAG]
+        for a in range(4):
+            out_i[r, OI_SX + a] = bi[t, BI_SX + a]
+        out_f[r, OF_ENTRY_SQR] = bf[t, BF_ENTRY_SQR]
+        out_f[r, OF_NOMINAL_SPEED] = bf[t, BF_NOMINAL_SPEED]
+        out_f[r, OF_MM] = bf[t, BF_MM]
+        out_f[r, OF_ACCEL] = bf[t, BF_ACCEL]
+        # exit speed as executed: final_rate / nominal_rate of nominal speed
+        fr = F32(F32(bi[t, BI_FINAL_RATE]) / F32(bi[t, BI_NOMINAL_RATE]) * bf[t, BF_NOMINAL_SPEED])
+        out_f[r, OF_EXIT_SQR] = F32(fr * fr)
+        return True
+    return False
+
+
+@njit(cache=True)
+def marlin_run_kernel(kind, tgt, reset_bits, reset_pos, fr, acc_p, acc_t, acc_r, vmax, amax_steps, cutoff, jerk,
+                      min_feed, min_travel, wait_ticks, spm, mm_per_step, min_segment_time_us, timer_hz,
+                      acc_rate_scale, final, row_base, bf, bi, gi, gf, out_i, out_f, junction_mode, amax_mm, jdev,
+                      advance_k, s_curve):
+    """Run rows ``gi[GI_NEXT_ROW] - row_base ..`` of this window through Marlin's host loop, planner and
+    stepper until the input runs out (``final``: then until the buffer is empty).
+
+    Row arrays are indexed from ``row_base`` (``bi[., BI_ROW]`` and ``gi[GI_NEXT_ROW]`` are absolute row
+    numbers); times are ticks of ``timer_hz`` from the first pick-up. Returns the absolute number of the
+    first row whose block has not run yet (rows before it are final)."""
+    n = len(kind)
+    end_row = row_base + n
+    scratch_f = np.zeros((4, 4), dtype=np.float32)
+    scratch_i = np.zeros((4, 4), dtype=np.int64)
+    while True:
+        # the host: Marlin's main loop fills the buffer (15 usable slots) in no time
+        while gi[GI_NEXT_ROW] < end_row and _queued(gi) < BLOCK_BUFFER_SIZE - 1:
+            r = gi[GI_NEXT_ROW] - row_base
+            k = kind[r]
+            if k == ROW_WAIT:
+                if _queued(gi) > 0 or gi[GI_BUSY] != 0:
+                    break                      # M400 / G4 / G28: wait for the buffer to drain
+                out_i[r, OI_HAS_BLOCK] = 2
+                out_i[r, OI_T_PICK] = gi[GI_CLOCK]
+                if gi[GI_STARTED] != 0:
+                    # idle: the ISR polls every ms; the next block is picked up at the first poll after
+                    per_ms = timer_hz // 1000
+                    nms = (wait_ticks[r] + per_ms - 1) // per_ms
+                    if nms < 1:
+                        nms = 1
+                    gi[GI_CLOCK] += nms * per_ms
+                out_i[r, OI_T_END] = gi[GI_CLOCK]
+                gi[GI_NEXT_ROW] += 1
+                continue
+            if k == ROW_SKIP:
+                gi[GI_NEXT_ROW] += 1
+                continue
+            if reset_bits[r] != 0 and gi[GI_RESET_DONE] == 0:
+                # G92: a new position in steps; with blocks queued it travels as a sync block
+                for a in range(4):
+                    if (reset_bits[r] >> a) & 1:
+                        gi[GI_PX + a] = _lroundf(F32(reset_pos[r, a] * spm[a]))
+                        gf[GF_POS_FLOAT + a] = reset_pos[r, a]
+                gi[GI_RESET_DONE] = 1
+                if _queued(gi) > 0 or gi[GI_BUSY] != 0:
+                    buffer_sync_block(bf, bi, gi, gi[GI_NEXT_ROW])
+                    continue                   # the move needs a slot of its own
+            gi[GI_RESET_DONE] = 0
+            if _populate_block(bf, bi, gi, gf, gi[GI_NEXT_ROW], tgt[r], fr[r], acc_p[r], acc_t[r], acc_r[r], vmax[r],
+                               amax_steps[r], cutoff[r], jerk[r], min_feed[r], min_travel[r], spm, mm_per_step,
+                               min_segment_time_us, junction_mode, amax_mm[r], jdev[r], advance_k[r], scratch_f,
+                               scratch_i):
+                gi[GI_HEAD] = _next(gi[GI_HEAD])
+                recalculate(bf, bi, gi)
+            gi[GI_NEXT_ROW] += 1
+        if not final and gi[GI_NEXT_ROW] >= end_row and _queued(gi) < BLOCK_BUFFER_SIZE - 1:
+            break                              # the host would queue more: wait for the next rows
+        if not _pick_and_run(bf, bi, gi, out_i, out_f, timer_hz, acc_rate_scale, row_base, s_curve, scratch_i):
+            if gi[GI_NEXT_ROW] >= end_row:
+                break
+    # rows before the oldest block not yet run (or the next row to read) are final
+    first = gi[GI_NEXT_ROW]
+    t = gi[GI_TAIL]
+    if gi[GI_BUSY] != 0:
+        t = _next(t)
+    while t != gi[GI_HEAD]:
+        if bi[t, BI_ROW] < first:
+            first = bi[t, BI_ROW]
+        t = _next(t)
+    return first

@@ -1,0 +1,139 @@
+#!/usr/bin/env python3
+"""Compare gcodeplan's Marlin firmware model with Marlin's own planner/stepper (shared/reference/marlin).
+
+For each reference program: gcodeplan's total against the firmware's, the largest per-line end-time error
+(in s and as a share of the total, over the lines the reference lists), and the first planner block whose
+trapezoid (step count, rates, step boundaries, acceleration) or pick-up time differs from the firmware's.
+
+    python tools/compare_marlin.py                       # --machine marlin-2.1.2, both programs
+    python tools/compare_marlin.py --machine marlin      # the generic classic-jerk policy, for contrast
+    python tools/compare_marlin.py --files cura413_ender3_cylinder30
+
+The estimate runs through the same pipeline as ``gcodeplan estimate`` (per-line end times from its
+PLAN rows); the block check runs the model itself (planner.marlin.run_marlin) on the parsed rows.
+"""
+from __future__ import annotations
+
+import argparse
+import csv
+import gzip
+import json
+import os
+import sys
+import time
+
+import numpy as np
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+sys.path.insert(0, os.path.join(HERE, "..", "src"))
+
+REF = os.path.join(HERE, "..", "..", "shared", "reference", "marlin")
+GCODE = os.path.join(HERE, "..", "..", "shared", "gcode")
+FILES = ("prusaslicer25_cube20_marlin2", "cura413_ender3_cylinder30")
+#: (reference column, model output column) of the block check
+BLOCK_COLUMNS = (("step_event_count", "OI_SEC"), ("nominal_rate", "OI_NOMINAL_RATE"),
+                 ("acceleration_steps_per_s2", "OI_ACCEL_STEPS"), ("initial_rate", "OI_INITIAL_RATE"),
+                 ("final_rate", "OI_FINAL_RATE"), ("accelerate_end", "OI_ACCEL_UNTIL"),
+                 ("decelerate_start", "OI_DECEL_AFTER"))
+
+
+def read_csv_gz(path: str) -> dict[str, np.ndarray]:
+    with gzip.open(path, "rt", newline="") as fh:
+        rows = list(csv.reader(fh))
+    head, body = rows[0], rows[1:]
+    return {name: np.array([float(r[i]) for r in body]) for i, name in enumerate(head)}
+
+
+def per_line_check(name: str, machine_spec: str, ref_dir: str, policy: str | None):
+    import gcodeplan as gp
+
+    est = gp.estimate(os.path.join(GCODE, name + ".gcode"), gp.load_machine(machine_spec), policy)
+    lines, ends = est.line_times()
+    ref = read_csv_gz(os.path.join(ref_dir, "per_line", name + ".per_line_end_time.csv.gz"))
+    ref_line, ref_end = ref["source_line"].astype(np.int64), ref["end_time_s"]
+    idx = np.searchsorted(lines, ref_line)
+    idx = np.minimum(idx, len(lines) - 1)
+    found = lines[idx] == ref_line
+    err = np.where(found, ends[idx] - ref_end, np.nan)
+    return est.total_time_s, err, int((~found).sum()), ref_line
+
+
+def block_check(name: str, machine_spec: str, ref_dir: str, policy: str | None) -> str:
+    from gcodeplan.config import load_machine
+    from gcodeplan.gcode.reader import read_moves
+    from gcodeplan.planner import marlin_kernels as mk
+    from gcodeplan.planner.marlin import run_marlin
+
+    machine = load_machine(machine_spec)
+    if machine.firmware == "generic":
+        return "(no firmware model: no blocks)"
+    moves, reader = read_moves(os.path.join(GCODE, name + ".gcode"), machine)
+    _, model = run_marlin(moves, reader.limits, machine, keep_blocks=True,
+                          e_position_sets=reader.interp.e_position_sets, junction=policy)
+    oi = np.concatenate([b[0] for b in model.blocks])
+    lines = np.concatenate([b[2] for b in model.blocks])
+    has = oi[:, mk.OI_HAS_BLOCK] == 1
+    oi, lines = oi[has], lines[has]
+    path = os.path.join(ref_dir, "blocks", name + ".blocks.csv.gz")
+    if not os.path.exists(path):
+        return "(the reference has no blocks)"
+    ref = read_csv_gz(path)
+    moving = ref["sync"] == 0
+    ref = {k: v[moving] for k, v in ref.items()}
+    n = min(len(oi), len(ref["seq"]))
+    first = None
+    what = ""
+    checks = [("source_line", lines)] + [(c, oi[:, getattr(mk, o)]) for c, o in BLOCK_COLUMNS]
+    checks.append(("t_pick_s", oi[:, mk.OI_T_PICK] / model.timer_hz))
+    for col, mine in checks:
+        if col == "t_pick_s":
+            bad = np.flatnonzero(np.abs(mine[:n] - ref[col][:n]) > 0.5e-8)
+        else:
+            bad = np.flatnonzero(mine[:n] != ref[col][:n])
+        if bad.size and (first is None or bad[0] < first):
+            first, what = int(bad[0]), col
+    counts = f"{len(oi)} blocks (reference {len(ref['seq'])})"
+    if first is None and len(oi) == len(ref["seq"]):
+        return counts + ", every block identical"
+    if first is None:
+        return counts
+    return (f"{counts}, first difference: block {first} (line {int(ref['source_line'][first])}) "
+            f"in {what}")
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--machine", default="marlin-2.1.2", help="preset or machine TOML (default marlin-2.1.2)")
+    ap.add_argument("--reference", default="",
+                    help="reference sub-folder (bugfix-2.1.x, variants/jd, variants/la, ...); default 2.1.2.4")
+    ap.add_argument("--policy", default=None, help="junction policy (junction-deviation for variants/jd)")
+    ap.add_argument("--files", nargs="*", default=list(FILES))
+    ap.add_argument("--no-blocks", action="store_true", help="skip the per-block check")
+    args = ap.parse_args(argv)
+    ref_dir = os.path.join(REF, args.reference) if args.reference else REF
+    with open(os.path.join(REF, "times.json")) as fh:
+        times = json.load(fh)
+    if os.path.exists(os.path.join(ref_dir, "times.json")) and ref_dir != REF:
+        with open(os.path.join(ref_dir, "times.json")) as fh:
+            times = json.load(fh)
+    key = "bugfix-2.1.x" if "bugfix" in args.reference else "marlin-2.1.2.4"
+    print(f"machine {args.machine}, policy {args.policy or 'default'}, reference {args.reference or key}")
+    print(f"{'file':34s} {'gcodeplan s':>13s} {'reference s':>13s} {'total err':>10s} {'max line err':>13s}"
+          f" {'% of total':>10s}  time")
+    for name in args.files:
+        t0 = time.perf_counter()
+        total, err, missing, _ = per_line_check(name, args.machine, ref_dir, args.policy)
+        dt = time.perf_counter() - t0
+        entry = times[name + ".gcode"]
+        ref_total = entry[key]["total_time_s"] if key in entry else entry["total_time_s"]
+        worst = float(np.nanmax(np.abs(err))) if np.any(np.isfinite(err)) else float("nan")
+        print(f"{name:34s} {total:13.6f} {ref_total:13.6f} {100 * (total - ref_total) / ref_total:+9.5f}% "
+              f"{worst:12.6f}s {100 * worst / ref_total:9.5f}%  {dt:.1f}s"
+              + (f"  ({missing} reference lines without a time)" if missing else ""))
+        if not args.no_blocks:
+            print("    blocks:", block_check(name, args.machine, ref_dir, args.policy))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
