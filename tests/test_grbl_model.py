@@ -273,3 +273,22 @@ def test_steps_on_the_grbl_machine_are_grbl_s_pulses(tmp_path, batch_moves):
         ref_t = z[f"stepper_{rail.name[-1]}"]
         assert len(t) == len(ref_t) and np.array_equal(d, z[f"stepper_{rail.name[-1]}_dir"])
         assert np.abs(t - ref_t).max() <= 0.25e-6
+
+
+def test_random_arcs_never_crash_and_end_on_the_target():
+    """Any G2/G3 (tiny, huge, degenerate, every plane): grbl's chords or its error, never a crash (an arc once
+    needed more rows than estimated: the kernel wrote past its buffer; found by tools/fuzz.py)."""
+    rng = np.random.default_rng(7)
+    for _ in range(3000):
+        s = rng.uniform(-1e3, 1e3, 3)
+        e = s + rng.normal(0, rng.choice([0.0, 1e-3, 1.0, 100.0, 1e4]), 3)
+        ijk = list(rng.normal(0, rng.choice([0.0, 1e-3, 1.0, 100.0, 1e4]), 3)) if rng.random() < 0.5 else None
+        r = None if ijk is not None else float(rng.normal(0, rng.choice([0.0, 1e-3, 1.0, 100.0, 1e4])))
+        try:
+            pts = grbl_arc_chords(tuple(s), tuple(e), ijk, r, int(rng.choice([17, 18, 19])), bool(rng.random() < .5),
+                                  float(rng.choice([0.002, 1e-6, 1.0])))
+        except ValueError as err:
+            assert "error:33" in str(err)
+            continue
+        assert 1 <= len(pts) <= 65536
+        assert np.array_equal(pts[-1], np.array(e, dtype=np.float32).astype(np.float64))

@@ -31,7 +31,8 @@ def _hypot_f(x, y):
 def grbl_arc_kernel(position, target, offset, radius, use_r, a0, a1, lin, clockwise, arc_tolerance, out):
     """Chord end points of one arc into ``out`` (rows of x, y, z; the last is the target); returns their count,
     or −1 for grbl's arc radius error (R shorter than half the chord), −2 for an end point off the circle
-    (error:33 in grbl's rule: |r_end − r| > 0.005 mm and > 0.5 mm or > 0.1 % of r).
+    (error:33 in grbl's rule: |r_end − r| > 0.005 mm and > 0.5 mm or > 0.1 % of r), or −10 − n when ``out``
+    cannot hold the n + 1 points (nothing written).
     ``position``, ``target``, ``offset`` are float32[3] in mm (offset = I/J/K from the start); ``radius`` is
     the R word in mm when ``use_r``."""
     pos = position.copy()
@@ -39,6 +40,8 @@ def grbl_arc_kernel(position, target, offset, radius, use_r, a0, a1, lin, clockw
     x = np.float32(target[a0] - pos[a0])
     y = np.float32(target[a1] - pos[a1])
     if use_r:
+        if x == 0.0 and y == 0.0:       # gcode.c: an R arc to its own start point (error:33)
+            return -2
         r = np.float32(radius)
         h = np.float32(4.0 * np.float64(r) * np.float64(r) - np.float64(np.float32(x * x)) - np.float64(np.float32(y * y)))
         if h < 0:
@@ -81,6 +84,8 @@ def grbl_arc_kernel(position, target, offset, radius, use_r, a0, a1, lin, clockw
     if denom > 0.0:      # a radius under half the tolerance: one straight move (C would divide by NaN)
         segments_f = math.floor(abs(0.5 * np.float64(travel) * np.float64(r)) / denom)
         segments = int(min(segments_f, 65535.0))
+    if segments + 1 > out.shape[0]:
+        return -10 - segments           # out too small: the caller makes room for segments + 1 rows
     n = 0
     if segments:
         theta = np.float32(travel / np.float32(segments))
@@ -130,8 +135,12 @@ def grbl_arc_chords(start, end, ijk, r, plane: int, clockwise: bool, arc_toleran
     q = arc_tolerance * (2 * radius - arc_tolerance)
     bound = MAX_CHORDS if not q > 0 else int(min(MAX_CHORDS, math.pi * radius * 1.001 / math.sqrt(q) + 2))
     out = np.empty((bound + 2, 3), np.float32)
-    n = grbl_arc_kernel(pos, tgt, off, np.float32(0.0 if r is None else r), use_r, a0, a1, lin, clockwise,
-                        np.float32(arc_tolerance), out)
+    args = (pos, tgt, off, np.float32(0.0 if r is None else r), use_r, a0, a1, lin, clockwise,
+            np.float32(arc_tolerance))
+    n = grbl_arc_kernel(*args, out)
+    if n <= -10:                        # the estimate above was short (single precision): exactly what it needs
+        out = np.empty((-n - 10 + 1, 3), np.float32)
+        n = grbl_arc_kernel(*args, out)
     if n == -1:
         raise ValueError("arc radius error: R is shorter than half the chord (grbl error:33)")
     if n == -2:
