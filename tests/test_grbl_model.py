@@ -281,9 +281,9 @@ def test_random_arcs_never_crash_and_end_on_the_target():
     rng = np.random.default_rng(7)
     for _ in range(3000):
         s = rng.uniform(-1e3, 1e3, 3)
-        e = s + rng.normal(0, rng.choice([0.0, 1e-3, 1.0, 100.0, 1e4]), 3)
-        ijk = list(rng.normal(0, rng.choice([0.0, 1e-3, 1.0, 100.0, 1e4]), 3)) if rng.random() < 0.5 else None
-        r = None if ijk is not None else float(rng.normal(0, rng.choice([0.0, 1e-3, 1.0, 100.0, 1e4])))
+        e = s + rng.normal(0, rng.choice([0.0, 1e-3, 1.0, 100.0, 1e4, 1e20, 1e39]), 3)
+        ijk = list(rng.normal(0, rng.choice([0.0, 1e-3, 1.0, 100.0, 1e4, 1e20, 1e39]), 3)) if rng.random() < 0.5 else None
+        r = None if ijk is not None else float(rng.normal(0, rng.choice([0.0, 1e-3, 1.0, 100.0, 1e4, 1e20, 1e39])))
         try:
             pts = grbl_arc_chords(tuple(s), tuple(e), ijk, r, int(rng.choice([17, 18, 19])), bool(rng.random() < .5),
                                   float(rng.choice([0.002, 1e-6, 1.0])))
@@ -292,3 +292,16 @@ def test_random_arcs_never_crash_and_end_on_the_target():
             continue
         assert 1 <= len(pts) <= 65536
         assert np.array_equal(pts[-1], np.array(e, dtype=np.float32).astype(np.float64))
+
+
+def test_a_target_beyond_grbls_int32_steps_is_an_error_naming_the_line(tmp_path):
+    """grbl's positions are int32 steps: 30 m at 100 000 steps/mm is 3e9 steps, past 2³¹."""
+    from gcodeplan.errors import GcodeError
+
+    m = tmp_path / "m.toml"
+    m.write_text('base = "grbl"\n[axis.x]\nsteps_per_mm = 100000.0\nposition_min = -inf\nposition_max = inf\n')
+    p = tmp_path / "p.gcode"
+    p.write_text("G21 G90\nG1 X10 F600\nG1 X30000\n")
+    with pytest.raises(GcodeError, match="beyond grbl's reach") as err:
+        gp.estimate(str(p), gp.load_machine(str(m)))
+    assert err.value.line == 3

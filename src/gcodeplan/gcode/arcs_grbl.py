@@ -80,10 +80,13 @@ def grbl_arc_kernel(position, target, offset, radius, use_r, a0, a1, lin, clockw
             travel = np.float32(np.float64(travel) + 2 * math.pi)
     tol = np.float32(arc_tolerance)
     denom = math.sqrt(np.float64(np.float32(tol * np.float32(np.float32(np.float32(2) * r) - tol))))
+    if not (math.isfinite(np.float64(travel)) and math.isfinite(np.float64(r)) and math.isfinite(center0)
+            and math.isfinite(center1)):
+        return -2                       # single precision overflowed (an absurd centre or radius): no arc
     segments = 0
     if denom > 0.0:      # a radius under half the tolerance: one straight move (C would divide by NaN)
         segments_f = math.floor(abs(0.5 * np.float64(travel) * np.float64(r)) / denom)
-        segments = int(min(segments_f, 65535.0))
+        segments = int(segments_f) if segments_f < 65535.0 else 65535
     if segments + 1 > out.shape[0]:
         return -10 - segments           # out too small: the caller makes room for segments + 1 rows
     n = 0

@@ -908,9 +908,25 @@ def operations(moves: np.ndarray):
     return op_kind, target, rate, rapid.astype(np.bool_), dwell_ticks, keep
 
 
+def check_reach(moves: np.ndarray, settings: GrblSettings) -> None:
+    """grbl keeps positions as int32 steps (sys_position, pl.position): a target beyond ±2³¹ steps (or not a
+    number) has no meaning on the machine; an error naming the line rather than a wrapped position."""
+    from ..errors import GcodeError
+
+    for k, axis in enumerate(("x1", "y1", "z1")):
+        steps = np.abs(moves[axis] * float(settings.steps_per_mm[k]))
+        bad = np.nonzero(~(steps < 2.0 ** 31))[0]
+        if bad.size:
+            i = int(bad[0])
+            raise GcodeError(f"{axis[0].upper()} {moves[axis][i]:g} mm is beyond grbl's reach "
+                             f"(±2³¹ steps at {float(settings.steps_per_mm[k]):g} steps/mm)",
+                             line=int(moves["line"][i]))
+
+
 def run(moves: np.ndarray, settings: GrblSettings, steps_capacity: int = 0) -> GrblRun:
     """Run grbl 1.1 on MOVE rows (a whole program; see the module docstring for what is modelled).
     ``steps_capacity``: how many step pulses per axis to keep (0: none)."""
+    check_reach(moves, settings)
     op_kind, target, rate, rapid, dwell_ticks, rows = operations(moves)
     op_end = np.full(len(op_kind), -1, np.int64)
     op_info = np.zeros((len(op_kind), N_INFO), np.float32)
@@ -1030,6 +1046,7 @@ def make_stream_mode(base_cls):
                 line = int(moves_chunk["line"][e_moves[0]])
                 raise GcodeError("grbl 1.1 has no E axis: it rejects this line (error:20, unsupported command)",
                                  line=line)
+            check_reach(moves_chunk, self.settings)
             return np.zeros(len(moves_chunk), dtype=PREP_DTYPE)
 
         def plan(self, final: bool):
