@@ -278,9 +278,12 @@ def mean_columns(t: np.ndarray, y: np.ndarray, gap: np.ndarray, n_cols: int = DE
 
 
 def is_dense(s: "Samples") -> bool:
-    """True when a window has more samples than pixels can show apart (:data:`DENSE_SAMPLES`): its curves
-    are drawn as per-column envelopes (:func:`plot_series`)."""
-    return s.t.size > DENSE_SAMPLES
+    """True when a window has more samples than pixels can show apart (:data:`DENSE_SAMPLES`) because it holds
+    more pieces than half the pixel columns: its curves are drawn as per-column envelopes
+    (:func:`plot_series`). A short window sampled finely (curved pieces, a delta's carriages) stays a line."""
+    if s.t.size <= DENSE_SAMPLES:
+        return False
+    return np.unique(s.seg).size > DENSE_COLUMNS // 2
 
 
 def plot_series(ax, s: "Samples", y: np.ndarray, gid: str, label: str | None = None, color="black", lw=1.0,
@@ -593,7 +596,7 @@ def plot_axes(win: Window, machine=None, title: str | None = None, size_in=FIGSI
     fig, axs = new_figure(len(rows), 2, size_in, dpi, sharex=True)
     for r, name in enumerate(rows):
         ax_p, ax_v = axs[r]
-        if r >= len(AXES) and name in motors:
+        if name in motors:                 # a motor row (delta tower, shaped axis), after the axes
             cp, cv, mp, mv = motors[name]
             label = f"motor {name}"
             plot_series(ax_p, s, cp, f"cmd_{name}", color="0.55", lw=1.6)
