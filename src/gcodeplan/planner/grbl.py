@@ -106,28 +106,41 @@ def grbl_float(x: float) -> np.float32:
 
 
 def grbl_floats(values: np.ndarray) -> np.ndarray:
-    """:func:`grbl_float` of every value (float32 array), vectorised: the shortest decimal of each value (the
-    fewest decimals d ≤ 8 that give it back), then read_float's arithmetic on its digits."""
-    x = np.asarray(values, dtype=np.float64)
-    out = x.astype(np.float32)
-    mag = np.abs(x)
-    todo = np.isfinite(x) & (mag < 1e8) & (mag > 0)
+    """:func:`grbl_float` of every value (float32 array): the shortest decimal of each value (the fewest
+    decimals d ≤ 8 that give it back), then read_float's arithmetic on its digits."""
+    return _grbl_floats_kernel(np.asarray(values, dtype=np.float64).ravel()).reshape(np.shape(values))
+
+
+# 10**d for the decimals grbl_floats tries: exact in float64
+_POW10 = np.array([10.0 ** d for d in range(9)], dtype=np.float64)
+
+
+@numba.njit(cache=True, nogil=True)
+def _grbl_float_of(x, pow10):
+    """grbl_float of one float64 (see :func:`grbl_floats`)."""
+    mag = abs(x)
+    if not (math.isfinite(x) and mag < 1e8 and mag > 0):
+        return np.float32(x)
     for d in range(9):
-        if not todo.any():
-            break
-        scale = 10.0 ** d
-        iv = np.round(mag * scale)
-        hit = todo & (iv / scale == mag) & (iv < 1e8)
-        if hit.any():
-            f = iv[hit].astype(np.float32)
+        scale = pow10[d]
+        iv = np.rint(mag * scale)              # half to even, as np.round
+        if iv / scale == mag and iv < 1e8:
+            f = np.float32(iv)
             e = -d
-            while e <= -2:
-                f = (f.astype(np.float64) * 0.01).astype(np.float32)
+            while e <= -2:                     # read_float: scaled by 0.01, then 0.1, each stored in a float
+                f = np.float32(np.float64(f) * 0.01)
                 e += 2
             if e < 0:
-                f = (f.astype(np.float64) * 0.1).astype(np.float32)
-            out[hit] = np.where(x[hit] < 0, -f, f)
-            todo &= ~hit
+                f = np.float32(np.float64(f) * 0.1)
+            return -f if x < 0 else f
+    return np.float32(x)
+
+
+@numba.njit(cache=True, nogil=True)
+def _grbl_floats_kernel(x):
+    out = np.empty(x.shape[0], np.float32)
+    for i in range(x.shape[0]):
+        out[i] = _grbl_float_of(x[i], _POW10)
     return out
 
 
@@ -718,7 +731,7 @@ def _rest_of_segment(si, st_sec, st_op, window_base, op_end_tick, step_t, step_d
     si[I_PHASE] = -1
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def grbl_feed_kernel(si, sf, bf, bsteps, bdir, bop, brapid, st_steps, st_sec, st_dir, st_op, seg_n, seg_cycles,
                      seg_block, seg_amass, op_kind, op_target, op_rate, op_rapid, op_dwell_ticks, op_base, final,
                      steps_per_mm, max_rate, acceleration, junction_deviation, window_base, op_end_tick, op_info,
@@ -884,28 +897,48 @@ def operations(moves: np.ndarray):
     """MOVE rows → grbl's operations: (kind, target mm float32 (n, 3), rate mm/min float32, rapid, dwell ticks,
     MOVE row of each op). Motion rows are lines (arcs arrive as chords); dwells and waits are syncs; E-only
     rows have no grbl meaning and are skipped."""
-    kind = moves["kind"]
-    is_line = (kind <= 1)
-    is_sync = (kind == KIND_DWELL) | (kind == KIND_WAIT)
-    keep = np.nonzero(is_line | is_sync)[0]
-    m = moves[keep]
-    n = len(m)
-    op_kind = np.where((m["kind"] == KIND_DWELL) | (m["kind"] == KIND_WAIT), OP_SYNC, OP_LINE).astype(np.int64)
+    return _operations_kernel(moves["kind"], moves["flags"], moves["x1"], moves["y1"], moves["z1"],
+                              moves["feed_v"], moves["dwell_t"], _POW10)
+
+
+@numba.njit(cache=True, nogil=True)
+def _operations_kernel(kind, flags, x1, y1, z1, feed_v, dwell_t, pow10):
+    """:func:`operations` on the MOVE columns, one pass."""
+    n_rows = kind.shape[0]
+    keep = np.empty(n_rows, np.int64)
+    n = 0
+    for r in range(n_rows):
+        if kind[r] <= 1 or kind[r] == KIND_DWELL or kind[r] == KIND_WAIT:
+            keep[n] = r
+            n += 1
+    keep = keep[:n].copy()
+    op_kind = np.empty(n, np.int64)
     target = np.empty((n, 3), np.float32)
-    # arc chords are grbl's floats already (arcs_grbl.py); a line's target is the number in the file as grbl
-    # reads it
-    parsed = (m["flags"] & FLAG_ARC) == 0
-    for k, axis in enumerate(("x1", "y1", "z1")):
-        col = m[axis]
-        target[:, k] = col
-        target[parsed, k] = grbl_floats(col[parsed])
-    feed = m["feed_v"]
-    rapid = ((m["flags"] & FLAG_RAPID) != 0) | ~np.isfinite(feed)
-    rate = np.where(rapid, 0.0, feed * 60.0).astype(np.float32)
-    # mc_dwell: ceil(1000/DWELL_TIME_STEP × P) steps of DWELL_TIME_STEP ms (protocol.c delay_sec)
-    p = (np.float32(1000 // DWELL_TIME_STEP_MS) * m["dwell_t"].astype(np.float32)).astype(np.float64)
-    dwell_ticks = np.where(m["kind"] == KIND_DWELL, np.ceil(p), 0).astype(np.int64) * DWELL_TICKS
-    return op_kind, target, rate, rapid.astype(np.bool_), dwell_ticks, keep
+    rate = np.empty(n, np.float32)
+    rapid = np.empty(n, np.bool_)
+    dwell_ticks = np.zeros(n, np.int64)
+    for j in range(n):
+        r = keep[j]
+        k = kind[r]
+        op_kind[j] = OP_SYNC if (k == KIND_DWELL or k == KIND_WAIT) else OP_LINE
+        # arc chords are grbl's floats already (arcs_grbl.py); a line's target is the number in the file as
+        # grbl reads it
+        if flags[r] & FLAG_ARC:
+            target[j, 0] = np.float32(x1[r])
+            target[j, 1] = np.float32(y1[r])
+            target[j, 2] = np.float32(z1[r])
+        else:
+            target[j, 0] = _grbl_float_of(x1[r], pow10)
+            target[j, 1] = _grbl_float_of(y1[r], pow10)
+            target[j, 2] = _grbl_float_of(z1[r], pow10)
+        feed = feed_v[r]
+        rapid[j] = (flags[r] & FLAG_RAPID) != 0 or not math.isfinite(feed)
+        rate[j] = np.float32(0.0) if rapid[j] else np.float32(feed * 60.0)
+        if k == KIND_DWELL:
+            # mc_dwell: ceil(1000/DWELL_TIME_STEP × P) steps of DWELL_TIME_STEP ms (protocol.c delay_sec)
+            p = np.float64(np.float32(1000 // DWELL_TIME_STEP_MS) * np.float32(dwell_t[r]))
+            dwell_ticks[j] = np.int64(math.ceil(p)) * DWELL_TICKS
+    return op_kind, target, rate, rapid, dwell_ticks, keep
 
 
 def run(moves: np.ndarray, settings: GrblSettings, steps_capacity: int = 0) -> GrblRun:
@@ -931,6 +964,15 @@ def run(moves: np.ndarray, settings: GrblSettings, steps_capacity: int = 0) -> G
             k = min(int(n_out[ax]), steps_capacity)
             steps[f"stepper_{name}"] = ((step_t[ax, :k] - t0) / F_CPU, step_dir[ax, :k].copy())
     return GrblRun(row_end, last / F_CPU, steps)
+
+
+@numba.njit(cache=True, nogil=True)
+def _first_e_move(e0, e1):
+    """Index of the first row that moves E (−1: none)."""
+    for i in range(e0.shape[0]):
+        if e1[i] != e0[i]:
+            return i
+    return -1
 
 
 # --------------------------------------------------------------------------- the StreamPlanner mode
@@ -1025,9 +1067,9 @@ def make_stream_mode(base_cls):
         def prepare(self, moves_chunk, limits):
             from ..errors import GcodeError
 
-            e_moves = np.nonzero(moves_chunk["e1"] != moves_chunk["e0"])[0]
-            if e_moves.size:     # gcode.c: E is no grbl word (error:20), the whole line is rejected
-                line = int(moves_chunk["line"][e_moves[0]])
+            e_move = _first_e_move(moves_chunk["e0"], moves_chunk["e1"])
+            if e_move >= 0:      # gcode.c: E is no grbl word (error:20), the whole line is rejected
+                line = int(moves_chunk["line"][e_move])
                 raise GcodeError("grbl 1.1 has no E axis: it rejects this line (error:20, unsupported command)",
                                  line=line)
             return np.zeros(len(moves_chunk), dtype=PREP_DTYPE)
