@@ -305,3 +305,46 @@ def test_a_target_beyond_grbls_int32_steps_is_an_error_naming_the_line(tmp_path)
     with pytest.raises(GcodeError, match="beyond grbl's reach") as err:
         gp.estimate(str(p), gp.load_machine(str(m)))
     assert err.value.line == 3
+
+
+def test_grbl_floats_are_read_float_of_the_shortest_decimal():
+    """The vectorised grbl_floats against read_float (nuts_bolts.c) of each value's decimal text: short decimals
+    (0 … 8 decimals, at most 8 significant digits) are what grbl reads; other values the nearest float."""
+    rng = np.random.default_rng(7)
+    texts = ["0", "-0.4252", "0.010", "12345678", "-99999.999", "0.0000001", "1.5", "-2.25", "300.0125"]
+    for d in range(9):
+        for v in rng.uniform(-10 ** (7 - d), 10 ** (7 - d), 40):
+            t = f"{v:.{d}f}"
+            # read_float keeps 8 digits (leading zeros count); grbl_floats takes the shortest decimal of the
+            # value, so a text with trailing zeros (read in more scaling steps) is not compared
+            if sum(c.isdigit() for c in t) <= 8 and not (d and t.endswith("0")):
+                texts.append(t)
+    x = np.array([float(t) for t in texts])
+    want = np.array([G.read_float(t) for t in texts], dtype=np.float32)
+    got = G.grbl_floats(x)
+    assert got.dtype == np.float32
+    np.testing.assert_array_equal(got.view(np.uint32), want.view(np.uint32))
+    odd = np.array([1 / 3, -math.pi, 1e9 + 0.5, np.inf, -np.inf])     # no short decimal: the nearest float
+    np.testing.assert_array_equal(G.grbl_floats(odd), odd.astype(np.float32))
+    assert np.isnan(G.grbl_floats(np.array([np.nan]))[0])
+
+
+def test_operations_of_move_rows():
+    """MOVE rows → grbl's operations: lines and arc chords are lines (a chord's float kept as it is), G4 and
+    waits syncs (G4 P rounded up to 50 ms steps of 800,000 ticks), E-only rows skipped, a rapid or an
+    unbounded feed runs at the rapid rate (rate 0), a feed in mm/s becomes mm/min."""
+    from gcodeplan.schema import FLAG_ARC, FLAG_RAPID, KIND_DWELL, KIND_EXTRUDE_ONLY, MOVE_DTYPE
+
+    m = np.zeros(6, MOVE_DTYPE)
+    m["kind"] = [0, 1, KIND_EXTRUDE_ONLY, KIND_DWELL, KIND_WAIT, 0]
+    m["flags"] = [0, FLAG_ARC, 0, 0, 0, FLAG_RAPID]
+    m["x1"] = [-0.4252, 1 / 3, 5.0, 0, 0, 12.5]
+    m["feed_v"] = [10.0, 20.0, 5.0, np.nan, np.nan, np.inf]
+    m["dwell_t"] = [0, 0, 0, 0.12, 2.0, 0]
+    kind, target, rate, rapid, dwell_ticks, rows = G.operations(m)
+    assert rows.tolist() == [0, 1, 3, 4, 5]
+    assert kind.tolist() == [G.OP_LINE, G.OP_LINE, G.OP_SYNC, G.OP_SYNC, G.OP_LINE]
+    assert target[0, 0] == G.read_float("-0.4252") and target[1, 0] == np.float32(1 / 3)
+    assert rate[0] == np.float32(600.0) and rate[1] == np.float32(1200.0) and rate[4] == 0
+    assert rapid.tolist() == [False, False, True, True, True]     # no feed on a sync row: nan
+    assert dwell_ticks.tolist() == [0, 0, 3 * 800_000, 0, 0]

@@ -106,28 +106,41 @@ def grbl_float(x: float) -> np.float32:
 
 
 def grbl_floats(values: np.ndarray) -> np.ndarray:
-    """:func:`grbl_float` of every value (float32 array), vectorised: the shortest decimal of each value (the
-    fewest decimals d ≤ 8 that give it back), then read_float's arithmetic on its digits."""
-    x = np.asarray(values, dtype=np.float64)
-    out = x.astype(np.float32)
-    mag = np.abs(x)
-    todo = np.isfinite(x) & (mag < 1e8) & (mag > 0)
+    """:func:`grbl_float` of every value (float32 array): the shortest decimal of each value (the fewest
+    decimals d ≤ 8 that give it back), then read_float's arithmetic on its digits."""
+    return _grbl_floats_kernel(np.asarray(values, dtype=np.float64).ravel()).reshape(np.shape(values))
+
+
+# 10**d for the decimals grbl_floats tries: exact in float64
+_POW10 = np.array([10.0 ** d for d in range(9)], dtype=np.float64)
+
+
+@numba.njit(cache=True, nogil=True)
+def _grbl_float_of(x, pow10):
+    """grbl_float of one float64 (see :func:`grbl_floats`)."""
+    mag = abs(x)
+    if not (math.isfinite(x) and mag < 1e8 and mag > 0):
+        return np.float32(x)
     for d in range(9):
-        if not todo.any():
-            break
-        scale = 10.0 ** d
-        iv = np.round(mag * scale)
-        hit = todo & (iv / scale == mag) & (iv < 1e8)
-        if hit.any():
-            f = iv[hit].astype(np.float32)
+        scale = pow10[d]
+        iv = np.rint(mag * scale)              # half to even, as np.round
+        if iv / scale == mag and iv < 1e8:
+            f = np.float32(iv)
             e = -d
-            while e <= -2:
-                f = (f.astype(np.float64) * 0.01).astype(np.float32)
+            while e <= -2:                     # read_float: scaled by 0.01, then 0.1, each stored in a float
+                f = np.float32(np.float64(f) * 0.01)
                 e += 2
             if e < 0:
-                f = (f.astype(np.float64) * 0.1).astype(np.float32)
-            out[hit] = np.where(x[hit] < 0, -f, f)
-            todo &= ~hit
+                f = np.float32(np.float64(f) * 0.1)
+            return -f if x < 0 else f
+    return np.float32(x)
+
+
+@numba.njit(cache=True, nogil=True)
+def _grbl_floats_kernel(x):
+    out = np.empty(x.shape[0], np.float32)
+    for i in range(x.shape[0]):
+        out[i] = _grbl_float_of(x[i], _POW10)
     return out
 
 
@@ -177,7 +190,10 @@ def _decimal(v: float) -> str:
 
 
 # --------------------------------------------------------------------------- the simulation
-# State lives in small arrays so one numba function can run the whole program (grbl's globals).
+# State lives in small arrays so one numba function can run the whole program (grbl's globals). The functions
+# run once per segment or per block (_prep_then_wait, _st_prep_buffer, _isr, _rest_of_segment,
+# _plan_buffer_line) are inlined into the feed kernel (inline="always"): a call of a compiled numba function
+# with its ~20 array arguments costs more than the work of a segment (measured: the kernel 2.5× faster).
 # planner ring, per block
 B_MM, B_ACC, B_RAPID, B_PROG, B_ENTRY2, B_MAXENTRY2, B_MAXJUNC2 = range(7)
 N_BF = 7
@@ -303,13 +319,13 @@ def _st_update_plan_block_parameters(si, sf, bf):
         si[I_PL_BLOCK] = -1
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, inline="always")
 def _plan_buffer_line(si, sf, bf, bsteps, bdir, bop, brapid, target, rate, rapid, op, steps_per_mm, max_rate,
-                      acceleration, junction_deviation):
-    """planner.c plan_buffer_line. Returns False for a block of zero steps (dropped; the position stays)."""
+                      acceleration, junction_deviation, target_steps, unit_vecs):
+    """planner.c plan_buffer_line. Returns False for a block of zero steps (dropped; the position stays).
+    ``target_steps`` (3 int64) and ``unit_vecs`` (2×3 float32): scratch, the C function's local arrays."""
     b = si[I_HEAD]
-    target_steps = np.zeros(3, np.int64)
-    unit_vec = np.zeros(3, np.float32)
+    unit_vec = unit_vecs[0]
     sec = 0
     dirb = 0
     pos = (si[I_POS_X], si[I_POS_Y], si[I_POS_Z])
@@ -340,7 +356,7 @@ def _plan_buffer_line(si, sf, bf, bsteps, bdir, bop, brapid, target, rate, rapid
         bf[b, B_MAXJUNC2] = 0.0
     else:
         cos_theta = np.float32(0.0)
-        junction_unit_vec = np.zeros(3, np.float32)
+        junction_unit_vec = unit_vecs[1]
         for i in range(3):
             cos_theta = np.float32(cos_theta - np.float32(sf[F_PUX + i] * unit_vec[i]))
             junction_unit_vec[i] = np.float32(unit_vec[i] - sf[F_PUX + i])
@@ -383,7 +399,7 @@ def _lround(x):
     return -np.int64(math.floor(-v + 0.5))
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, inline="always")
 def _st_prep_buffer(si, sf, bf, bsteps, bdir, bop, brapid, st_steps, st_sec, st_dir, st_op, seg_n, seg_cycles,
                     seg_block, seg_amass, window_base, op_info):
     """stepper.c st_prep_buffer, normal operation (no feed hold, parking or overrides): fill the segment ring
@@ -578,7 +594,7 @@ def _st_prep_buffer(si, sf, bf, bsteps, bdir, bop, brapid, st_steps, st_sec, st_
                 si[I_TAIL] = bi
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, inline="always")
 def _isr(si, st_steps, st_sec, st_dir, st_op, seg_n, seg_cycles, seg_block, seg_amass, window_base, op_end_tick,
          step_t, step_dir, n_out):
     """stepper.c ISR(TIMER1_COMPA_vect) at tick si[I_TICK]: pulse the bits decided last time, load a segment
@@ -650,7 +666,7 @@ def _isr(si, st_steps, st_sec, st_dir, st_op, seg_n, seg_cycles, seg_block, seg_
     si[I_PHASE] = -1
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, inline="always")
 def _rest_of_segment(si, st_sec, st_op, window_base, op_end_tick, step_t, step_dir, n_out):
     """The interrupts of the running segment after the one that loaded it, in closed form: they come every
     OCR1A + 1 ticks, and each axis' Bresenham counter c (1 ≤ c ≤ sec) makes its i-th step at the
@@ -718,7 +734,7 @@ def _rest_of_segment(si, st_sec, st_op, window_base, op_end_tick, step_t, step_d
     si[I_PHASE] = -1
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def grbl_feed_kernel(si, sf, bf, bsteps, bdir, bop, brapid, st_steps, st_sec, st_dir, st_op, seg_n, seg_cycles,
                      seg_block, seg_amass, op_kind, op_target, op_rate, op_rapid, op_dwell_ticks, op_base, final,
                      steps_per_mm, max_rate, acceleration, junction_deviation, window_base, op_end_tick, op_info,
@@ -732,6 +748,8 @@ def grbl_feed_kernel(si, sf, bf, bsteps, bdir, bop, brapid, st_steps, st_sec, st
     length mm of the block as the segment generator first profiled it); step pulses into step_t / step_dir
     (absolute ticks, per axis up to their width; n_out counts every pulse)."""
     nops = op_kind.shape[0]
+    target_steps = np.zeros(3, np.int64)           # _plan_buffer_line's scratch
+    unit_vecs = np.zeros((2, 3), np.float32)
     for j in range(nops + (1 if final else 0)):
         k = op_base + j
         if j < nops and op_kind[j] == OP_LINE:
@@ -744,7 +762,7 @@ def grbl_feed_kernel(si, sf, bf, bsteps, bdir, bop, brapid, st_steps, st_sec, st
                                 seg_cycles, seg_block, seg_amass, window_base, op_end_tick, op_info, step_t,
                                 step_dir, n_out, True)
             _plan_buffer_line(si, sf, bf, bsteps, bdir, bop, brapid, op_target[j], op_rate[j], op_rapid[j], k,
-                              steps_per_mm, max_rate, acceleration, junction_deviation)
+                              steps_per_mm, max_rate, acceleration, junction_deviation, target_steps, unit_vecs)
             if si[I_CYCLE]:
                 _st_prep_buffer(si, sf, bf, bsteps, bdir, bop, brapid, st_steps, st_sec, st_dir, st_op, seg_n,
                                 seg_cycles, seg_block, seg_amass, window_base, op_info)
@@ -796,7 +814,7 @@ def _cycle_start(si, sf, bf, bsteps, bdir, bop, brapid, st_steps, st_sec, st_dir
         si[I_PHASE] = -1
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, inline="always")
 def _prep_then_wait(si, sf, bf, bsteps, bdir, bop, brapid, st_steps, st_sec, st_dir, st_op, seg_n, seg_cycles,
                     seg_block, seg_amass, window_base, op_end_tick, op_info, step_t, step_dir, n_out, need_full):
     """grbl-sim's lock-step st_prep_buffer: grbl's own, then, while the stepper runs and grbl waits (planner
@@ -884,28 +902,48 @@ def operations(moves: np.ndarray):
     """MOVE rows → grbl's operations: (kind, target mm float32 (n, 3), rate mm/min float32, rapid, dwell ticks,
     MOVE row of each op). Motion rows are lines (arcs arrive as chords); dwells and waits are syncs; E-only
     rows have no grbl meaning and are skipped."""
-    kind = moves["kind"]
-    is_line = (kind <= 1)
-    is_sync = (kind == KIND_DWELL) | (kind == KIND_WAIT)
-    keep = np.nonzero(is_line | is_sync)[0]
-    m = moves[keep]
-    n = len(m)
-    op_kind = np.where((m["kind"] == KIND_DWELL) | (m["kind"] == KIND_WAIT), OP_SYNC, OP_LINE).astype(np.int64)
+    return _operations_kernel(moves["kind"], moves["flags"], moves["x1"], moves["y1"], moves["z1"],
+                              moves["feed_v"], moves["dwell_t"], _POW10)
+
+
+@numba.njit(cache=True, nogil=True)
+def _operations_kernel(kind, flags, x1, y1, z1, feed_v, dwell_t, pow10):
+    """:func:`operations` on the MOVE columns, one pass."""
+    n_rows = kind.shape[0]
+    keep = np.empty(n_rows, np.int64)
+    n = 0
+    for r in range(n_rows):
+        if kind[r] <= 1 or kind[r] == KIND_DWELL or kind[r] == KIND_WAIT:
+            keep[n] = r
+            n += 1
+    keep = keep[:n].copy()
+    op_kind = np.empty(n, np.int64)
     target = np.empty((n, 3), np.float32)
-    # arc chords are grbl's floats already (arcs_grbl.py); a line's target is the number in the file as grbl
-    # reads it
-    parsed = (m["flags"] & FLAG_ARC) == 0
-    for k, axis in enumerate(("x1", "y1", "z1")):
-        col = m[axis]
-        target[:, k] = col
-        target[parsed, k] = grbl_floats(col[parsed])
-    feed = m["feed_v"]
-    rapid = ((m["flags"] & FLAG_RAPID) != 0) | ~np.isfinite(feed)
-    rate = np.where(rapid, 0.0, feed * 60.0).astype(np.float32)
-    # mc_dwell: ceil(1000/DWELL_TIME_STEP × P) steps of DWELL_TIME_STEP ms (protocol.c delay_sec)
-    p = (np.float32(1000 // DWELL_TIME_STEP_MS) * m["dwell_t"].astype(np.float32)).astype(np.float64)
-    dwell_ticks = np.where(m["kind"] == KIND_DWELL, np.ceil(p), 0).astype(np.int64) * DWELL_TICKS
-    return op_kind, target, rate, rapid.astype(np.bool_), dwell_ticks, keep
+    rate = np.empty(n, np.float32)
+    rapid = np.empty(n, np.bool_)
+    dwell_ticks = np.zeros(n, np.int64)
+    for j in range(n):
+        r = keep[j]
+        k = kind[r]
+        op_kind[j] = OP_SYNC if (k == KIND_DWELL or k == KIND_WAIT) else OP_LINE
+        # arc chords are grbl's floats already (arcs_grbl.py); a line's target is the number in the file as
+        # grbl reads it
+        if flags[r] & FLAG_ARC:
+            target[j, 0] = np.float32(x1[r])
+            target[j, 1] = np.float32(y1[r])
+            target[j, 2] = np.float32(z1[r])
+        else:
+            target[j, 0] = _grbl_float_of(x1[r], pow10)
+            target[j, 1] = _grbl_float_of(y1[r], pow10)
+            target[j, 2] = _grbl_float_of(z1[r], pow10)
+        feed = feed_v[r]
+        rapid[j] = (flags[r] & FLAG_RAPID) != 0 or not math.isfinite(feed)
+        rate[j] = np.float32(0.0) if rapid[j] else np.float32(feed * 60.0)
+        if k == KIND_DWELL:
+            # mc_dwell: ceil(1000/DWELL_TIME_STEP × P) steps of DWELL_TIME_STEP ms (protocol.c delay_sec)
+            p = np.float64(np.float32(1000 // DWELL_TIME_STEP_MS) * np.float32(dwell_t[r]))
+            dwell_ticks[j] = np.int64(math.ceil(p)) * DWELL_TICKS
+    return op_kind, target, rate, rapid, dwell_ticks, keep
 
 
 def check_reach(moves: np.ndarray, settings: GrblSettings) -> None:
@@ -947,6 +985,15 @@ def run(moves: np.ndarray, settings: GrblSettings, steps_capacity: int = 0) -> G
             k = min(int(n_out[ax]), steps_capacity)
             steps[f"stepper_{name}"] = ((step_t[ax, :k] - t0) / F_CPU, step_dir[ax, :k].copy())
     return GrblRun(row_end, last / F_CPU, steps)
+
+
+@numba.njit(cache=True, nogil=True)
+def _first_e_move(e0, e1):
+    """Index of the first row that moves E (−1: none)."""
+    for i in range(e0.shape[0]):
+        if e1[i] != e0[i]:
+            return i
+    return -1
 
 
 # --------------------------------------------------------------------------- the StreamPlanner mode
@@ -1041,9 +1088,9 @@ def make_stream_mode(base_cls):
         def prepare(self, moves_chunk, limits):
             from ..errors import GcodeError
 
-            e_moves = np.nonzero(moves_chunk["e1"] != moves_chunk["e0"])[0]
-            if e_moves.size:     # gcode.c: E is no grbl word (error:20), the whole line is rejected
-                line = int(moves_chunk["line"][e_moves[0]])
+            e_move = _first_e_move(moves_chunk["e0"], moves_chunk["e1"])
+            if e_move >= 0:      # gcode.c: E is no grbl word (error:20), the whole line is rejected
+                line = int(moves_chunk["line"][e_move])
                 raise GcodeError("grbl 1.1 has no E axis: it rejects this line (error:20, unsupported command)",
                                  line=line)
             check_reach(moves_chunk, self.settings)
