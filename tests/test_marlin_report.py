@@ -130,6 +130,7 @@ def test_a_users_values_are_read(tmp_path):
     ("M425 F1.00 X0.10 Y0.10 Z0.00", r"m503.txt:18: M425 \(backlash"),
     ("M207 S3.00 W13.00 F2700.00 Z0.00", r"m503.txt:18: M207 \(firmware retraction"),
     ("M7219 X1", r"m503.txt:18: M7219: not a setting gcodeplan knows"),
+    ("M200 S1 D1.75", r"m503.txt:18: M200 S1 \(volumetric extrusion on\)"),
 ])
 def test_unmodelled_settings_are_named_warnings(tmp_path, line, match):
     text = REFERENCE_M503.replace("echo:  M206 X0.00 Y0.00 Z0.00", "echo:  " + line)
@@ -140,7 +141,7 @@ def test_unmodelled_settings_are_named_warnings(tmp_path, line, match):
 
 def test_disabled_shaping_and_levelling_are_quiet(tmp_path):
     text = REFERENCE_M503.replace("echo:  M206 X0.00 Y0.00 Z0.00",
-                                  "echo:  M593 X F0.00 D0.10\necho:  M420 S0 Z10.00\necho:  G29 W I0 J0 Z0.012")
+                                  "echo:  M593 X F0.00 D0.10\necho:  M420 S0 Z10.00\necho:  M200 S0 D2.85\necho:  G29 W I0 J0 Z0.012")
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         gp.load_machine(str(_report(tmp_path, text)))
@@ -182,3 +183,10 @@ def test_a_program_with_a_limits_header_is_not_a_report(tmp_path):
     toml = _report(tmp_path, 'base = "marlin"\n', "m.toml")
     assert not is_marlin_report(str(toml))
     assert gp.load_machine(str(toml)).firmware == "marlin-2.1.2"
+
+
+def test_the_marlin_preset_is_the_marlin_2_1_2_model():
+    """Issue 21: `--machine marlin` is the Marlin 2.1.2 model with the reference's machine values, arcs in
+    ARC_SUPPORT's 1 mm segments included: the same machine as the `marlin-2.1.2` preset."""
+    _same_machine(gp.load_machine("marlin"), gp.load_machine("marlin-2.1.2"))
+    assert gp.load_machine("marlin").arc_resolution == 1.0
