@@ -22,7 +22,7 @@ from dataclasses import replace
 
 from ..errors import ConfigError
 
-# "echo:", "Recv: echo:" (OctoPrint's terminal), "//" action lines are not settings
+# "echo:", "Recv: echo:" (OctoPrint's terminal); "//" action lines and "Send:" lines are not settings
 _PREFIX = re.compile(r"^(?:recv:\s*)?(?:echo:\s*)?", re.IGNORECASE)
 _COMMAND = re.compile(r"^([GM])(\d+)((?:\s+[A-Z][^\s;]*)*)\s*(?:;.*)?$", re.IGNORECASE)
 _WORD = re.compile(r"([A-Z])([^\s;]*)", re.IGNORECASE)
@@ -36,10 +36,9 @@ CORE = {"M92", "M201", "M203", "M204", "M205"}
 #: power-loss recovery, runout sensor, material presets, servo angles, LCD, serial, fans, homing feedrates
 NO_TIMING = {"M149", "M145", "M206", "M218", "M281", "M301", "M303", "M304", "M306", "M309", "M413", "M412",
              "M569", "M575", "M600", "M603", "M851", "M906", "M911", "M912", "M913", "M914", "M710", "M250",
-             "M256", "M217", "M210", "M222", "M192", "M355", "M540", "M907", "M200"}
+             "M256", "M217", "M210", "M222", "M192", "M355", "M540", "M907"}
 #: motion commands: a file with one is a program, not a report
 _MOTION = {"G0", "G1", "G2", "G3", "G4", "G5", "G28", "G29", "G92"}
-_AXES = ("x", "y", "z", "e")
 
 
 def _strip(line: str) -> tuple[str, bool]:
@@ -182,6 +181,11 @@ def load_marlin_report(path: str):
             if freq is not None and _number(path, no, code, "F", freq) > 0:
                 warn(no, f"M593 (input shaping {s}): not modelled by the marlin-2.1.2 model; its step times "
                          "and the total are those of an unshaped build")
+        elif code == "M200":
+            # Marlin 2 prints "M200 S0 D1.75": S1 = volumetric extrusion on at start-up (E in mm³)
+            if "S" in words and _number(path, no, code, "S", words["S"]) != 0:
+                warn(no, "M200 S1 (volumetric extrusion on): not a machine setting in gcodeplan; E is read as "
+                         "mm³ only after an M200 D in the program")
         elif code in ("G21", "G20"):
             if code == "G20":
                 raise ConfigError("G20: the report is in inches; gcodeplan reads Marlin's settings in mm "
