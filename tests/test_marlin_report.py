@@ -190,3 +190,9 @@ def test_the_marlin_preset_is_the_marlin_2_1_2_model():
     ARC_SUPPORT's 1 mm segments included: the same machine as the `marlin-2.1.2` preset."""
     _same_machine(gp.load_machine("marlin"), gp.load_machine("marlin-2.1.2"))
     assert gp.load_machine("marlin").arc_resolution == 1.0
+
+
+def test_absurd_values_meet_the_machine_checks(tmp_path):
+    p = _report(tmp_path, "M92 X100 Y100 Z400 E280\nM203 X1e-9 Y200\n")
+    with pytest.raises(ConfigError, match=r"m503.txt: axis.x.max_velocity: must be at least 0.001 mm/s"):
+        gp.load_machine(str(p))

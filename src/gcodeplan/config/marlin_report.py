@@ -95,6 +95,7 @@ def _number(path: str, no: int, code: str, letter: str, text: str) -> float:
 
 def load_marlin_report(path: str):
     """The :class:`~gcodeplan.machine.Machine` of an ``M503`` report (see the module docstring)."""
+    from .fields import validate
     from .toml import load_machine, read_text
 
     text = read_text(path)
@@ -217,4 +218,6 @@ def load_marlin_report(path: str):
         top["junction_policy"] = "classic-jerk"
     if "accel_print" in top:
         top["max_accel"] = top["accel_print"]     # the preset's rule: max_accel is M204 P
-    return replace(machine, axes=axes, name=f"marlin M503 ({path})", **top)
+    machine = replace(machine, axes=axes, name=f"marlin M503 ({path})", **top)
+    validate(machine, path)                       # the limits every machine obeys (absurdly small values …)
+    return machine
