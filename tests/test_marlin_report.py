@@ -141,7 +141,8 @@ def test_unmodelled_settings_are_named_warnings(tmp_path, line, match):
 
 def test_disabled_shaping_and_levelling_are_quiet(tmp_path):
     text = REFERENCE_M503.replace("echo:  M206 X0.00 Y0.00 Z0.00",
-                                  "echo:  M593 X F0.00 D0.10\necho:  M420 S0 Z10.00\necho:  M200 S0 D2.85\necho:  G29 W I0 J0 Z0.012")
+                                  "echo:  M593 X F0.00 D0.10\necho:  M420 S0 Z10.00\necho:  M200 S0 D2.85\n"
+                                  "echo:  G29 W I0 J0 Z0.012")
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         gp.load_machine(str(_report(tmp_path, text)))
