@@ -137,9 +137,11 @@ def test_ultigcode_e_is_mm3_of_285_filament(tmp_path, capsys):
 def test_ultigcode_flow_equals_the_commanded_volume(tmp_path):
     p = tmp_path / "um2.gcode"
     p.write_text(";FLAVOR:UltiGCode\nG21\nG90\nG92 E0\nG1 X0 Y0 F3000\n;TYPE:WALL-OUTER\nG1 X100 E8 F1200\n")
-    est = gp.estimate(str(p), "marlin")
+    # the ideal trapezoid (generic planning): its cruise is the commanded 20 mm/s exactly
+    m = gp.load_machine("marlin", firmware="generic")
+    est = gp.estimate(str(p), m)
     flow = est.to_json()["flow"]["features"]["wall-outer"]
-    pl = gp.plan(str(p), "marlin")
+    pl = gp.plan(str(p), m)
     t_print = float(pl.plan["duration"][-1])
     assert flow["average_mm3_s"] == pytest.approx(8.0 / t_print, rel=1e-9)
     assert flow["peak_mm3_s"] == pytest.approx(8.0 / 100.0 * 20.0, rel=1e-12)    # 0.08 mm³/mm at 20 mm/s

@@ -120,7 +120,7 @@ def test_tiny_limits_are_a_clear_error_in_every_mode(policy, jerk):
     # 123 mm move at 0 s and the estimate printed 0.000 s)
     from gcodeplan.errors import GcodeplanError
 
-    m = gp.load_machine("marlin")
+    m = gp.load_machine("marlin", firmware="generic")     # the generic policies (classic jerk: per-axis jerks)
     for first in ("SET_VELOCITY_LIMIT VELOCITY=1e-320", "SET_VELOCITY_LIMIT VELOCITY=10 ACCEL=1e-320"):
         lines = [first, "G1 X81.6 Y92.1 F600", "G1 X81.9 Y91.5", "G1 X82.2 Y90.9"]
         with pytest.raises(GcodeplanError):

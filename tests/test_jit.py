@@ -44,6 +44,8 @@ def _machine(spec):
         return gp.load_machine(klipper_config=where)
     if kind == "ini":
         return gp.load_machine(linuxcnc_ini=where)
+    if kind == "generic":                        # a preset planned by its junction policy, not its firmware model
+        return gp.load_machine(where, firmware="generic")
     return gp.load_machine(spec)
 
 
@@ -95,14 +97,15 @@ def small_samples(tmp_path_factory):
 
 
 def test_interpreted_kernels_plan_every_sample_bit_for_bit(small_samples):
-    """Every sample × every junction policy, Marlin's preset and S-curves: the estimate JSON and every field
-    of every MOVE / PLAN / SEGMENT row are identical, with numba never imported and no kernel falling back."""
+    """Every sample × every junction policy, the marlin machine (generic planning) and S-curves: the estimate
+    JSON and every field of every MOVE / PLAN / SEGMENT row are identical, with numba never imported and no
+    kernel falling back."""
     _jit.activate()
     cases = []
     for path in small_samples:
         for policy in ("klipper", "junction-deviation", "classic-jerk", "blend", "exact-stop"):
             cases.append([path, "klipper", policy, None])
-        cases.append([path, "marlin", None, None])
+        cases.append([path, "generic:marlin", None, None])
         cases.append([path, "klipper", None, 20000.0])
     got = _interpreted(cases)
     assert got["numba"] is False

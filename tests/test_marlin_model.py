@@ -151,7 +151,7 @@ def test_firmware_key_option_and_errors(tmp_path):
     m.write_text('base = "marlin"\nfirmware = "marlin-9"\n')
     with pytest.raises(ConfigError, match="firmware"):
         load_machine(str(m))
-    assert load_machine("marlin").firmware == "generic"      # the old preset is unchanged
+    assert load_machine("marlin").firmware == "marlin-2.1.2"     # issue 21: the preset is the Marlin 2.1.2 model
     g = tmp_path / "a.gcode"
     g.write_text("G28\nG1 X10 F6000\nG1 Y10\n")
     est = gp.estimate(str(g), gp.load_machine("marlin-2.1.2"))

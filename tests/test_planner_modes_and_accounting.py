@@ -143,6 +143,8 @@ def test_steps_count_the_rounded_position_in_every_mode(part_file, policy, jerk)
     from gcodeplan.stepper.source import segment_batches
 
     mach = load_machine("marlin")
+    if jerk is not None:                       # S-curves are the generic planner's (a firmware machine refuses --jerk)
+        mach = replace(mach, firmware="generic")
     batches = list(segment_batches(str(part_file), mach, policy=policy, jerk=jerk))
     segs = np.concatenate([b[0] for b in batches])
     assert not np.any(np.concatenate([b[1] for b in batches]))
@@ -180,7 +182,9 @@ def test_steps_command_blend_and_scurve_with_compress(part_file, tmp_path, extra
     from gcodeplan.stepper.compress import decompress_runs
 
     out = tmp_path / "s.npz"
-    rc = main([str(a) for a in ["steps", part_file, "--machine", "marlin", "-o", out, "--compress", "-q", *extra]])
+    m = tmp_path / "m.toml"                    # the marlin machine on the generic planner (--jerk S-curves)
+    m.write_text('base = "marlin"\nfirmware = "generic"\n')
+    rc = main([str(a) for a in ["steps", part_file, "--machine", m, "-o", out, "--compress", "-q", *extra]])
     assert rc == 0
     z = load_npz(out)
     spm = dict(zip(list(z["steppers"]), z["steps_per_mm"]))
@@ -270,7 +274,9 @@ def test_estimate_json_breakdowns_each_sum_to_the_total(tmp_path, capsys, extra)
     g = tmp_path / "print.gcode"
     g.write_text(PRINT)
     m = tmp_path / "m.toml"
-    m.write_text('base = "marlin"\n[junction]\nblend_tolerance = 0.05\n')
+    # S-curves (--jerk) are the generic planner's: a firmware machine refuses --jerk
+    firmware = 'firmware = "generic"\n' if "--jerk" in extra else ""
+    m.write_text(f'base = "marlin"\n{firmware}[junction]\nblend_tolerance = 0.05\n')
     assert main(["estimate", "--json", "-q", "--machine", str(m), str(g), *extra]) == 0
     d = json.loads(capsys.readouterr().out)
     total = d["total_time_s"]

@@ -46,6 +46,10 @@ def load_machine(path_or_preset: str) -> Machine:
 
         if is_grbl_settings(spec):            # grbl's $$ report
             return load_grbl_settings(spec)
+        from .marlin_report import is_marlin_report, load_marlin_report
+
+        if is_marlin_report(spec):            # Marlin's M503 report
+            return load_marlin_report(spec)
         return load_machine_toml(spec)
     presets = preset_names()
     if spec in presets:
