@@ -117,6 +117,53 @@ def test_toolhead_random_chunks_and_lazy_commit():
     assert got[-1].end_time == pytest.approx(43.283454874, abs=1e-8)   # Klipper's total for this file
 
 
+def test_toolhead_firmware_loop_on_the_cube_equals_plan():
+    # th.gcode(line) then th.committed() per line, as a firmware loop would: the CommittedMove objects, every
+    # field, equal the whole-file plan's rows bit for bit (index, line, kind, end position, speeds, times, limit).
+    from gcodeplan.schema import KIND_NAMES, LIMIT_NAMES
+
+    ref = gp.plan(str(CUBE))
+    th = gp.Toolhead()
+    got = []
+    for line in _lines(CUBE):
+        th.gcode(line)
+        got.extend(th.committed())
+    th.close()
+    got.extend(th.committed())
+    m, p = ref.moves, ref.plan
+    assert [g.index for g in got] == list(range(len(p)))
+    assert [g.line for g in got] == m["line"].tolist()
+    assert [g.kind for g in got] == [KIND_NAMES[k] for k in m["kind"]]
+    assert [g.limit for g in got] == [LIMIT_NAMES[k] for k in p["limit"]]
+    for attr, col in (("x", m["x1"]), ("y", m["y1"]), ("z", m["z1"]), ("e", m["e1"]), ("move_d", m["move_d"]),
+                      ("start_v", p["start_v"]), ("cruise_v", p["cruise_v"]), ("end_v", p["end_v"]),
+                      ("accel", p["accel"]), ("start_time", p["t_start"]), ("end_time", p["t_start"] + p["duration"])):
+        assert np.array_equal(np.array([getattr(g, attr) for g in got]), col), attr
+
+
+def test_toolhead_hands_out_the_exact_commits_of_each_block():
+    # committed() sees what the blocks of block_lines lines interpreted so far made final: after line k it has
+    # handed out exactly what a Toolhead interpreting every line (block_lines=1) had made final after the
+    # last whole block, never a move whose speeds could still change, and in the end the same moves.
+    lines = _lines(SAMPLES / "d_slicer_like.gcode")
+    exact, lazy = gp.Toolhead(block_lines=1), gp.Toolhead(block_lines=50)
+    n_exact, n_lazy = [], []
+    got_exact, got_lazy = [], []
+    for line in lines:
+        for th, got, n in ((exact, got_exact, n_exact), (lazy, got_lazy, n_lazy)):
+            th.gcode(line)
+            got.extend(th.committed())
+            n.append(len(got))
+    assert n_lazy[48] == 0 < n_exact[48]                 # 49 lines: nothing interpreted yet
+    for k in range(len(lines)):
+        boundary = (k + 1) // 50 * 50 - 1                # the last line of the last whole block
+        assert n_lazy[k] == (n_exact[boundary] if boundary >= 0 else 0), k
+    for th, got in ((exact, got_exact), (lazy, got_lazy)):
+        th.close()
+        got.extend(th.committed())
+    assert got_lazy == got_exact                         # dataclass equality: every field, bit for bit
+
+
 def test_toolhead_flush_is_a_full_stop_and_move_is_a_g1_line():
     th = gp.Toolhead("klipper")
     th.move(x=10, y=0, speed=100)

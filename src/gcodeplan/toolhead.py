@@ -7,8 +7,12 @@ everything becomes final at :meth:`Toolhead.flush` (a full stop, as Klipper's ``
 scanner, interpreter and streaming planner), so its moves equal ``gp.plan`` on the same text bit
 for bit, whatever the chunking.
 
-Text is interpreted lazily, in blocks of ``block_lines`` lines or when moves are asked for, so that
-a call with one line costs about a microsecond and planning runs over many moves at once.
+Text is interpreted lazily, in blocks of ``block_lines`` lines (and at :meth:`Toolhead.flush` /
+:meth:`Toolhead.close`), so that a firmware-style loop -- ``th.gcode(line)`` then ``th.committed()``
+per line -- costs a few microseconds a line and planning runs over many moves at once (Klipper's own
+look-ahead likewise plans only when its queue holds enough motion). ``committed()`` hands out what the
+blocks interpreted so far made final: the same moves, bit for bit, whatever ``block_lines``; only how
+soon they come out depends on it (``block_lines=1``: after the very line that made them final).
 
 A Toolhead may be shared between threads: every public method holds the Toolhead's lock while it
 runs, so calls never interleave inside the planner (lines fed from two threads are planned in the
@@ -77,8 +81,10 @@ class Toolhead:
 
     ``machine``: a :class:`~gcodeplan.machine.Machine` or preset name (None = ``klipper``);
     ``policy``, ``jerk`` as in :func:`gcodeplan.plan`; ``strict``: unknown commands are errors;
-    ``block_lines``: lines buffered before they are interpreted and planned. Thread-safe: every method
-    holds the Toolhead's lock (a feeding thread and a draining thread see exactly the plan of the text fed).
+    ``block_lines``: lines buffered before they are interpreted and planned (``committed()`` sees moves
+    made final by the blocks interpreted so far; 1 = by every line fed, each line planned alone).
+    Thread-safe: every method holds the Toolhead's lock (a feeding thread and a draining thread see
+    exactly the plan of the text fed).
     """
 
     def __init__(self, machine=None, policy: str | None = None, jerk: float | None = None, *,
@@ -180,35 +186,43 @@ class Toolhead:
 
     # ------------------------------------------------------------------ output
     def committed_arrays(self) -> tuple[np.ndarray, np.ndarray]:
-        """(MOVE rows, PLAN rows) made final since the last ``committed()`` / ``committed_arrays()`` call
-        (interprets what is queued first). The PLAN rows' times continue across calls."""
+        """(MOVE rows, PLAN rows) made final since the last ``committed()`` / ``committed_arrays()`` call,
+        by the text interpreted so far (whole blocks of ``block_lines`` lines; everything after
+        :meth:`flush` / :meth:`close`). The PLAN rows' times continue across calls."""
         with self._lock:
             return self._take()
 
     def _take(self) -> tuple[np.ndarray, np.ndarray]:
-        self._interpret()
-        if not self._out:
+        out = self._out
+        if not out:
             return np.zeros(0, MOVE_DTYPE), np.zeros(0, PLAN_DTYPE)
-        moves = np.concatenate([m for m, _ in self._out])
-        plan = np.concatenate([p for _, p in self._out])
-        self._out.clear()
+        if len(out) == 1:
+            moves, plan = out[0]
+        else:
+            moves = np.concatenate([m for m, _ in out])
+            plan = np.concatenate([p for _, p in out])
+        out.clear()
         self._handed += len(moves)
         return moves, plan
 
     def committed(self) -> list[CommittedMove]:
-        """The rows made final since the last call, as :class:`CommittedMove` objects."""
+        """The rows made final since the last call, as :class:`CommittedMove` objects (see
+        :meth:`committed_arrays`: by the text interpreted so far)."""
         with self._lock:
+            if not self._out:           # the per-line case of a firmware loop: nothing new, no arrays made
+                return []
             first = self._handed
             moves, plan = self._take()
-        end_t = plan["t_start"] + plan["duration"]
-        out = []
-        for k in range(len(moves)):
-            m, p = moves[k], plan[k]
-            out.append(CommittedMove(first + k, int(m["line"]), KIND_NAMES[m["kind"]], float(m["x1"]), float(m["y1"]),
-                                     float(m["z1"]), float(m["e1"]), float(m["move_d"]), float(p["start_v"]),
-                                     float(p["cruise_v"]), float(p["end_v"]), float(p["accel"]),
-                                     float(p["t_start"]), float(end_t[k]), LIMIT_NAMES[p["limit"]]))
-        return out
+        # whole columns to Python floats at once: per-row field access of a structured array costs µs each
+        t_start = plan["t_start"]
+        cols = zip(range(first, first + len(moves)), moves["line"].tolist(), moves["kind"].tolist(),
+                   moves["x1"].tolist(), moves["y1"].tolist(), moves["z1"].tolist(), moves["e1"].tolist(),
+                   moves["move_d"].tolist(), plan["start_v"].tolist(), plan["cruise_v"].tolist(),
+                   plan["end_v"].tolist(), plan["accel"].tolist(), t_start.tolist(),
+                   (t_start + plan["duration"]).tolist(), plan["limit"].tolist())
+        kinds, limits = KIND_NAMES, LIMIT_NAMES
+        return [CommittedMove(i, ln, kinds[k], x, y, z, e, d, sv, cv, ev, a, t0, t1, limits[lim])
+                for i, ln, k, x, y, z, e, d, sv, cv, ev, a, t0, t1, lim in cols]
 
     @property
     def pending(self) -> int:
