@@ -164,6 +164,44 @@ def test_toolhead_hands_out_the_exact_commits_of_each_block():
     assert got_lazy == got_exact                         # dataclass equality: every field, bit for bit
 
 
+def _toolhead_steps(machine, lines, **kw):
+    """th.steps() read after every line of a firmware loop, concatenated per stepper."""
+    th = gp.Toolhead(machine, steps=True, **kw)
+    parts = {}
+    for line in lines:
+        th.gcode(line)
+        th.committed()
+        for name, td in th.steps().items():
+            parts.setdefault(name, []).append(td)
+    th.close()
+    for name, td in th.steps().items():
+        parts.setdefault(name, []).append(td)
+    return {name: (np.concatenate([t for t, _ in p]), np.concatenate([d for _, d in p])) for name, p in parts.items()}
+
+
+@pytest.mark.parametrize("machine,head,kw", [
+    ("klipper", [], {}),
+    ("marlin-2.1.2", [], {"block_lines": 97}),          # the firmware model's own stepper pulses
+    ("klipper", ["SET_INPUT_SHAPER SHAPER_FREQ_X=45 SHAPER_FREQ_Y=38", "SET_PRESSURE_ADVANCE ADVANCE=0.05"],
+     {"block_lines": 37, "sds_filter": 750e-9}),
+])
+def test_toolhead_steps_equal_gp_steps(machine, head, kw):
+    # the steps of what became final, read as the loop goes, are gp.steps' on the same program, bit for bit
+    lines = [h.encode() for h in head] + _lines(CUBE)[:2500]
+    m = gp.load_machine(machine)
+    ref = gp.steps([ln.decode() for ln in lines], m, sds_filter=kw.get("sds_filter"))
+    got = _toolhead_steps(m, lines, **kw)
+    assert set(got) == set(ref)
+    for name, (t, d) in ref.items():
+        assert len(t) > 1000, name
+        assert np.array_equal(got[name][0], t) and np.array_equal(got[name][1], d), name
+
+
+def test_toolhead_steps_need_to_be_asked_for():
+    with pytest.raises(RuntimeError, match="steps=True"):
+        gp.Toolhead().steps()
+
+
 def test_toolhead_flush_is_a_full_stop_and_move_is_a_g1_line():
     th = gp.Toolhead("klipper")
     th.move(x=10, y=0, speed=100)

@@ -88,7 +88,8 @@ class Toolhead:
     """
 
     def __init__(self, machine=None, policy: str | None = None, jerk: float | None = None, *,
-                 strict: bool = False, block_lines: int = 512, name: str = "<toolhead>"):
+                 strict: bool = False, block_lines: int = 512, name: str = "<toolhead>", steps: bool = False,
+                 kinematics=None, sds_filter: float | None = None):
         from .api import as_machine
         from .gcode import GcodeReader
         from .planner import StreamPlanner
@@ -100,6 +101,16 @@ class Toolhead:
         self._planner = StreamPlanner(self.machine, policy=self.policy, jerk=jerk)
         self._planner.e_position_sets = self._reader.interp.e_position_sets   # G92 E, for firmware models
         self.block_lines = max(1, int(block_lines))
+        self._steps: dict[int, list] | None = None
+        self._step_sink = None
+        if steps:      # the step stage gp.steps runs, fed each final piece as it comes (stepper/source.py)
+            from .stepper.source import StepSink, rails_from
+
+            self._rails = rails_from(self.machine, kinematics)
+            self._steps = {}
+            self._step_sink = StepSink(self._rails, self._collect_steps, sds_filter_t=sds_filter,
+                                       machine=self.machine)
+            self._planner.want_firmware_steps = True
         self._text: list[bytes] = []
         self._lines_waiting = 0
         self._out: list[tuple[np.ndarray, np.ndarray]] = []   # final (moves, plan) not yet handed out
@@ -163,9 +174,24 @@ class Toolhead:
 
     def _plan(self, pairs) -> None:
         for moves, plan in pairs:
+            if self._step_sink is not None:
+                self._step(moves, plan)
             if len(moves):
                 self._out.append((moves, plan))
                 self._rows += len(moves)
+
+    def _step(self, moves: np.ndarray, plan: np.ndarray) -> None:
+        """Hand a final (moves, plan) pair to the step stage, as the pipeline's Run does for gp.steps."""
+        from .pipeline import Piece
+
+        sp = self._planner
+        piece = Piece(moves, plan, self._rows, sp.mode, make_segments=sp.segments_for,
+                      own_segments=sp.own_segments, limits=self._reader.limits)
+        piece.firmware_steps = sp.firmware_steps()
+        self._step_sink.add(piece)
+
+    def _collect_steps(self, stepper: int, times_s: np.ndarray, dirs: np.ndarray) -> None:
+        self._steps.setdefault(stepper, []).append((times_s.copy(), dirs.copy()))
 
     def flush(self) -> None:
         """A full stop: everything queued is planned to rest and becomes final (Klipper's ``M400``)."""
@@ -182,6 +208,8 @@ class Toolhead:
             for rows in self._reader.end():
                 self._plan(self._planner.feed(rows, self._reader.limits))
             self._plan(self._planner.finish())
+            if self._step_sink is not None:
+                self._step_sink.generator.finish()
             self._closed = True
 
     # ------------------------------------------------------------------ output
@@ -223,6 +251,31 @@ class Toolhead:
         kinds, limits = KIND_NAMES, LIMIT_NAMES
         return [CommittedMove(i, ln, kinds[k], x, y, z, e, d, sv, cv, ev, a, t0, t1, limits[lim])
                 for i, ln, k, x, y, z, e, d, sv, cv, ev, a, t0, t1, lim in cols]
+
+    def steps(self) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+        """Step times of the final moves since the last call: ``{stepper name: (times_s float64, dirs int8)}``,
+        times from the first move's start, as :func:`gcodeplan.steps` gives them (Klipper's step convention);
+        the concatenation of every call's arrays equals ``gp.steps`` on the same program bit for bit. Steps
+        come out as the step generator computes them (it may hold a move's last steps until the next move is
+        known, and shaped or pressure-advanced motors lag by the smoothing window; all after :meth:`close`). Needs ``Toolhead(..., steps=True)`` (``kinematics``,
+        ``sds_filter`` as for :func:`gcodeplan.steps`)."""
+        with self._lock:
+            if self._steps is None:
+                raise RuntimeError("Toolhead.steps() needs Toolhead(..., steps=True): the step stage must see "
+                                   "every move from the first")
+            if not self._closed:
+                self._step_sink.generator.release()
+            parts, self._steps = self._steps, {}
+        out = {}
+        for si, rail in enumerate(self._rails):
+            chunks = parts.get(si)
+            if not chunks:
+                out[rail.name] = (np.empty(0, np.float64), np.empty(0, np.int8))
+            elif len(chunks) == 1:
+                out[rail.name] = chunks[0]
+            else:
+                out[rail.name] = (np.concatenate([c[0] for c in chunks]), np.concatenate([c[1] for c in chunks]))
+        return out
 
     @property
     def pending(self) -> int:
