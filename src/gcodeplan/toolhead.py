@@ -279,7 +279,8 @@ class Toolhead:
 
     @property
     def pending(self) -> int:
-        """Rows planned but not final yet (held in the look-ahead window)."""
+        """Rows planned but not final yet (held in the look-ahead window; lines queued but not interpreted
+        yet, fewer than ``block_lines``, are not counted)."""
         with self._lock:
             return self._planner.pending
 
