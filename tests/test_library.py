@@ -197,6 +197,34 @@ def test_toolhead_steps_equal_gp_steps(machine, head, kw):
         assert np.array_equal(got[name][0], t) and np.array_equal(got[name][1], d), name
 
 
+@pytest.mark.parametrize("policy,jerk", [(None, None), ("blend", None), (None, 50000.0)])
+def test_toolhead_hands_pipeline_sinks_the_pieces_of_gp_run(policy, jerk):
+    # a pipeline sink on a Toolhead fed line by line gets what pipeline.run gives it on the file: the same MOVE,
+    # PLAN and SEGMENT rows (blend / S-curve pieces included, which exist only while the sink is called), closed once
+    m = gp.load_machine("klipper")
+    ref = gp.pipeline.Collect()
+    gp.pipeline.run(str(CUBE), m, policy=policy, jerk=jerk, sinks=[ref])
+    closed = []
+
+    class Sink(gp.pipeline.Collect):
+        def close(self, result):
+            closed.append(result.rows)
+
+    sink = Sink()
+    th = gp.Toolhead(m, policy=policy, jerk=jerk, sinks=[sink])
+    for line in _lines(CUBE):
+        th.gcode(line)
+        th.committed()
+    th.close()
+    for a, b in zip(sink.arrays(), ref.arrays()):
+        assert len(a) == len(b)
+        # MOVE.layer aside: the reader numbers layers by comments only when its first chunk holds a layer comment
+        # (gcode/reader.py), which text fed a line at a time cannot show it in advance
+        for f in (f for f in a.dtype.names if f != "layer"):
+            assert np.array_equal(a[f], b[f], equal_nan=True), f
+    assert closed == [len(ref.arrays()[0])]
+
+
 def test_toolhead_steps_need_to_be_asked_for():
     with pytest.raises(RuntimeError, match="steps=True"):
         gp.Toolhead().steps()

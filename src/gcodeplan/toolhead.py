@@ -81,6 +81,9 @@ class Toolhead:
 
     ``machine``: a :class:`~gcodeplan.machine.Machine` or preset name (None = ``klipper``);
     ``policy``, ``jerk`` as in :func:`gcodeplan.plan`; ``strict``: unknown commands are errors;
+    ``steps``: keep the step times of the final moves for :meth:`steps` (``kinematics``, ``sds_filter`` as
+    for :func:`gcodeplan.steps`); ``sinks``: pipeline sinks (:class:`gcodeplan.pipeline.Sink`) handed every
+    final piece as :func:`gcodeplan.pipeline.run` hands them, and closed at :meth:`close`;
     ``block_lines``: lines buffered before they are interpreted and planned (``committed()`` sees moves
     made final by the blocks interpreted so far; 1 = by every line fed, each line planned alone).
     Thread-safe: every method holds the Toolhead's lock (a feeding thread and a draining thread see
@@ -89,7 +92,7 @@ class Toolhead:
 
     def __init__(self, machine=None, policy: str | None = None, jerk: float | None = None, *,
                  strict: bool = False, block_lines: int = 512, name: str = "<toolhead>", steps: bool = False,
-                 kinematics=None, sds_filter: float | None = None):
+                 kinematics=None, sds_filter: float | None = None, sinks=()):
         from .api import as_machine
         from .gcode import GcodeReader
         from .planner import StreamPlanner
@@ -103,6 +106,7 @@ class Toolhead:
         self.block_lines = max(1, int(block_lines))
         self._steps: dict[int, list] | None = None
         self._step_sink = None
+        self._sinks = list(sinks)       # pipeline sinks (gcodeplan.pipeline.Sink): each final piece, as gp.run
         if steps:      # the step stage gp.steps runs, fed each final piece as it comes (stepper/source.py)
             from .stepper.source import StepSink, rails_from
 
@@ -110,6 +114,8 @@ class Toolhead:
             self._steps = {}
             self._step_sink = StepSink(self._rails, self._collect_steps, sds_filter_t=sds_filter,
                                        machine=self.machine)
+            self._sinks.append(self._step_sink)
+        if any(getattr(sk, "wants_firmware_steps", False) for sk in self._sinks):
             self._planner.want_firmware_steps = True
         self._text: list[bytes] = []
         self._lines_waiting = 0
@@ -174,21 +180,23 @@ class Toolhead:
 
     def _plan(self, pairs) -> None:
         for moves, plan in pairs:
-            if self._step_sink is not None:
-                self._step(moves, plan)
+            if self._sinks:
+                self._to_sinks(moves, plan)
             if len(moves):
                 self._out.append((moves, plan))
                 self._rows += len(moves)
 
-    def _step(self, moves: np.ndarray, plan: np.ndarray) -> None:
-        """Hand a final (moves, plan) pair to the step stage, as the pipeline's Run does for gp.steps."""
+    def _to_sinks(self, moves: np.ndarray, plan: np.ndarray) -> None:
+        """Hand a final (moves, plan) pair to the sinks as the pipeline's Run does (gp.steps' step stage
+        among them), while the planner still holds its segments."""
         from .pipeline import Piece
 
         sp = self._planner
         piece = Piece(moves, plan, self._rows, sp.mode, make_segments=sp.segments_for,
                       own_segments=sp.own_segments, limits=self._reader.limits)
         piece.firmware_steps = sp.firmware_steps()
-        self._step_sink.add(piece)
+        for sink in self._sinks:
+            sink.add(piece)
 
     def _collect_steps(self, stepper: int, times_s: np.ndarray, dirs: np.ndarray) -> None:
         self._steps.setdefault(stepper, []).append((times_s.copy(), dirs.copy()))
@@ -208,9 +216,14 @@ class Toolhead:
             for rows in self._reader.end():
                 self._plan(self._planner.feed(rows, self._reader.limits))
             self._plan(self._planner.finish())
-            if self._step_sink is not None:
-                self._step_sink.generator.finish()
             self._closed = True
+            if self._sinks:
+                from .pipeline import RunResult
+
+                result = RunResult(self._reader, self.machine, self.policy, self._planner.mode, self._rows, False,
+                                   self._reader.path)
+                for sink in self._sinks:
+                    sink.close(result)      # the step sink: the last steps (StepGenerator.finish)
 
     # ------------------------------------------------------------------ output
     def committed_arrays(self) -> tuple[np.ndarray, np.ndarray]:
