@@ -117,6 +117,119 @@ def test_toolhead_random_chunks_and_lazy_commit():
     assert got[-1].end_time == pytest.approx(43.283454874, abs=1e-8)   # Klipper's total for this file
 
 
+def test_toolhead_firmware_loop_on_the_cube_equals_plan():
+    # th.gcode(line) then th.committed() per line, as a firmware loop would: the CommittedMove objects, every
+    # field, equal the whole-file plan's rows bit for bit (index, line, kind, end position, speeds, times, limit).
+    from gcodeplan.schema import KIND_NAMES, LIMIT_NAMES
+
+    ref = gp.plan(str(CUBE))
+    th = gp.Toolhead()
+    got = []
+    for line in _lines(CUBE):
+        th.gcode(line)
+        got.extend(th.committed())
+    th.close()
+    got.extend(th.committed())
+    m, p = ref.moves, ref.plan
+    assert [g.index for g in got] == list(range(len(p)))
+    assert [g.line for g in got] == m["line"].tolist()
+    assert [g.kind for g in got] == [KIND_NAMES[k] for k in m["kind"]]
+    assert [g.limit for g in got] == [LIMIT_NAMES[k] for k in p["limit"]]
+    for attr, col in (("x", m["x1"]), ("y", m["y1"]), ("z", m["z1"]), ("e", m["e1"]), ("move_d", m["move_d"]),
+                      ("start_v", p["start_v"]), ("cruise_v", p["cruise_v"]), ("end_v", p["end_v"]),
+                      ("accel", p["accel"]), ("start_time", p["t_start"]), ("end_time", p["t_start"] + p["duration"])):
+        assert np.array_equal(np.array([getattr(g, attr) for g in got]), col), attr
+
+
+def test_toolhead_hands_out_the_exact_commits_of_each_block():
+    # committed() sees what the blocks of block_lines lines interpreted so far made final: after line k it has
+    # handed out exactly what a Toolhead interpreting every line (block_lines=1) had made final after the
+    # last whole block, never a move whose speeds could still change, and in the end the same moves.
+    lines = _lines(SAMPLES / "d_slicer_like.gcode")
+    exact, lazy = gp.Toolhead(block_lines=1), gp.Toolhead(block_lines=50)
+    n_exact, n_lazy = [], []
+    got_exact, got_lazy = [], []
+    for line in lines:
+        for th, got, n in ((exact, got_exact, n_exact), (lazy, got_lazy, n_lazy)):
+            th.gcode(line)
+            got.extend(th.committed())
+            n.append(len(got))
+    assert n_lazy[48] == 0 < n_exact[48]                 # 49 lines: nothing interpreted yet
+    for k in range(len(lines)):
+        boundary = (k + 1) // 50 * 50 - 1                # the last line of the last whole block
+        assert n_lazy[k] == (n_exact[boundary] if boundary >= 0 else 0), k
+    for th, got in ((exact, got_exact), (lazy, got_lazy)):
+        th.close()
+        got.extend(th.committed())
+    assert got_lazy == got_exact                         # dataclass equality: every field, bit for bit
+
+
+def _toolhead_steps(machine, lines, **kw):
+    """th.steps() read after every line of a firmware loop, concatenated per stepper."""
+    th = gp.Toolhead(machine, steps=True, **kw)
+    parts = {}
+    for line in lines:
+        th.gcode(line)
+        th.committed()
+        for name, td in th.steps().items():
+            parts.setdefault(name, []).append(td)
+    th.close()
+    for name, td in th.steps().items():
+        parts.setdefault(name, []).append(td)
+    return {name: (np.concatenate([t for t, _ in p]), np.concatenate([d for _, d in p])) for name, p in parts.items()}
+
+
+@pytest.mark.parametrize("machine,head,kw", [
+    ("klipper", [], {}),
+    ("marlin-2.1.2", [], {"block_lines": 97}),          # the firmware model's own stepper pulses
+    ("klipper", ["SET_INPUT_SHAPER SHAPER_FREQ_X=45 SHAPER_FREQ_Y=38", "SET_PRESSURE_ADVANCE ADVANCE=0.05"],
+     {"block_lines": 37, "sds_filter": 750e-9}),
+])
+def test_toolhead_steps_equal_gp_steps(machine, head, kw):
+    # the steps of what became final, read as the loop goes, are gp.steps' on the same program, bit for bit
+    lines = [h.encode() for h in head] + _lines(CUBE)[:2500]
+    m = gp.load_machine(machine)
+    ref = gp.steps([ln.decode() for ln in lines], m, sds_filter=kw.get("sds_filter"))
+    got = _toolhead_steps(m, lines, **kw)
+    assert set(got) == set(ref)
+    for name, (t, d) in ref.items():
+        assert len(t) > 1000, name
+        assert np.array_equal(got[name][0], t) and np.array_equal(got[name][1], d), name
+
+
+@pytest.mark.parametrize("policy,jerk", [(None, None), ("blend", None), (None, 50000.0)])
+def test_toolhead_hands_pipeline_sinks_the_pieces_of_gp_run(policy, jerk):
+    # a pipeline sink on a Toolhead fed line by line gets what pipeline.run gives it on the file: the same MOVE,
+    # PLAN and SEGMENT rows (blend / S-curve pieces included, which exist only while the sink is called), closed once
+    m = gp.load_machine("klipper")
+    ref = gp.pipeline.Collect()
+    gp.pipeline.run(str(CUBE), m, policy=policy, jerk=jerk, sinks=[ref])
+    closed = []
+
+    class Sink(gp.pipeline.Collect):
+        def close(self, result):
+            closed.append(result.rows)
+
+    sink = Sink()
+    th = gp.Toolhead(m, policy=policy, jerk=jerk, sinks=[sink])
+    for line in _lines(CUBE):
+        th.gcode(line)
+        th.committed()
+    th.close()
+    for a, b in zip(sink.arrays(), ref.arrays()):
+        assert len(a) == len(b)
+        # MOVE.layer aside: the reader numbers layers by comments only when its first chunk holds a layer comment
+        # (gcode/reader.py), which text fed a line at a time cannot show it in advance
+        for f in (f for f in a.dtype.names if f != "layer"):
+            assert np.array_equal(a[f], b[f], equal_nan=True), f
+    assert closed == [len(ref.arrays()[0])]
+
+
+def test_toolhead_steps_need_to_be_asked_for():
+    with pytest.raises(RuntimeError, match="steps=True"):
+        gp.Toolhead().steps()
+
+
 def test_toolhead_flush_is_a_full_stop_and_move_is_a_g1_line():
     th = gp.Toolhead("klipper")
     th.move(x=10, y=0, speed=100)

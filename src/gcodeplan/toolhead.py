@@ -7,8 +7,12 @@ everything becomes final at :meth:`Toolhead.flush` (a full stop, as Klipper's ``
 scanner, interpreter and streaming planner), so its moves equal ``gp.plan`` on the same text bit
 for bit, whatever the chunking.
 
-Text is interpreted lazily, in blocks of ``block_lines`` lines or when moves are asked for, so that
-a call with one line costs about a microsecond and planning runs over many moves at once.
+Text is interpreted lazily, in blocks of ``block_lines`` lines (and at :meth:`Toolhead.flush` /
+:meth:`Toolhead.close`), so that a firmware-style loop -- ``th.gcode(line)`` then ``th.committed()``
+per line -- costs a few microseconds a line and planning runs over many moves at once (Klipper's own
+look-ahead likewise plans only when its queue holds enough motion). ``committed()`` hands out what the
+blocks interpreted so far made final: the same moves, bit for bit, whatever ``block_lines``; only how
+soon they come out depends on it (``block_lines=1``: after the very line that made them final).
 
 A Toolhead may be shared between threads: every public method holds the Toolhead's lock while it
 runs, so calls never interleave inside the planner (lines fed from two threads are planned in the
@@ -77,12 +81,18 @@ class Toolhead:
 
     ``machine``: a :class:`~gcodeplan.machine.Machine` or preset name (None = ``klipper``);
     ``policy``, ``jerk`` as in :func:`gcodeplan.plan`; ``strict``: unknown commands are errors;
-    ``block_lines``: lines buffered before they are interpreted and planned. Thread-safe: every method
-    holds the Toolhead's lock (a feeding thread and a draining thread see exactly the plan of the text fed).
+    ``steps``: keep the step times of the final moves for :meth:`steps` (``kinematics``, ``sds_filter`` as
+    for :func:`gcodeplan.steps`); ``sinks``: pipeline sinks (:class:`gcodeplan.pipeline.Sink`) handed every
+    final piece as :func:`gcodeplan.pipeline.run` hands them, and closed at :meth:`close`;
+    ``block_lines``: lines buffered before they are interpreted and planned (``committed()`` sees moves
+    made final by the blocks interpreted so far; 1 = by every line fed, each line planned alone).
+    Thread-safe: every method holds the Toolhead's lock (a feeding thread and a draining thread see
+    exactly the plan of the text fed).
     """
 
     def __init__(self, machine=None, policy: str | None = None, jerk: float | None = None, *,
-                 strict: bool = False, block_lines: int = 512, name: str = "<toolhead>"):
+                 strict: bool = False, block_lines: int = 512, name: str = "<toolhead>", steps: bool = False,
+                 kinematics=None, sds_filter: float | None = None, sinks=()):
         from .api import as_machine
         from .gcode import GcodeReader
         from .planner import StreamPlanner
@@ -94,6 +104,19 @@ class Toolhead:
         self._planner = StreamPlanner(self.machine, policy=self.policy, jerk=jerk)
         self._planner.e_position_sets = self._reader.interp.e_position_sets   # G92 E, for firmware models
         self.block_lines = max(1, int(block_lines))
+        self._steps: dict[int, list] | None = None
+        self._step_sink = None
+        self._sinks = list(sinks)       # pipeline sinks (gcodeplan.pipeline.Sink): each final piece, as gp.run
+        if steps:      # the step stage gp.steps runs, fed each final piece as it comes (stepper/source.py)
+            from .stepper.source import StepSink, rails_from
+
+            self._rails = rails_from(self.machine, kinematics)
+            self._steps = {}
+            self._step_sink = StepSink(self._rails, self._collect_steps, sds_filter_t=sds_filter,
+                                       machine=self.machine)
+            self._sinks.append(self._step_sink)
+        if any(getattr(sk, "wants_firmware_steps", False) for sk in self._sinks):
+            self._planner.want_firmware_steps = True
         self._text: list[bytes] = []
         self._lines_waiting = 0
         self._out: list[tuple[np.ndarray, np.ndarray]] = []   # final (moves, plan) not yet handed out
@@ -157,9 +180,26 @@ class Toolhead:
 
     def _plan(self, pairs) -> None:
         for moves, plan in pairs:
+            if self._sinks:
+                self._to_sinks(moves, plan)
             if len(moves):
                 self._out.append((moves, plan))
                 self._rows += len(moves)
+
+    def _to_sinks(self, moves: np.ndarray, plan: np.ndarray) -> None:
+        """Hand a final (moves, plan) pair to the sinks as the pipeline's Run does (gp.steps' step stage
+        among them), while the planner still holds its segments."""
+        from .pipeline import Piece
+
+        sp = self._planner
+        piece = Piece(moves, plan, self._rows, sp.mode, make_segments=sp.segments_for,
+                      own_segments=sp.own_segments, limits=self._reader.limits)
+        piece.firmware_steps = sp.firmware_steps()
+        for sink in self._sinks:
+            sink.add(piece)
+
+    def _collect_steps(self, stepper: int, times_s: np.ndarray, dirs: np.ndarray) -> None:
+        self._steps.setdefault(stepper, []).append((times_s.copy(), dirs.copy()))
 
     def flush(self) -> None:
         """A full stop: everything queued is planned to rest and becomes final (Klipper's ``M400``)."""
@@ -177,42 +217,83 @@ class Toolhead:
                 self._plan(self._planner.feed(rows, self._reader.limits))
             self._plan(self._planner.finish())
             self._closed = True
+            if self._sinks:
+                from .pipeline import RunResult
+
+                result = RunResult(self._reader, self.machine, self.policy, self._planner.mode, self._rows, False,
+                                   self._reader.path)
+                for sink in self._sinks:
+                    sink.close(result)      # the step sink: the last steps (StepGenerator.finish)
 
     # ------------------------------------------------------------------ output
     def committed_arrays(self) -> tuple[np.ndarray, np.ndarray]:
-        """(MOVE rows, PLAN rows) made final since the last ``committed()`` / ``committed_arrays()`` call
-        (interprets what is queued first). The PLAN rows' times continue across calls."""
+        """(MOVE rows, PLAN rows) made final since the last ``committed()`` / ``committed_arrays()`` call,
+        by the text interpreted so far (whole blocks of ``block_lines`` lines; everything after
+        :meth:`flush` / :meth:`close`). The PLAN rows' times continue across calls."""
         with self._lock:
             return self._take()
 
     def _take(self) -> tuple[np.ndarray, np.ndarray]:
-        self._interpret()
-        if not self._out:
+        out = self._out
+        if not out:
             return np.zeros(0, MOVE_DTYPE), np.zeros(0, PLAN_DTYPE)
-        moves = np.concatenate([m for m, _ in self._out])
-        plan = np.concatenate([p for _, p in self._out])
-        self._out.clear()
+        if len(out) == 1:
+            moves, plan = out[0]
+        else:
+            moves = np.concatenate([m for m, _ in out])
+            plan = np.concatenate([p for _, p in out])
+        out.clear()
         self._handed += len(moves)
         return moves, plan
 
     def committed(self) -> list[CommittedMove]:
-        """The rows made final since the last call, as :class:`CommittedMove` objects."""
+        """The rows made final since the last call, as :class:`CommittedMove` objects (see
+        :meth:`committed_arrays`: by the text interpreted so far)."""
         with self._lock:
+            if not self._out:           # the per-line case of a firmware loop: nothing new, no arrays made
+                return []
             first = self._handed
             moves, plan = self._take()
-        end_t = plan["t_start"] + plan["duration"]
-        out = []
-        for k in range(len(moves)):
-            m, p = moves[k], plan[k]
-            out.append(CommittedMove(first + k, int(m["line"]), KIND_NAMES[m["kind"]], float(m["x1"]), float(m["y1"]),
-                                     float(m["z1"]), float(m["e1"]), float(m["move_d"]), float(p["start_v"]),
-                                     float(p["cruise_v"]), float(p["end_v"]), float(p["accel"]),
-                                     float(p["t_start"]), float(end_t[k]), LIMIT_NAMES[p["limit"]]))
+        # whole columns to Python floats at once: per-row field access of a structured array costs µs each
+        t_start = plan["t_start"]
+        cols = zip(range(first, first + len(moves)), moves["line"].tolist(), moves["kind"].tolist(),
+                   moves["x1"].tolist(), moves["y1"].tolist(), moves["z1"].tolist(), moves["e1"].tolist(),
+                   moves["move_d"].tolist(), plan["start_v"].tolist(), plan["cruise_v"].tolist(),
+                   plan["end_v"].tolist(), plan["accel"].tolist(), t_start.tolist(),
+                   (t_start + plan["duration"]).tolist(), plan["limit"].tolist())
+        kinds, limits = KIND_NAMES, LIMIT_NAMES
+        return [CommittedMove(i, ln, kinds[k], x, y, z, e, d, sv, cv, ev, a, t0, t1, limits[lim])
+                for i, ln, k, x, y, z, e, d, sv, cv, ev, a, t0, t1, lim in cols]
+
+    def steps(self) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+        """Step times of the final moves since the last call: ``{stepper name: (times_s float64, dirs int8)}``,
+        times from the first move's start, as :func:`gcodeplan.steps` gives them (Klipper's step convention);
+        the concatenation of every call's arrays equals ``gp.steps`` on the same program bit for bit. Steps
+        come out as the step generator computes them (it may hold a move's last steps until the next move is
+        known, and shaped or pressure-advanced motors lag by the smoothing window; all after :meth:`close`). Needs ``Toolhead(..., steps=True)`` (``kinematics``,
+        ``sds_filter`` as for :func:`gcodeplan.steps`)."""
+        with self._lock:
+            if self._steps is None:
+                raise RuntimeError("Toolhead.steps() needs Toolhead(..., steps=True): the step stage must see "
+                                   "every move from the first")
+            if not self._closed:
+                self._step_sink.generator.release()
+            parts, self._steps = self._steps, {}
+        out = {}
+        for si, rail in enumerate(self._rails):
+            chunks = parts.get(si)
+            if not chunks:
+                out[rail.name] = (np.empty(0, np.float64), np.empty(0, np.int8))
+            elif len(chunks) == 1:
+                out[rail.name] = chunks[0]
+            else:
+                out[rail.name] = (np.concatenate([c[0] for c in chunks]), np.concatenate([c[1] for c in chunks]))
         return out
 
     @property
     def pending(self) -> int:
-        """Rows planned but not final yet (held in the look-ahead window)."""
+        """Rows planned but not final yet (held in the look-ahead window; lines queued but not interpreted
+        yet, fewer than ``block_lines``, are not counted)."""
         with self._lock:
             return self._planner.pending
 

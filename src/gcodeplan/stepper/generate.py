@@ -482,6 +482,12 @@ class StepGenerator:
             self._last_t[si] = kernel.monotone_stats(times, dirs, self._last_t[si], self.stats[si])
             self.sink(si, times, dirs)
 
+    def release(self) -> None:
+        """Hand every step computed so far to the sink now (as a full buffer would be), without closing the
+        streams: gcodeplan.Toolhead.steps() gives the steps of the final moves as they come."""
+        for si in range(len(self.rails)):
+            self._flush(si)
+
     def finish(self) -> None:
         """Close the shaped and smoothed streams (the machine at rest after the last piece), then flush
         every buffer (and the step the filter holds back) to the sink."""
