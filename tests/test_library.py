@@ -254,11 +254,16 @@ def test_toolhead_flush_is_a_full_stop_and_move_is_a_g1_line():
                                   "prusaslicer25_multi_object_plate_relE.gcode", "cncjs_jscut_tball_pocket_laser.gcode",
                                   "prusaslicer25_plate150_gyroid_big.gcode"])
 def test_toolhead_equals_plan_on_the_corpus(name):
+    from gcodeplan.gcode.dialect import reading_machine
+
     path = shared_path("gcode", name)
+    # a named file on the default machine is read with the meanings of its dialect (the jscut file: grbl's);
+    # a Toolhead has no file to look at: give it the machine the file is read with
+    machine, _, _ = reading_machine(str(path), gp.load_machine())
     sink = gp.pipeline.Collect(segments=False)
     gp.pipeline.run(str(path), gp.load_machine(), sinks=[sink])
     _, ref_plan, _ = sink.arrays()
-    th = gp.Toolhead()
+    th = gp.Toolhead(machine)
     with open(path, "rb") as fh:
         for line in fh:                 # one line per call, as a host feeding a firmware
             th.gcode(line)

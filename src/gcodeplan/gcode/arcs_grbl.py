@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import math
 
-import numba
+from .._jit import njit
 import numpy as np
 
 N_ARC_CORRECTION = 12
@@ -21,13 +21,13 @@ MAX_CHORDS = 65535                       # grbl's segment count is a uint16
 PLANE_AXES = {17: (0, 1, 2), 18: (2, 0, 1), 19: (1, 2, 0)}
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _hypot_f(x, y):
     """nuts_bolts.c hypot_f: √(x² + y²) from single-precision squares."""
     return np.float32(math.sqrt(np.float64(np.float32(np.float32(x * x) + np.float32(y * y)))))
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def grbl_arc_kernel(position, target, offset, radius, use_r, a0, a1, lin, clockwise, arc_tolerance, out):
     """Chord end points of one arc into ``out`` (rows of x, y, z; the last is the target); returns their count,
     or −1 for grbl's arc radius error (R shorter than half the chord), −2 for an end point off the circle

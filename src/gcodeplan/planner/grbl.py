@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import math
 
-import numba
+from .._jit import njit
 import numpy as np
 
 from ..schema import FLAG_ARC, FLAG_RAPID, KIND_DWELL, KIND_WAIT
@@ -115,7 +115,7 @@ def grbl_floats(values: np.ndarray) -> np.ndarray:
 _POW10 = np.array([10.0 ** d for d in range(9)], dtype=np.float64)
 
 
-@numba.njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True)
 def _grbl_float_of(x, pow10):
     """grbl_float of one float64 (see :func:`grbl_floats`)."""
     mag = abs(x)
@@ -136,7 +136,7 @@ def _grbl_float_of(x, pow10):
     return np.float32(x)
 
 
-@numba.njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True)
 def _grbl_floats_kernel(x):
     out = np.empty(x.shape[0], np.float32)
     for i in range(x.shape[0]):
@@ -199,7 +199,7 @@ B_MM, B_ACC, B_RAPID, B_PROG, B_ENTRY2, B_MAXENTRY2, B_MAXJUNC2 = range(7)
 N_BF = 7
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _limit_value_by_axis_maximum(max_value, unit_vec):
     limit = np.float32(SOME_LARGE_VALUE)
     for i in range(3):
@@ -210,7 +210,7 @@ def _limit_value_by_axis_maximum(max_value, unit_vec):
     return limit
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _convert_delta_vector_to_unit_vector(vec):
     mag = np.float32(0.0)
     for i in range(3):
@@ -223,7 +223,7 @@ def _convert_delta_vector_to_unit_vector(vec):
     return mag
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _nominal_speed(bf, b, rapid):
     """plan_compute_profile_nominal_speed, overrides at 100 %."""
     v = bf[b, B_PROG]
@@ -235,13 +235,13 @@ def _nominal_speed(bf, b, rapid):
     return np.float32(MINIMUM_FEED_RATE)
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _next(i, n):
     i += 1
     return 0 if i == n else i
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _prev(i, n):
     return n - 1 if i == 0 else i - 1
 
@@ -267,7 +267,7 @@ F_ACC_UNTIL, F_DEC_AFTER, F_MAX_V, F_PREV_NOMINAL, F_PUX, F_PUY, F_PUZ = 7, 8, 9
 N_SF = 14
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _planner_recalculate(si, sf, bf):
     """planner.c planner_recalculate: reverse pass from the newest block back to the planned pointer, then the
     forward pass that moves the planned pointer past every block that can no longer change."""
@@ -310,7 +310,7 @@ def _planner_recalculate(si, sf, bf):
         block_index = _next(block_index, n)
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _st_update_plan_block_parameters(si, sf, bf):
     """stepper.c: the block being prepared was re-planned: restart its profile from the current speed."""
     if si[I_PL_BLOCK] >= 0:
@@ -319,7 +319,7 @@ def _st_update_plan_block_parameters(si, sf, bf):
         si[I_PL_BLOCK] = -1
 
 
-@numba.njit(cache=True, inline="always")
+@njit(cache=True, inline="always")
 def _plan_buffer_line(si, sf, bf, bsteps, bdir, bop, brapid, target, rate, rapid, op, steps_per_mm, max_rate,
                       acceleration, junction_deviation, target_steps, unit_vecs):
     """planner.c plan_buffer_line. Returns False for a block of zero steps (dropped; the position stays).
@@ -390,7 +390,7 @@ def _plan_buffer_line(si, sf, bf, bsteps, bdir, bop, brapid, target, rate, rapid
     return True
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _lround(x):
     """C lround: half away from zero."""
     v = np.float64(x)
@@ -399,7 +399,7 @@ def _lround(x):
     return -np.int64(math.floor(-v + 0.5))
 
 
-@numba.njit(cache=True, inline="always")
+@njit(cache=True, inline="always")
 def _st_prep_buffer(si, sf, bf, bsteps, bdir, bop, brapid, st_steps, st_sec, st_dir, st_op, seg_n, seg_cycles,
                     seg_block, seg_amass, window_base, op_info):
     """stepper.c st_prep_buffer, normal operation (no feed hold, parking or overrides): fill the segment ring
@@ -594,7 +594,7 @@ def _st_prep_buffer(si, sf, bf, bsteps, bdir, bop, brapid, st_steps, st_sec, st_
                 si[I_TAIL] = bi
 
 
-@numba.njit(cache=True, inline="always")
+@njit(cache=True, inline="always")
 def _isr(si, st_steps, st_sec, st_dir, st_op, seg_n, seg_cycles, seg_block, seg_amass, window_base, op_end_tick,
          step_t, step_dir, n_out):
     """stepper.c ISR(TIMER1_COMPA_vect) at tick si[I_TICK]: pulse the bits decided last time, load a segment
@@ -666,7 +666,7 @@ def _isr(si, st_steps, st_sec, st_dir, st_op, seg_n, seg_cycles, seg_block, seg_
     si[I_PHASE] = -1
 
 
-@numba.njit(cache=True, inline="always")
+@njit(cache=True, inline="always")
 def _rest_of_segment(si, st_sec, st_op, window_base, op_end_tick, step_t, step_dir, n_out):
     """The interrupts of the running segment after the one that loaded it, in closed form: they come every
     OCR1A + 1 ticks, and each axis' Bresenham counter c (1 ≤ c ≤ sec) makes its i-th step at the
@@ -734,7 +734,7 @@ def _rest_of_segment(si, st_sec, st_op, window_base, op_end_tick, step_t, step_d
     si[I_PHASE] = -1
 
 
-@numba.njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True)
 def grbl_feed_kernel(si, sf, bf, bsteps, bdir, bop, brapid, st_steps, st_sec, st_dir, st_op, seg_n, seg_cycles,
                      seg_block, seg_amass, op_kind, op_target, op_rate, op_rapid, op_dwell_ticks, op_base, final,
                      steps_per_mm, max_rate, acceleration, junction_deviation, window_base, op_end_tick, op_info,
@@ -788,7 +788,7 @@ def grbl_feed_kernel(si, sf, bf, bsteps, bdir, bop, brapid, st_steps, st_sec, st
         si[I_NEXT_OP] = k + 1 if j < nops else k
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _cycle_start(si, sf, bf, bsteps, bdir, bop, brapid, st_steps, st_sec, st_dir, st_op, seg_n, seg_cycles,
                  seg_block, seg_amass, window_base, op_info):
     """protocol_exec_rt_system on EXEC_CYCLE_START: prepare segments, then st_wake_up (enable the interrupt of
@@ -814,7 +814,7 @@ def _cycle_start(si, sf, bf, bsteps, bdir, bop, brapid, st_steps, st_sec, st_dir
         si[I_PHASE] = -1
 
 
-@numba.njit(cache=True, inline="always")
+@njit(cache=True, inline="always")
 def _prep_then_wait(si, sf, bf, bsteps, bdir, bop, brapid, st_steps, st_sec, st_dir, st_op, seg_n, seg_cycles,
                     seg_block, seg_amass, window_base, op_end_tick, op_info, step_t, step_dir, n_out, need_full):
     """grbl-sim's lock-step st_prep_buffer: grbl's own, then, while the stepper runs and grbl waits (planner
@@ -906,7 +906,7 @@ def operations(moves: np.ndarray):
                               moves["feed_v"], moves["dwell_t"], _POW10)
 
 
-@numba.njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True)
 def _operations_kernel(kind, flags, x1, y1, z1, feed_v, dwell_t, pow10):
     """:func:`operations` on the MOVE columns, one pass."""
     n_rows = kind.shape[0]
@@ -987,7 +987,7 @@ def run(moves: np.ndarray, settings: GrblSettings, steps_capacity: int = 0) -> G
     return GrblRun(row_end, last / F_CPU, steps)
 
 
-@numba.njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True)
 def _first_e_move(e0, e1):
     """Index of the first row that moves E (−1: none)."""
     for i in range(e0.shape[0]):
