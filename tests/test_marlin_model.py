@@ -203,3 +203,25 @@ def test_toolhead_line_by_line_equals_plan_for_the_firmware_model():
     moves, plan = th.committed_arrays()
     for f in ("t_start", "duration", "start_v", "end_v"):
         assert np.array_equal(plan[f], ref.plan[f]), f
+
+
+def test_absurd_numbers_are_errors_or_capped_never_negative_times():
+    """tools/fuzz.py (seed 13): E1e20 crashed the model (ZeroDivisionError), Y1e308 gave a negative cruise
+    time, F1e20 a negative duration. Positions beyond Marlin's int32 steps are an error naming the line; an
+    absurd F is the axes' own limit, as an unlimited rapid."""
+    import gcodeplan as gp
+    from gcodeplan.errors import GcodeError
+
+    m = gp.load_machine("marlin")
+    with pytest.raises(GcodeError, match="beyond Marlin's reach") as err:
+        gp.plan(["G1 X1 Y1 E1 F600", "G1 X125.258 Y113.634 E99999999999999999999"], m)
+    assert err.value.line == 2
+    with pytest.raises(GcodeError, match="beyond Marlin's reach"):
+        gp.plan(["G1 Z1.95 Y-1 E3.19 X213", "SET_KINEMATIC_POSITION X=0 Y=1e308 Z=0", "G1 X200 F6000"], m)
+    p = gp.plan(["G1 X116.344 Y113.656 E5.62511 F1200", "G1 X133.656 Y96.344 E6.45378", "G1 Z7.95 F10800",
+                 "G1 Z8.15 F99999999999999999999", "G1 X116.039 Y96.039", "G1 Z7.95"], m, policy="junction-deviation")
+    for k in ("duration", "accel_t", "cruise_t", "decel_t"):
+        assert p.plan[k].min() >= 0.0, k
+    z_only = p.plan[(p.moves["z1"] != p.moves["z0"]) & (p.moves["x1"] == p.moves["x0"])]
+    # Marlin rounds the nominal step rate up (ceil): a hair over M203 (12.002 mm/s), never the absurd F
+    assert len(z_only) == 3 and z_only["cruise_v"].max() <= m.axes["z"].max_velocity * (1 + 1e-3)

@@ -952,8 +952,7 @@ def check_reach(moves: np.ndarray, settings: GrblSettings) -> None:
     from ..errors import GcodeError
 
     for k, axis in enumerate(("x1", "y1", "z1")):
-        steps = np.abs(moves[axis] * float(settings.steps_per_mm[k]))
-        bad = np.nonzero(~(steps < 2.0 ** 31))[0]
+        bad = np.nonzero(~(np.abs(moves[axis]) < 2.0 ** 31 / float(settings.steps_per_mm[k])))[0]
         if bad.size:
             i = int(bad[0])
             raise GcodeError(f"{axis[0].upper()} {moves[axis][i]:g} mm is beyond grbl's reach "

@@ -139,7 +139,9 @@ class MarlinModel:
         reset_pos[:, 3] = e_reset.astype(np.float32)
         # feed: F (mm/min) as float32, /60, then Marlin's MMS_SCALED (·0.01·100 %)
         fv = moves["feed_v"]
-        f_mm_min = np.where(np.isfinite(fv), fv * 60.0, 1e9).astype(np.float32)
+        # (an absurd F is taken as the "no limit" of a rapid: the axes' M203 limits decide, and Marlin's uint32
+        # rate arithmetic cannot overflow; tools/fuzz.py found F1e20 making a negative duration)
+        f_mm_min = np.where(np.isfinite(fv), np.minimum(fv * 60.0, 1e9), 1e9).astype(np.float32)
         fr = (f_mm_min / np.float32(60)).astype(np.float32)
         fr = (fr * np.float32(0.01)).astype(np.float32) * np.float32(100)
         # M204 P / T / R in force: the row's own accel for its class, the last seen for the others
@@ -168,6 +170,20 @@ class MarlinModel:
                     wait_ticks=wait_ticks, amax_mm=np.ascontiguousarray(amax_mm), jdev=tab["jdev"][li],
                     advance_k=tab["advance_k"][li])
 
+    def _check_reach(self, moves: np.ndarray) -> None:
+        """Marlin keeps positions as int32 steps (planner.position, count_position): an end point beyond ±2³¹
+        steps, or not a number, has no meaning on the printer; an error naming the line, not a wrapped
+        position (tools/fuzz.py found E1e20 and Y1e308 crashing the model)."""
+        from ..errors import GcodeError
+
+        for k, axis in enumerate(_AXES):
+            for col in (axis + "0", axis + "1"):
+                bad = np.nonzero(~(np.abs(moves[col]) < 2.0 ** 31 / float(self.spm[k])))[0]
+                if bad.size:
+                    i = int(bad[0])
+                    raise GcodeError(f"{axis.upper()} {moves[col][i]:g} mm is beyond Marlin's reach (±2³¹ steps at "
+                                     f"{float(self.spm[k]):g} steps/mm)", line=int(moves["line"][i]))
+
     def _limit_tables(self, limits: np.ndarray) -> dict:
         """Per LIMITS row, the firmware's settings (float32 / integer as Marlin stores them); the table only
         grows, so it is rebuilt when its length or last row changes."""
@@ -195,6 +211,7 @@ class MarlinModel:
         """Add MOVE rows; return ``(moves, plan)`` pieces whose times are final."""
         if len(moves) == 0:
             return []
+        self._check_reach(moves)
         arr = self._row_arrays(moves, np.asarray(limits))
         if self._moves is None or len(self._moves) == 0:
             self._moves, self._arrays = moves, arr
