@@ -348,3 +348,16 @@ def test_operations_of_move_rows():
     assert rate[0] == np.float32(600.0) and rate[1] == np.float32(1200.0) and rate[4] == 0
     assert rapid.tolist() == [False, False, True, True, True]     # no feed on a sync row: nan
     assert dwell_ticks.tolist() == [0, 0, 3 * 800_000, 0, 0]
+
+
+def test_a_machine_files_warning_is_one_line_on_the_command_line(tmp_path, capsys):
+    """$32=1 (laser mode) is not modelled: a named warning, printed as one `gcodeplan: warning:` line."""
+    from gcodeplan.cli import main
+
+    s = tmp_path / "settings.txt"
+    s.write_text("$100=80\n$101=80\n$102=400\n$32=1\n")
+    g = tmp_path / "p.gcode"
+    g.write_text("G21 G90\nG1 X10 F600\n")
+    assert main(["estimate", str(g), "--machine", str(s)]) == 0
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("gcodeplan: warning: ") and "$32=1" in err[0]

@@ -64,10 +64,19 @@ def main(argv: list[str] | None = None) -> int:
     stays) and give 128 + the signal number (gcodeplan/signals.py)."""
     from .signals import caught, exit_status, install
 
+    import warnings
+
     restore = install()
     stdout = sys.stdout
     if stdout is not None:
         sys.stdout = _GuardedStdout(stdout)
+    shown = warnings.showwarning
+
+    def one_line(message, category, filename, lineno, file=None, line=None):
+        # a machine file's named warnings (grbl $$, Marlin M503, LinuxCNC .ini) as one line, like every message
+        print(f"gcodeplan: warning: {message}", file=sys.stderr)
+
+    warnings.showwarning = one_line
     try:
         return _main(argv)
     except KeyboardInterrupt as err:
@@ -75,6 +84,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"gcodeplan: {getattr(err, 'reason', 'interrupted')}", file=sys.stderr)
         return exit_status(err)
     finally:
+        warnings.showwarning = shown
         if isinstance(sys.stdout, _GuardedStdout):
             sys.stdout = stdout
         restore()
