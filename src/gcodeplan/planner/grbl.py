@@ -595,6 +595,18 @@ def _st_prep_buffer(si, sf, bf, bsteps, bdir, bop, brapid, st_steps, st_sec, st_
 
 
 @njit(cache=True, inline="always")
+def _pulse(si, out, tick, step_t, step_dir, n_out):
+    """The step pins written at ``tick`` (bits of ``out``), each pulse kept while step_t has room; n_out counts all."""
+    for ax in range(3):
+        if out & (1 << ax):
+            k = n_out[ax]
+            if k < step_t.shape[1]:
+                step_t[ax, k] = tick
+                step_dir[ax, k] = -1 if (si[I_DIRBITS] >> ax) & 1 else 1
+            n_out[ax] = k + 1
+
+
+@njit(cache=True, inline="always")
 def _isr(si, st_steps, st_sec, st_dir, st_op, seg_n, seg_cycles, seg_block, seg_amass, window_base, op_end_tick,
          step_t, step_dir, n_out):
     """stepper.c ISR(TIMER1_COMPA_vect) at tick si[I_TICK]: pulse the bits decided last time, load a segment
@@ -604,13 +616,7 @@ def _isr(si, st_steps, st_sec, st_dir, st_op, seg_n, seg_cycles, seg_block, seg_
     if out:
         op_end_tick[st_op[si[I_EXEC_BLOCK]] - window_base] = tick
         si[I_LAST_PULSE] = tick
-        for ax in range(3):
-            if out & (1 << ax):
-                k = n_out[ax]
-                if k < step_t.shape[1]:
-                    step_t[ax, k] = tick
-                    step_dir[ax, k] = -1 if (si[I_DIRBITS] >> ax) & 1 else 1
-                n_out[ax] = k + 1
+        _pulse(si, out, tick, step_t, step_dir, n_out)
     si[I_OUTBITS] = 0
     if si[I_EXEC_SEG] < 0:
         if si[I_SEG_HEAD] != si[I_SEG_TAIL]:
@@ -683,13 +689,7 @@ def _rest_of_segment(si, st_sec, st_op, window_base, op_end_tick, step_t, step_d
     out = si[I_OUTBITS]                # decided at the loading interrupt: pulsed at t1
     if out:
         last = t1
-        for ax in range(3):
-            if out & (1 << ax):
-                k = n_out[ax]
-                if k < step_t.shape[1]:
-                    step_t[ax, k] = t1
-                    step_dir[ax, k] = -1 if (si[I_DIRBITS] >> ax) & 1 else 1
-                n_out[ax] = k + 1
+        _pulse(si, out, t1, step_t, step_dir, n_out)
     pending = 0
     for ax in range(3):
         s = si[I_SX + ax]
