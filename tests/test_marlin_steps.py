@@ -51,7 +51,7 @@ class _StepsUntil(StepSink):
 def _run(machine, gcode, policy=None, until_s=None):
     sink = _StepsUntil(machine, until_s)
     # small reader batches: the model settles rows, and the sink gets pieces, as the program is read
-    pipeline.run(str(gcode), machine, policy=policy, sinks=[sink], batch_moves=None if until_s is None else 500)
+    pipeline.run(str(gcode), machine, policy=policy, sinks=[sink], batch_moves=8192 if until_s is None else 500)
     return sink
 
 
