@@ -251,6 +251,7 @@ class MarlinModel:
         if self.keep_blocks:
             self.blocks.append((oi.copy(), of.copy(), moves_out["line"].copy()))
         if self.want_steps:
+            self._check_no_advance(moves_out, a["advance_k"][:n_done])
             self.last_steps = block_pulses(oi, self.timer_hz, self.s_curve)
         self._moves = self._moves[n_done:].copy()
         self._arrays = {k: v[n_done:].copy() for k, v in a.items()}
@@ -258,6 +259,19 @@ class MarlinModel:
         self._out_f = self._out_f[n_done:].copy()
         self.row_base += n_done
         return [(moves_out, plan)]
+
+    @staticmethod
+    def _check_no_advance(moves: np.ndarray, advance_k: np.ndarray) -> None:
+        """LIN_ADVANCE's own extruder interrupt (its advance pulses, both ways) is not modelled for step
+        pulses: an error naming the first line under a K factor, not extruder pulses without the advance."""
+        on = np.flatnonzero(advance_k > 0)
+        if on.size:
+            from ..errors import GcodeError
+
+            raise GcodeError(f"{FIRMWARES[0]}: step pulses with linear advance (K {float(advance_k[on[0]]):g}) are not "
+                             "modelled: Marlin's extruder interrupt adds advance pulses the model does not issue "
+                             "(times and X/Y/Z are Marlin's; set the K factor to 0 for the other pulses)",
+                             line=int(moves["line"][on[0]]))
 
     def _plan_rows(self, moves: np.ndarray, oi: np.ndarray, of: np.ndarray) -> np.ndarray:
         """PLAN rows: blocks as executed; rows without a block last 0 s where the previous one ended."""
