@@ -242,3 +242,28 @@ def test_linear_advance_pulses_are_an_error_naming_the_line(tmp_path):
     g.write_text("G21\nG90\nM83\nG1 X10 F3000\nM900 K0\nG1 X20 E1 F1200\n")
     out = gp.steps(str(g), machine)
     assert len(out["x"][0]) == 2000 and len(out["e"][0]) == 280
+
+
+def test_toolhead_line_by_line_gives_the_pulses_of_gp_steps(tmp_path):
+    """gp.Toolhead(steps=True), fed one line at a time, hands out the firmware's pulses as rows become final:
+    their concatenation is gp.steps' bit for bit."""
+    text = ("G21\nG90\nM83\nG1 X10 F3000\nG1 X10.03 F3000\nG1 X12 Y1 E0.5 F1200\nG1 X0 Y0 F6000\n"
+            "G1 Z0.4 F600\nG1 X5 Y5 E0.3 F1800\nG4 P50\nG1 X0 Y3 F6000\n")
+    g = tmp_path / "th.gcode"
+    g.write_text(text)
+    machine = gp.load_machine("marlin-2.1.2")
+    ref = gp.steps(str(g), machine)
+    th = gp.Toolhead(machine, steps=True, block_lines=1)
+    parts = {}
+    for line in text.splitlines(keepends=True):
+        th.gcode(line)
+        for k, (t, d) in th.steps().items():
+            parts.setdefault(k, []).append((t, d))
+    th.close()
+    for k, (t, d) in th.steps().items():
+        parts.setdefault(k, []).append((t, d))
+    for k, (t, d) in ref.items():
+        mine_t = np.concatenate([p[0] for p in parts[k]])
+        mine_d = np.concatenate([p[1] for p in parts[k]])
+        assert np.array_equal(mine_t, t) and np.array_equal(mine_d, d), k
+    assert len(ref["z"][0]) == 160 and len(ref["x"][0]) == 2400 + 500 + 500

@@ -143,8 +143,13 @@ def steps_check(name: str, machine_spec: str, ref_dir: str, policy: str | None, 
             got[n].append((t[:room].copy(), d[:room].copy()))
             held[n] += min(room, len(t))
 
-    pipeline.run(os.path.join(GCODE, name + ".gcode"), machine, policy=policy,
-                 sinks=[StepSink(rails, sink, machine=machine)])
+    from gcodeplan.errors import GcodeplanError
+
+    try:
+        pipeline.run(os.path.join(GCODE, name + ".gcode"), machine, policy=policy,
+                     sinks=[StepSink(rails, sink, machine=machine)])
+    except GcodeplanError as err:
+        return [f"(no pulses: {err})"]
     totals = run.get("steps", {})
     out = []
     for key, a in STEPPERS:
