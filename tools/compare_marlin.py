@@ -3,7 +3,7 @@
 
 For each reference program: gcodeplan's total against the firmware's, the largest per-line end-time error
 (in s and as a share of the total, over the lines the reference lists), the first planner block whose
-trapezoid (step count, rates, step boundaries, acceleration) or pick-up time differs from the firmware's,
+trapezoid (step count, rates, step boundaries, acceleration, directions) or pick-up time differs from the firmware's,
 and per stepper the pulses of ``gcodeplan steps`` against the firmware's (count, largest time error and the
 share within 1 µs over the steps the reference stores).
 
@@ -37,7 +37,7 @@ FILES = ("prusaslicer25_cube20_marlin2", "cura413_ender3_cylinder30")
 BLOCK_COLUMNS = (("step_event_count", "OI_SEC"), ("nominal_rate", "OI_NOMINAL_RATE"),
                  ("acceleration_steps_per_s2", "OI_ACCEL_STEPS"), ("initial_rate", "OI_INITIAL_RATE"),
                  ("final_rate", "OI_FINAL_RATE"), ("accelerate_end", "OI_ACCEL_UNTIL"),
-                 ("decelerate_start", "OI_DECEL_AFTER"))
+                 ("decelerate_start", "OI_DECEL_AFTER"), ("direction_bits", "OI_DIR_BITS"))
 
 
 def read_csv_gz(path: str) -> dict[str, np.ndarray]:
