@@ -2,12 +2,15 @@
 """Compare gcodeplan's Marlin firmware model with Marlin's own planner/stepper (shared/reference/marlin).
 
 For each reference program: gcodeplan's total against the firmware's, the largest per-line end-time error
-(in s and as a share of the total, over the lines the reference lists), and the first planner block whose
-trapezoid (step count, rates, step boundaries, acceleration) or pick-up time differs from the firmware's.
+(in s and as a share of the total, over the lines the reference lists), the first planner block whose
+trapezoid (step count, rates, step boundaries, acceleration, directions) or pick-up time differs from the firmware's,
+and per stepper the pulses of ``gcodeplan steps`` against the firmware's (count, largest time error and the
+share within 1 µs over the steps the reference stores).
 
     python tools/compare_marlin.py                       # --machine marlin-2.1.2, both programs
     python tools/compare_marlin.py --machine marlin      # the generic classic-jerk policy, for contrast
     python tools/compare_marlin.py --files cura413_ender3_cylinder30
+    python tools/compare_marlin.py --reference variants/jd --policy junction-deviation
 
 The estimate runs through the same pipeline as ``gcodeplan estimate`` (per-line end times from its
 PLAN rows); the block check runs the model itself (planner.marlin.run_marlin) on the parsed rows.
@@ -34,7 +37,7 @@ FILES = ("prusaslicer25_cube20_marlin2", "cura413_ender3_cylinder30")
 BLOCK_COLUMNS = (("step_event_count", "OI_SEC"), ("nominal_rate", "OI_NOMINAL_RATE"),
                  ("acceleration_steps_per_s2", "OI_ACCEL_STEPS"), ("initial_rate", "OI_INITIAL_RATE"),
                  ("final_rate", "OI_FINAL_RATE"), ("accelerate_end", "OI_ACCEL_UNTIL"),
-                 ("decelerate_start", "OI_DECEL_AFTER"))
+                 ("decelerate_start", "OI_DECEL_AFTER"), ("direction_bits", "OI_DIR_BITS"))
 
 
 def read_csv_gz(path: str) -> dict[str, np.ndarray]:
@@ -101,6 +104,71 @@ def block_check(name: str, machine_spec: str, ref_dir: str, policy: str | None) 
             f"in {what}")
 
 
+#: (reference npz key, axis letter of gcodeplan's cartesian stepper names)
+STEPPERS = (("stepper_x", "x"), ("stepper_y", "y"), ("stepper_z", "z"), ("extruder", "e"))
+
+
+def run_entry(entry: dict, key: str) -> dict:
+    """The reference run's entry of one program: ``key`` (marlin-2.1.2.4, bugfix-2.1.x) or a variant's own."""
+    if key in entry:
+        return entry[key]
+    own = [v for k, v in entry.items() if isinstance(v, dict) and k.startswith("marlin-2.1.2.4-")]
+    return own[0] if own else {}
+
+
+def steps_check(name: str, machine_spec: str, ref_dir: str, policy: str | None, run: dict) -> list[str]:
+    """Per stepper: pulses issued against the firmware's count, and over the steps the reference stores (its
+    first 200,000 per axis) the largest time error and the share within 1 µs, directions compared too."""
+    from gcodeplan import pipeline
+    from gcodeplan.config import load_machine
+    from gcodeplan.stepper.source import StepSink, rails_from
+
+    path = os.path.join(ref_dir, "steps", name + "_steps.npz")
+    if not os.path.exists(path):
+        return ["(the reference has no step file)"]
+    ref = np.load(path)
+    keep = {a: max((len(ref[k]) for k, b in STEPPERS if b == a and k in ref.files), default=0) for _, a in STEPPERS}
+    machine = load_machine(machine_spec)
+    rails = rails_from(machine)
+    names = [r.name for r in rails]
+    got = {n: [] for n in names}
+    held = dict.fromkeys(names, 0)
+    count = dict.fromkeys(names, 0)
+
+    def sink(si, t, d):
+        n = names[si]
+        count[n] += len(t)
+        room = keep.get(n, 0) - held[n]
+        if room > 0:
+            got[n].append((t[:room].copy(), d[:room].copy()))
+            held[n] += min(room, len(t))
+
+    from gcodeplan.errors import GcodeplanError
+
+    try:
+        pipeline.run(os.path.join(GCODE, name + ".gcode"), machine, policy=policy,
+                     sinks=[StepSink(rails, sink, machine=machine)])
+    except GcodeplanError as err:
+        return [f"(no pulses: {err})"]
+    totals = run.get("steps", {})
+    out = []
+    for key, a in STEPPERS:
+        if key not in ref.files or a not in got:
+            continue
+        rt, rd = ref[key], ref[key + "_dir"]
+        mt = np.concatenate([c[0] for c in got[a]]) if got[a] else np.zeros(0)
+        md = np.concatenate([c[1] for c in got[a]]) if got[a] else np.zeros(0, np.int8)
+        n = min(len(rt), len(mt))
+        err = np.abs(mt[:n] - rt[:n])
+        total = totals.get(key, {}).get("steps_total")
+        same = len(mt) == len(rt) if total is None else count[a] == total
+        out.append(f"{key:10s} {count[a]:>9d} steps (firmware {total if total is not None else '?'}: "
+                   f"{'equal' if same else 'DIFFERENT'}); first {n}: max |dt| {err.max() * 1e6 if n else 0:.3f} us, "
+                   f"{100 * np.mean(err <= 1e-6) if n else 100:.4f} % within 1 us, "
+                   f"directions {'equal' if np.array_equal(md[:n], rd[:n]) else 'DIFFERENT'}")
+    return out
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--machine", default="marlin-2.1.2", help="preset or machine TOML (default marlin-2.1.2)")
@@ -109,6 +177,7 @@ def main(argv=None) -> int:
     ap.add_argument("--policy", default=None, help="junction policy (junction-deviation for variants/jd)")
     ap.add_argument("--files", nargs="*", default=list(FILES))
     ap.add_argument("--no-blocks", action="store_true", help="skip the per-block check")
+    ap.add_argument("--no-steps", action="store_true", help="skip the step-pulse check")
     args = ap.parse_args(argv)
     ref_dir = os.path.join(REF, args.reference) if args.reference else REF
     with open(os.path.join(REF, "times.json")) as fh:
@@ -132,6 +201,9 @@ def main(argv=None) -> int:
               + (f"  ({missing} reference lines without a time)" if missing else ""))
         if not args.no_blocks:
             print("    blocks:", block_check(name, args.machine, ref_dir, args.policy))
+        if not args.no_steps:
+            for row in steps_check(name, args.machine, ref_dir, args.policy, run_entry(entry, key)):
+                print("    steps:", row)
     return 0
 
 

@@ -9,7 +9,9 @@ speeds from its step rates, phase times from the interrupt), with the cruise spe
 row's distance is covered in its time.
 
 Rows that make no block (under 6 steps: Marlin carries them into the next move) last 0 s at the end of
-the block before them. Waits (M400, G4, G28, heater waits) drain the buffer; the next block is picked up
+the block before them; their steps are issued with the block they merge into. With ``want_steps`` the model
+also hands on each settled stretch's step pulses as the interrupt issues them (:func:`block_pulses`): the
+leading axis at every interrupt tick, X/Y/Z/E on those ticks by Bresenham. Waits (M400, G4, G28, heater waits) drain the buffer; the next block is picked up
 at the stepper's next 1 ms idle poll after the wait (the dwell rounded up to whole ms).
 
 Reference: ``shared/reference/marlin`` (Marlin 2.1.2.4's planner.cpp / stepper.cpp on a simulated clock);
@@ -97,6 +99,9 @@ class MarlinModel:
         self._tables = None                      # (key, per-LIMITS-row settings): _limit_tables
         self.blocks = []                          # (out_i, out_f) of settled rows, when keep_blocks
         self.keep_blocks = False
+        # the stepper's own pulses of the settled rows ({axis 0..3: (times s, dirs)}), when want_steps
+        self.want_steps = False
+        self.last_steps = None
 
     # ------------------------------------------------------------------ inputs
     def _row_arrays(self, moves: np.ndarray, limits: np.ndarray) -> dict:
@@ -247,12 +252,28 @@ class MarlinModel:
         plan = self._plan_rows(moves_out, oi, of)
         if self.keep_blocks:
             self.blocks.append((oi.copy(), of.copy(), moves_out["line"].copy()))
+        if self.want_steps:
+            self._check_no_advance(moves_out, a["advance_k"][:n_done])
+            self.last_steps = block_pulses(oi, self.timer_hz, self.s_curve)
         self._moves = self._moves[n_done:].copy()
         self._arrays = {k: v[n_done:].copy() for k, v in a.items()}
         self._out_i = self._out_i[n_done:].copy()
         self._out_f = self._out_f[n_done:].copy()
         self.row_base += n_done
         return [(moves_out, plan)]
+
+    @staticmethod
+    def _check_no_advance(moves: np.ndarray, advance_k: np.ndarray) -> None:
+        """LIN_ADVANCE's own extruder interrupt (its advance pulses, both ways) is not modelled for step
+        pulses: an error naming the first line under a K factor, not extruder pulses without the advance."""
+        on = np.flatnonzero(advance_k > 0)
+        if on.size:
+            from ..errors import GcodeError
+
+            raise GcodeError(f"{FIRMWARES[0]}: step pulses with linear advance (K {float(advance_k[on[0]]):g}) are not "
+                             "modelled: Marlin's extruder interrupt adds advance pulses the model does not issue "
+                             "(times and X/Y/Z are Marlin's; set the K factor to 0 for the other pulses)",
+                             line=int(moves["line"][on[0]]))
 
     def _plan_rows(self, moves: np.ndarray, oi: np.ndarray, of: np.ndarray) -> np.ndarray:
         """PLAN rows: blocks as executed; rows without a block last 0 s where the previous one ended."""
@@ -302,6 +323,33 @@ class MarlinModel:
         return plan
 
 
+def block_pulses(oi: np.ndarray, timer_hz: int, s_curve: bool) -> dict:
+    """The step pulses of the blocks in per-row outputs ``oi`` (rows without a block are skipped), as
+    Marlin's stepper interrupt issues them (:func:`gcodeplan.stepper.marlin_isr.blocks_pulses_kernel`):
+    {axis 0..3 (X, Y, Z, E): (times s from the first pick-up, int8 directions)}."""
+    from ..stepper.marlin_isr import acceleration_rate, blocks_pulses_kernel
+
+    b = oi[oi[:, mk.OI_HAS_BLOCK] == 1]
+    axis_steps = np.ascontiguousarray(b[:, mk.OI_SX:mk.OI_SE + 1])
+    n_axis = axis_steps.sum(axis=0)
+    cap = int(n_axis.max()) if len(b) else 0
+    out_t = np.empty((4, cap), np.int64)
+    out_d = np.empty((4, cap), np.int8)
+    n_out = np.zeros(4, np.int64)
+    if len(b):
+        col = lambda k: np.ascontiguousarray(b[:, k])        # noqa: E731
+        blocks_pulses_kernel(col(mk.OI_T_PICK), col(mk.OI_SEC), axis_steps, col(mk.OI_DIR_BITS),
+                             col(mk.OI_INITIAL_RATE), col(mk.OI_NOMINAL_RATE), col(mk.OI_FINAL_RATE),
+                             col(mk.OI_ACCEL_UNTIL), col(mk.OI_DECEL_AFTER),
+                             acceleration_rate(col(mk.OI_ACCEL_STEPS), timer_hz), col(mk.OI_CRUISE_RATE),
+                             col(mk.OI_ACCELERATION_TIME), col(mk.OI_DECELERATION_TIME), col(mk.OI_ACC_TIME_INV),
+                             col(mk.OI_DEC_TIME_INV), bool(s_curve), int(timer_hz), out_t, out_d, n_out)
+    if not np.array_equal(n_out, n_axis):
+        raise RuntimeError("marlin model: pulses issued differ from the blocks' step counts (a model bug)")
+    hz = float(timer_hz)
+    return {a: (out_t[a, :n_out[a]] / hz, out_d[a, :n_out[a]].copy()) for a in range(4)}
+
+
 def run_marlin(moves: np.ndarray, limits: np.ndarray, machine, keep_blocks: bool = False, e_position_sets=None,
                junction: str | None = None):
     """Whole-program convenience: PLAN rows for ``moves`` (and the model, for its ``blocks``)."""
@@ -323,27 +371,45 @@ def make_stream_mode(base_cls):
 
         def __init__(self, sp):
             super().__init__(sp)
+            # the stepper's own pulses go with the rows (StreamPlanner.firmware_steps) when a sink wants them
+            self.want_steps = bool(getattr(sp, "want_firmware_steps", False))
+            self.last_steps = None
             self.model = self._new_model()
             self._ready: list[np.ndarray] = []
+            self._ready_steps: list[dict] = []
 
         def _new_model(self):
             sp = self.sp
-            return MarlinModel(sp.machine, e_position_sets=getattr(sp, "e_position_sets", None), junction=sp.policy)
+            m = MarlinModel(sp.machine, e_position_sets=getattr(sp, "e_position_sets", None), junction=sp.policy)
+            m.want_steps = self.want_steps
+            return m
+
+        def _take(self, pieces) -> None:
+            for _, p in pieces:
+                self._ready.append(p)
+                if self.want_steps:
+                    self._ready_steps.append(self.model.last_steps)
 
         def prepare(self, moves_chunk, limits):
             from .prepare import PREP_DTYPE
 
-            self._ready.extend(p for _, p in self.model.feed(np.asarray(moves_chunk), np.asarray(limits)))
+            self._take(self.model.feed(np.asarray(moves_chunk), np.asarray(limits)))
             return np.zeros(len(moves_chunk), dtype=PREP_DTYPE)
 
         def plan(self, final: bool):
             sp = self.sp
             if final:
-                self._ready.extend(p for _, p in self.model.finish())
+                self._take(self.model.finish())
             if not self._ready:
                 return 0, None, sp._clock, None
             plan = np.concatenate(self._ready) if len(self._ready) > 1 else self._ready[0]
             self._ready = []
+            if self.want_steps:
+                got = self._ready_steps
+                self.last_steps = got[0] if len(got) == 1 else {
+                    a: (np.concatenate([g[a][0] for g in got]), np.concatenate([g[a][1] for g in got]))
+                    for a in range(4)}
+                self._ready_steps = []
             t_end = float(plan["t_start"][-1] + plan["duration"][-1])
             return len(plan), plan, t_end, None
 

@@ -50,8 +50,8 @@ N_BF = 5
 # integer block fields (bi[slot, ...])
 (BI_FLAG, BI_SEC, BI_NOMINAL_RATE, BI_INITIAL_RATE, BI_FINAL_RATE, BI_ACCEL_UNTIL, BI_DECEL_AFTER, BI_ACCEL_STEPS,
  BI_ROW, BI_SX, BI_SY, BI_SZ, BI_SE, BI_CRUISE_RATE, BI_ACC_TIME, BI_DEC_TIME, BI_ACC_TIME_INV,
- BI_DEC_TIME_INV) = range(18)
-N_BI = 18
+ BI_DEC_TIME_INV, BI_DIR_BITS) = range(19)
+N_BI = 19
 # integer global state (gi[...])
 (GI_HEAD, GI_TAIL, GI_PLANNED, GI_NONBUSY, GI_BUSY, GI_PX, GI_PY, GI_PZ, GI_PE, GI_CLOCK, GI_NEXT_ROW,
  GI_STARTED, GI_RESET_DONE, GI_SETTINGS_ROW) = range(14)
@@ -71,8 +71,9 @@ JD_LUT_B = np.array([1.57079637, 1.70887053, 2.04220939, 2.62408352, 3.52467871,
                      106.841369, 218.534011], dtype=np.float32)
 # per-row outputs
 (OI_HAS_BLOCK, OI_T_PICK, OI_T_END, OI_SEC, OI_NOMINAL_RATE, OI_INITIAL_RATE, OI_FINAL_RATE, OI_ACCEL_UNTIL,
- OI_DECEL_AFTER, OI_ACCEL_STEPS, OI_ACC_T, OI_CRUISE_T, OI_DEC_T, OI_FLAG, OI_SX, OI_SY, OI_SZ, OI_SE) = range(18)
-N_OI = 18
+ OI_DECEL_AFTER, OI_ACCEL_STEPS, OI_ACC_T, OI_CRUISE_T, OI_DEC_T, OI_FLAG, OI_SX, OI_SY, OI_SZ, OI_SE, OI_DIR_BITS,
+ OI_CRUISE_RATE, OI_ACCELERATION_TIME, OI_DECELERATION_TIME, OI_ACC_TIME_INV, OI_DEC_TIME_INV) = range(24)
+N_OI = 24
 OF_ENTRY_SQR, OF_NOMINAL_SPEED, OF_MM, OF_ACCEL, OF_EXIT_SQR = 0, 1, 2, 3, 4
 N_OF = 5
 
@@ -515,10 +516,14 @@ def _populate_block(bf, bi, gi, gf, row, tgt, fr_mm_s, acc_p, acc_t, acc_r, vmax
     bi[h, BI_NOMINAL_RATE] = nominal_rate
     bi[h, BI_ACCEL_STEPS] = accel
     bi[h, BI_ROW] = row
+    dir_bits = np.int64(0)
     for a in range(4):
         bi[h, BI_SX + a] = steps[a]
+        if da[a] < 0:
+            dir_bits |= 1 << a                 # block->direction_bits: bit set = the axis runs negative
         gf[GF_PREV_SPEED + a] = current_speed[a]
         gi[GI_PX + a] = target[a]
+    bi[h, BI_DIR_BITS] = dir_bits
     gf[GF_PREV_NOMINAL] = nominal_speed
     for a in range(4):
         gf[GF_POS_FLOAT + a] = tgt[a]
@@ -626,6 +631,13 @@ def _pick_and_run(bf, bi, gi, out_i, out_f, timer_hz, acc_rate_scale, row_base, 
         out_i[r, OI_FLAG] = bi[t, BI_FLAG]
         for a in range(4):
             out_i[r, OI_SX + a] = bi[t, BI_SX + a]
+        # what the interrupt needs to issue the block's pulses (stepper.marlin_isr.blocks_pulses_kernel)
+        out_i[r, OI_DIR_BITS] = bi[t, BI_DIR_BITS]
+        out_i[r, OI_CRUISE_RATE] = bi[t, BI_CRUISE_RATE]
+        out_i[r, OI_ACCELERATION_TIME] = bi[t, BI_ACC_TIME]
+        out_i[r, OI_DECELERATION_TIME] = bi[t, BI_DEC_TIME]
+        out_i[r, OI_ACC_TIME_INV] = bi[t, BI_ACC_TIME_INV]
+        out_i[r, OI_DEC_TIME_INV] = bi[t, BI_DEC_TIME_INV]
         out_f[r, OF_ENTRY_SQR] = bf[t, BF_ENTRY_SQR]
         out_f[r, OF_NOMINAL_SPEED] = bf[t, BF_NOMINAL_SPEED]
         out_f[r, OF_MM] = bf[t, BF_MM]

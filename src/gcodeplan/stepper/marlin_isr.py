@@ -1,4 +1,4 @@
-"""Marlin 2.1.2's stepper interrupt as it times one planner block, in timer ticks.
+"""Marlin 2.1.2's stepper interrupt as it times one planner block, in timer ticks, and the pulses it issues.
 
 Marlin (``stepper.cpp``, ``Stepper::block_phase_isr``) does not follow the ideal trapezoid: after each step
 of the leading axis it computes the interval to the next one from the phase the block is in, counted in
@@ -13,10 +13,18 @@ ticks:
   not below ``final_rate``, where ``acc_step_rate`` is the last accelerating rate (``nominal_rate`` after a
   cruise).
 
+With ``S_CURVE_ACCELERATION`` the accelerating and decelerating rates follow a quintic Bézier in time
+instead (:func:`_eval_bezier_curve`), between the block's initial, cruise and final rates.
+
 Each rate becomes an interval by integer division of the timer rate; the block lasts the sum of its
 intervals and its last step is the end of the block (the next block is picked up in the same interrupt).
 ``acceleration_rate`` is ``(uint32)(accel_steps_per_s2 · 2^24 / TIMER_RATE)`` in float32, as the planner
 stores it. Validated against every block of the shared Marlin reference (docs/design.md, Marlin model).
+
+The pulses (``Stepper::pulse_phase_isr``): every interrupt is one step event of the leading axis; every
+axis, X, Y, Z and E, steps on it by Bresenham — its error starts at ``−step_event_count``, grows by
+``2·steps`` per event, and the axis steps when it reaches 0 (then it drops by ``2·step_event_count``). The
+step directions are the block's ``direction_bits`` (bit set = negative).
 
 All arithmetic is on integers as the firmware's; ``ticks`` are of a ``timer_hz`` clock (25 MHz in the
 reference build). One interrupt makes one step: an infinitely fast MCU, on which Marlin's multi-stepping
@@ -33,108 +41,23 @@ MARLIN_TIMER_HZ = 25_000_000
 #: STEP_MULTIPLY's rounding constant: half of 2^24
 _HALF_24 = 0x800000
 
+# The interrupt's state while it runs a block (one int64 array, ``isr``): the block's trapezoid as the
+# stepper copied it at pick-up, then the Stepper class's running variables (stepper.h names).
+(ISR_SEC, ISR_INITIAL_RATE, ISR_NOMINAL_RATE, ISR_FINAL_RATE, ISR_ACCEL_UNTIL, ISR_DECEL_AFTER, ISR_ACC_RATE,
+ ISR_CRUISE_RATE, ISR_ACCELERATION_TIME, ISR_DECELERATION_TIME, ISR_DEC_TIME_INV, ISR_S_CURVE,
+ ISR_ACC_TIME, ISR_DEC_TIME, ISR_ACC_STEP_RATE, ISR_TICKS_NOMINAL,
+ ISR_BEZ_A, ISR_BEZ_B, ISR_BEZ_C, ISR_BEZ_F, ISR_BEZ_AV, ISR_BEZ_2ND) = range(22)
+#: length of the ``isr`` state array
+N_ISR = 22
 
-def acceleration_rate(accel_steps_s2: int, timer_hz: int = MARLIN_TIMER_HZ) -> int:
+
+def acceleration_rate(accel_steps_s2, timer_hz: int = MARLIN_TIMER_HZ):
     """The block's ``acceleration_rate``: steps/s² as a 2^24-scaled per-tick increment, computed in float32
-    and truncated as ``planner.cpp`` does."""
-    f = np.float32(accel_steps_s2) * (np.float32(16777216.0) / np.float32(timer_hz))
-    return int(np.float32(f))
-
-
-@njit(cache=True)
-def block_ticks_kernel(n_steps, initial_rate, nominal_rate, final_rate, accelerate_until, decelerate_after,
-                       acc_rate, timer_hz, phase_ticks):
-    """Ticks from a block's pick-up to its last step (Marlin 2.1.2 trapezoid ISR, see the module docstring).
-
-    ``phase_ticks`` (3 int64, out): ticks spent before steps of the accelerating, cruising and decelerating
-    phases (the first interval counts as accelerating). Returns the total."""
-    phase_ticks[0] = 0
-    phase_ticks[1] = 0
-    phase_ticks[2] = 0
-    if n_steps <= 0:
-        return np.int64(0)
-    interval = np.int64(timer_hz) // np.int64(initial_rate)
-    total = interval
-    phase_ticks[0] += interval
-    acc_time = interval
-    dec_time = np.int64(0)
-    acc_step_rate = np.int64(initial_rate)
-    ticks_nominal = np.int64(-1)
-    # the phases are contiguous runs of step numbers: accelerating 1..accelerate_until, cruising up to
-    # decelerate_after (every interval the same: counted, not looped), decelerating after it
-    last = n_steps - 1
-    acc_end = accelerate_until if accelerate_until < last else last
-    for n in range(1, acc_end + 1):
-        r = ((acc_time * acc_rate + _HALF_24) >> 24) + initial_rate
-        if r > nominal_rate:
-            r = nominal_rate
-        acc_step_rate = r
-        interval = np.int64(timer_hz) // r
-        acc_time += interval
-        phase_ticks[0] += interval
-        total += interval
-    cruise_lo = accelerate_until + 1 if accelerate_until + 1 > 1 else 1
-    cruise_hi = decelerate_after if decelerate_after < last else last
-    if cruise_hi >= cruise_lo:
-        ticks_nominal = np.int64(timer_hz) // np.int64(nominal_rate)
-        acc_step_rate = np.int64(nominal_rate)
-        phase_ticks[1] += ticks_nominal * (cruise_hi - cruise_lo + 1)
-        total += ticks_nominal * (cruise_hi - cruise_lo + 1)
-    dec_lo = decelerate_after + 1 if decelerate_after + 1 > 1 else 1
-    for n in range(dec_lo, last + 1):
-        s = (dec_time * acc_rate + _HALF_24) >> 24
-        if s < acc_step_rate:
-            s = acc_step_rate - s
-            if s < final_rate:
-                s = final_rate
-        else:
-            s = final_rate
-        interval = np.int64(timer_hz) // s
-        dec_time += interval
-        phase_ticks[2] += interval
-        total += interval
-    return total
-
-
-@njit(cache=True)
-def block_step_times_kernel(n_steps, initial_rate, nominal_rate, final_rate, accelerate_until, decelerate_after,
-                            acc_rate, timer_hz, t_pick, out):
-    """Tick of every step of the leading axis (``out[:n_steps]``), from the pick-up tick ``t_pick``: the
-    same loop as :func:`block_ticks_kernel`."""
-    if n_steps <= 0:
-        return
-    interval = np.int64(timer_hz) // np.int64(initial_rate)
-    t = t_pick + interval
-    out[0] = t
-    acc_time = interval
-    dec_time = np.int64(0)
-    acc_step_rate = np.int64(initial_rate)
-    ticks_nominal = np.int64(-1)
-    for n in range(1, n_steps):
-        if n <= accelerate_until:
-            r = ((acc_time * acc_rate + _HALF_24) >> 24) + initial_rate
-            if r > nominal_rate:
-                r = nominal_rate
-            acc_step_rate = r
-            interval = np.int64(timer_hz) // r
-            acc_time += interval
-        elif n > decelerate_after:
-            s = (dec_time * acc_rate + _HALF_24) >> 24
-            if s < acc_step_rate:
-                s = acc_step_rate - s
-                if s < final_rate:
-                    s = final_rate
-            else:
-                s = final_rate
-            interval = np.int64(timer_hz) // s
-            dec_time += interval
-        else:
-            if ticks_nominal < 0:
-                ticks_nominal = np.int64(timer_hz) // np.int64(nominal_rate)
-                acc_step_rate = np.int64(nominal_rate)
-            interval = ticks_nominal
-        t += interval
-        out[n] = t
+    and truncated as ``planner.cpp`` does (an int, or an int64 array for an array of accelerations)."""
+    f = np.float32(np.float32(16777216.0) / np.float32(timer_hz))
+    if np.ndim(accel_steps_s2):
+        return (np.asarray(accel_steps_s2).astype(np.float32) * f).astype(np.float32).astype(np.int64)
+    return int(np.float32(np.float32(accel_steps_s2) * f))
 
 
 @njit(cache=True)
@@ -158,6 +81,149 @@ def _eval_bezier_curve(a, b, c, f0, av, curr_step):
 
 
 @njit(cache=True)
+def _calc_bezier_curve_coeffs(isr, v0, v1, av):
+    """The ramp v0 → v1 over the ramp time whose 32-bit inverse is ``av`` (stepper.cpp
+    ``_calc_bezier_curve_coeffs``): A, B, C, F of the quintic into the state."""
+    isr[ISR_BEZ_A] = 768 * (v1 - v0)
+    isr[ISR_BEZ_B] = 1920 * (v0 - v1)
+    isr[ISR_BEZ_C] = 1280 * (v1 - v0)
+    isr[ISR_BEZ_F] = 128 * v0
+    isr[ISR_BEZ_AV] = av
+
+
+@njit(cache=True)
+def block_pickup(isr, n_steps, initial_rate, nominal_rate, final_rate, accelerate_until, decelerate_after,
+                 acc_rate, cruise_rate, acceleration_time, deceleration_time, acceleration_time_inverse,
+                 deceleration_time_inverse, s_curve, timer_hz):
+    """The pick-up half of ``block_phase_isr``: copy the block into the interrupt's state, reset its phase
+    clocks and return the first interval (ticks), ``TIMER_RATE / initial_rate``, which counts as
+    acceleration time. ``s_curve``: S_CURVE_ACCELERATION (the Bézier fields are used only then)."""
+    isr[ISR_SEC] = n_steps
+    isr[ISR_INITIAL_RATE] = initial_rate
+    isr[ISR_NOMINAL_RATE] = nominal_rate
+    isr[ISR_FINAL_RATE] = final_rate
+    isr[ISR_ACCEL_UNTIL] = accelerate_until
+    isr[ISR_DECEL_AFTER] = decelerate_after
+    isr[ISR_ACC_RATE] = acc_rate
+    isr[ISR_CRUISE_RATE] = cruise_rate
+    isr[ISR_ACCELERATION_TIME] = acceleration_time
+    isr[ISR_DECELERATION_TIME] = deceleration_time
+    isr[ISR_DEC_TIME_INV] = deceleration_time_inverse
+    isr[ISR_S_CURVE] = 1 if s_curve else 0
+    isr[ISR_TICKS_NOMINAL] = -1
+    isr[ISR_DEC_TIME] = 0
+    if s_curve:
+        _calc_bezier_curve_coeffs(isr, np.int64(initial_rate), np.int64(cruise_rate),
+                                  np.int64(acceleration_time_inverse))
+        isr[ISR_BEZ_2ND] = 0
+    else:
+        isr[ISR_ACC_STEP_RATE] = initial_rate
+    interval = np.int64(timer_hz) // np.int64(initial_rate)
+    isr[ISR_ACC_TIME] = interval
+    return interval
+
+
+@njit(cache=True)
+def block_phase_isr(isr, n, timer_hz):
+    """The rate half of ``block_phase_isr`` after ``n`` step events of the block (``1 <= n < n_steps``):
+    the interval (ticks) to the next event, from the phase ``n`` is in, with that phase's clock advanced
+    (see the module docstring)."""
+    if n <= isr[ISR_ACCEL_UNTIL]:
+        if isr[ISR_S_CURVE] != 0:
+            if isr[ISR_ACC_TIME] < isr[ISR_ACCELERATION_TIME]:
+                r = _eval_bezier_curve(isr[ISR_BEZ_A], isr[ISR_BEZ_B], isr[ISR_BEZ_C], isr[ISR_BEZ_F],
+                                       isr[ISR_BEZ_AV], isr[ISR_ACC_TIME])
+            else:
+                r = isr[ISR_CRUISE_RATE]
+        else:
+            # STEP_MULTIPLY(acceleration_time, acceleration_rate): the high 32 bits of a 32×24 product, rounded
+            r = ((isr[ISR_ACC_TIME] * isr[ISR_ACC_RATE] + _HALF_24) >> 24) + isr[ISR_INITIAL_RATE]
+            if r > isr[ISR_NOMINAL_RATE]:
+                r = isr[ISR_NOMINAL_RATE]
+            isr[ISR_ACC_STEP_RATE] = r
+        interval = np.int64(timer_hz) // r
+        isr[ISR_ACC_TIME] += interval
+        return interval
+    if n > isr[ISR_DECEL_AFTER]:
+        if isr[ISR_S_CURVE] != 0:
+            if isr[ISR_BEZ_2ND] == 0:
+                # the first decelerating step runs at the cruise rate; the second ramp's curve starts here
+                _calc_bezier_curve_coeffs(isr, isr[ISR_CRUISE_RATE], isr[ISR_FINAL_RATE], isr[ISR_DEC_TIME_INV])
+                isr[ISR_BEZ_2ND] = 1
+                s = isr[ISR_CRUISE_RATE]
+            elif isr[ISR_DEC_TIME] < isr[ISR_DECELERATION_TIME]:
+                s = _eval_bezier_curve(isr[ISR_BEZ_A], isr[ISR_BEZ_B], isr[ISR_BEZ_C], isr[ISR_BEZ_F],
+                                       isr[ISR_BEZ_AV], isr[ISR_DEC_TIME])
+            else:
+                s = isr[ISR_FINAL_RATE]
+        else:
+            s = (isr[ISR_DEC_TIME] * isr[ISR_ACC_RATE] + _HALF_24) >> 24
+            if s < isr[ISR_ACC_STEP_RATE]:
+                s = isr[ISR_ACC_STEP_RATE] - s
+                if s < isr[ISR_FINAL_RATE]:
+                    s = isr[ISR_FINAL_RATE]
+            else:
+                s = isr[ISR_FINAL_RATE]
+        interval = np.int64(timer_hz) // s
+        isr[ISR_DEC_TIME] += interval
+        return interval
+    if isr[ISR_TICKS_NOMINAL] < 0:
+        # the first cruising step: its interval once for the whole cruise; the ramp down starts from nominal
+        isr[ISR_TICKS_NOMINAL] = np.int64(timer_hz) // isr[ISR_NOMINAL_RATE]
+        if isr[ISR_S_CURVE] == 0:
+            isr[ISR_ACC_STEP_RATE] = isr[ISR_NOMINAL_RATE]
+        isr[ISR_DEC_TIME] = 0
+    return isr[ISR_TICKS_NOMINAL]
+
+
+@njit(cache=True)
+def _block_ticks(isr, first_interval, timer_hz, phase_ticks):
+    """Ticks from pick-up to the last step of the block picked up into ``isr`` (first interval given),
+    split into ``phase_ticks`` (accelerating, cruising, decelerating); a cruise is counted, not looped."""
+    n_steps = isr[ISR_SEC]
+    phase_ticks[0] = first_interval
+    phase_ticks[1] = 0
+    phase_ticks[2] = 0
+    total = first_interval
+    n = np.int64(1)
+    while n < n_steps:
+        interval = block_phase_isr(isr, n, timer_hz)
+        if n <= isr[ISR_ACCEL_UNTIL]:
+            phase_ticks[0] += interval
+        elif n > isr[ISR_DECEL_AFTER]:
+            phase_ticks[2] += interval
+        else:
+            # every cruising step has the interval of the first: the rest of the cruise at once
+            k = isr[ISR_DECEL_AFTER]
+            if k > n_steps - 1:
+                k = n_steps - 1
+            interval *= k - n + 1
+            phase_ticks[1] += interval
+            n = k
+        total += interval
+        n += 1
+    return total
+
+
+@njit(cache=True)
+def block_ticks_kernel(n_steps, initial_rate, nominal_rate, final_rate, accelerate_until, decelerate_after,
+                       acc_rate, timer_hz, phase_ticks):
+    """Ticks from a block's pick-up to its last step (Marlin 2.1.2 trapezoid ISR, see the module docstring).
+
+    ``phase_ticks`` (3 int64, out): ticks spent before steps of the accelerating, cruising and decelerating
+    phases (the first interval counts as accelerating). Returns the total."""
+    if n_steps <= 0:
+        phase_ticks[0] = 0
+        phase_ticks[1] = 0
+        phase_ticks[2] = 0
+        return np.int64(0)
+    isr = np.empty(N_ISR, np.int64)
+    first = block_pickup(isr, n_steps, initial_rate, nominal_rate, final_rate, accelerate_until, decelerate_after,
+                         acc_rate, nominal_rate, 0, 0, 0, 0, False, timer_hz)
+    return _block_ticks(isr, first, timer_hz, phase_ticks)
+
+
+@njit(cache=True)
 def block_ticks_scurve_kernel(n_steps, initial_rate, nominal_rate, final_rate, accelerate_until, decelerate_after,
                               cruise_rate, acceleration_time, deceleration_time, acceleration_time_inverse,
                               deceleration_time_inverse, timer_hz, phase_ticks):
@@ -165,51 +231,77 @@ def block_ticks_scurve_kernel(n_steps, initial_rate, nominal_rate, final_rate, a
     Bézier in time (initial → cruise over ``acceleration_time`` ticks, cruise → final over
     ``deceleration_time``), read at the start of each step interval; the same phase switching by step count
     as :func:`block_ticks_kernel`."""
-    phase_ticks[0] = 0
-    phase_ticks[1] = 0
-    phase_ticks[2] = 0
     if n_steps <= 0:
+        phase_ticks[0] = 0
+        phase_ticks[1] = 0
+        phase_ticks[2] = 0
         return np.int64(0)
-    # _calc_bezier_curve_coeffs(initial, cruise, acceleration_time_inverse)
-    v0 = np.int64(initial_rate)
-    v1 = np.int64(cruise_rate)
-    ba, bb, bc, bf = 768 * (v1 - v0), 1920 * (v0 - v1), 1280 * (v1 - v0), 128 * v0
-    bav = np.int64(acceleration_time_inverse)
-    second_half = False
-    interval = np.int64(timer_hz) // np.int64(initial_rate)
-    total = interval
-    phase_ticks[0] += interval
-    acc_time = interval
-    dec_time = np.int64(0)
-    ticks_nominal = np.int64(-1)
+    isr = np.empty(N_ISR, np.int64)
+    first = block_pickup(isr, n_steps, initial_rate, nominal_rate, final_rate, accelerate_until, decelerate_after,
+                         0, cruise_rate, acceleration_time, deceleration_time, acceleration_time_inverse,
+                         deceleration_time_inverse, True, timer_hz)
+    return _block_ticks(isr, first, timer_hz, phase_ticks)
+
+
+@njit(cache=True)
+def block_step_times_kernel(n_steps, initial_rate, nominal_rate, final_rate, accelerate_until, decelerate_after,
+                            acc_rate, timer_hz, t_pick, out):
+    """Tick of every step of the leading axis (``out[:n_steps]``), from the pick-up tick ``t_pick``: the
+    same interrupt as :func:`block_ticks_kernel`, step by step."""
+    if n_steps <= 0:
+        return
+    isr = np.empty(N_ISR, np.int64)
+    t = t_pick + block_pickup(isr, n_steps, initial_rate, nominal_rate, final_rate, accelerate_until,
+                              decelerate_after, acc_rate, nominal_rate, 0, 0, 0, 0, False, timer_hz)
+    out[0] = t
     for n in range(1, n_steps):
-        if n <= accelerate_until:
-            if acc_time < acceleration_time:
-                r = _eval_bezier_curve(ba, bb, bc, bf, bav, acc_time)
-            else:
-                r = np.int64(cruise_rate)
-            interval = np.int64(timer_hz) // r
-            acc_time += interval
-            phase_ticks[0] += interval
-        elif n > decelerate_after:
-            if not second_half:
-                v0 = np.int64(cruise_rate)
-                v1 = np.int64(final_rate)
-                ba, bb, bc, bf = 768 * (v1 - v0), 1920 * (v0 - v1), 1280 * (v1 - v0), 128 * v0
-                bav = np.int64(deceleration_time_inverse)
-                second_half = True
-                s = np.int64(cruise_rate)
-            elif dec_time < deceleration_time:
-                s = _eval_bezier_curve(ba, bb, bc, bf, bav, dec_time)
-            else:
-                s = np.int64(final_rate)
-            interval = np.int64(timer_hz) // s
-            dec_time += interval
-            phase_ticks[2] += interval
-        else:
-            if ticks_nominal < 0:
-                ticks_nominal = np.int64(timer_hz) // np.int64(nominal_rate)
-            interval = ticks_nominal
-            phase_ticks[1] += interval
-        total += interval
-    return total
+        t += block_phase_isr(isr, n, timer_hz)
+        out[n] = t
+
+
+@njit(cache=True)
+def pulse_phase_isr(delta_error, advance_dividend, advance_divisor, dir_bits, t, out_t, out_d, n_out):
+    """One step event (``Stepper::pulse_phase_isr``): each axis's Bresenham error grows by its dividend;
+    an axis whose error reached 0 steps at tick ``t`` (appended to ``out_t[axis]`` / ``out_d[axis]``, +1 or
+    −1 from ``dir_bits``) and its error drops by the divisor."""
+    for a in range(4):
+        delta_error[a] += advance_dividend[a]
+        if delta_error[a] >= 0:
+            delta_error[a] -= advance_divisor
+            k = n_out[a]
+            out_t[a, k] = t
+            out_d[a, k] = -1 if (dir_bits >> a) & 1 else 1
+            n_out[a] = k + 1
+
+
+@njit(cache=True)
+def blocks_pulses_kernel(t_pick, n_steps, axis_steps, dir_bits, initial_rate, nominal_rate, final_rate,
+                         accelerate_until, decelerate_after, acc_rate, cruise_rate, acceleration_time,
+                         deceleration_time, acceleration_time_inverse, deceleration_time_inverse, s_curve, timer_hz,
+                         out_t, out_d, n_out):
+    """Every step pulse of a run of blocks as Marlin's interrupt issues them: block ``i`` picked up at tick
+    ``t_pick[i]``, its ``n_steps[i]`` step events timed by :func:`block_phase_isr`, each axis (X, Y, Z, E)
+    stepping on them by Bresenham (:func:`pulse_phase_isr`; ``axis_steps[i]``: 4 step counts).
+
+    Appends tick and direction per axis to ``out_t`` / ``out_d`` (4 × capacity; ``n_out``: 4 fill counts,
+    updated); each axis needs room for the sum of its steps."""
+    isr = np.empty(N_ISR, np.int64)
+    delta_error = np.empty(4, np.int64)
+    advance_dividend = np.empty(4, np.int64)
+    for i in range(len(t_pick)):
+        sec = n_steps[i]
+        if sec <= 0:
+            continue
+        # pick-up: Bresenham errors at −step_event_count ("1/2" of the doubled divisor), dividends 2·steps
+        for a in range(4):
+            delta_error[a] = -sec
+            advance_dividend[a] = 2 * axis_steps[i, a]
+        advance_divisor = 2 * sec
+        t = t_pick[i] + block_pickup(isr, sec, initial_rate[i], nominal_rate[i], final_rate[i], accelerate_until[i],
+                                     decelerate_after[i], acc_rate[i], cruise_rate[i], acceleration_time[i],
+                                     deceleration_time[i], acceleration_time_inverse[i],
+                                     deceleration_time_inverse[i], s_curve, timer_hz)
+        for n in range(1, sec + 1):
+            pulse_phase_isr(delta_error, advance_dividend, advance_divisor, dir_bits[i], t, out_t, out_d, n_out)
+            if n < sec:
+                t += block_phase_isr(isr, n, timer_hz)

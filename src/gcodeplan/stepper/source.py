@@ -67,6 +67,18 @@ def rails_from(machine, kinematics=None, klipper_names: bool | None = None):
     return rails_for(machine, klipper_names=klipper_names)
 
 
+def firmware_axis(rail) -> int:
+    """The axis (0..3: X, Y, Z, E) a stepper follows one to one (its position is that axis's, as a cartesian
+    machine's x … e or stepper_x … extruder), whose pulses a firmware model issues; −1 for any other."""
+    w = rail.weights
+    if w is None:
+        return -1
+    ones = [a for a, v in enumerate(w) if v == 1.0]
+    if len(ones) != 1 or any(v != 0.0 for a, v in enumerate(w) if a != ones[0]):
+        return -1
+    return ones[0]
+
+
 class StepSink(Sink):
     """A pipeline sink that steps every piece: ``sink_fn(stepper_index, times_s, dirs)`` receives the
     steps in order, per stepper, in bounded buffers (see :class:`gcodeplan.stepper.generate.StepGenerator`).
@@ -84,14 +96,20 @@ class StepSink(Sink):
         self.generator = StepGenerator(self.rails, sink_fn, sds_filter_t=sds_filter_t, settings=settings)
         self._pending = False
 
-    wants_firmware_steps = True   # a firmware model's own pulses (grbl's stepper interrupt) replace stepping
+    wants_firmware_steps = True   # a firmware model's own pulses (grbl's, Marlin's interrupt) replace stepping
 
     def add(self, piece: Piece) -> None:
         fw = getattr(piece, "firmware_steps", None)
         if fw is not None:
             for si, rail in enumerate(self.rails):
-                axis = "xyz".find(rail.name[-1])
-                if axis >= 0 and axis in fw and len(fw[axis][0]):
+                axis = firmware_axis(rail)
+                if axis < 0:
+                    from ..errors import ConfigError
+
+                    raise ConfigError(f"stepper {rail.name!r}: the firmware model issues the pulses of the X, Y, "
+                                      "Z and E steppers of a cartesian machine, and this one follows none of "
+                                      "them alone")
+                if axis in fw and len(fw[axis][0]):
                     self.generator.feed_pulses(si, *fw[axis])
             return
         reset, self._pending = homing_resets(piece.moves, piece.segments, piece.first_move, self._pending)

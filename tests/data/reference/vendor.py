@@ -71,7 +71,9 @@ COPY = [
 ] + [f"grbl/synthetic/{n}.gcode" for n in ("synth_square", "synth_polycircle30", "synth_arcs")] + [
     f"grbl/steps/{n}_steps.npz" for n in ("synth_square", "synth_polycircle30", "synth_arcs")] + [
     f"grbl/per_line/{n}.per_line_end_time.csv.gz" for n in (
-        "synth_square", "synth_polycircle30", "synth_arcs", "linuxcnc_plasmatest", "linuxcnc_arcspiral")]
+        "synth_square", "synth_polycircle30", "synth_arcs", "linuxcnc_plasmatest", "linuxcnc_arcspiral")] + [
+    # Marlin 2.1.2.4: the figures (step counts of the whole runs) of the reference and its S-curve build
+    "marlin/times.json", "marlin/variants/scurve/times.json"]
 
 # step file -> keep the steps before about this time (s); the cut moves to the next pause of GAP_S
 PREFIX = {
@@ -90,6 +92,9 @@ PREFIX = {
     "klipper/extensions/steps/prusaslicer25_cube20_marlin2_shaper_corexy_exact_steps.npz": 8.0,
     "klipper/extensions/steps/prusaslicer25_cube20_marlin2_pa_cartesian_exact_steps.npz": 8.0,
     "klipper/extensions/steps/prusaslicer25_cube20_marlin2_delta_exact_steps.npz": 5.0,
+    # Marlin 2.1.2.4's pulses of the cube (its stepper interrupt), and of its S_CURVE_ACCELERATION build
+    "marlin/steps/prusaslicer25_cube20_marlin2_steps.npz": 8.0,
+    "marlin/variants/scurve/steps/prusaslicer25_cube20_marlin2_steps.npz": 3.0,
 }
 
 # Klipper's queue_step commands (klipper/compression/) -> the step file they compress: the commands are cut where
