@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import math
 import struct
-import time
 from itertools import combinations
 
 import numpy as np
@@ -540,14 +539,20 @@ def test_zigzag_builder_agrees_with_the_per_move_builder():
     np.testing.assert_allclose(fast.plan["t_start"], slow.plan["t_start"], atol=1e-12)
 
 
-def test_a_10000_move_window_draws_fast(tmp_path):
+def test_a_10000_move_window_draws_in_a_bounded_number_of_artists(tmp_path):
+    """What keeps a big window fast to draw: a fixed number of artists (collections and a few lines), never
+    one per move. The time itself is a benchmark (``python tools/bench.py plots``), not a unit test."""
     win = zigzag_window(10_000)
     for what, fn in (("velocity", plots.plot_velocity), ("path", plots.plot_path)):
-        t0 = time.perf_counter()
-        plots.save_png(fn(win), tmp_path / f"{what}.png")
-        took = time.perf_counter() - t0
-        # the issue asks for < 2 s; the bound leaves room for a busy shared CI machine
-        assert took < 4.0, f"{what}: {took:.2f} s"
+        fig = fn(win)
+        artists = sum(len(ax.lines) + len(ax.collections) for ax in fig.axes)
+        assert 0 < artists <= 40, f"{what}: {artists} artists"
+        if what == "path":     # every moving piece of the 10,000 moves is in the two collections
+            drawn = sum(len(c.get_segments()) for c in fig.axes[0].collections)
+            assert drawn >= 10_000
+        out = tmp_path / f"{what}.png"
+        plots.save_png(fig, out)
+        assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
 def test_plot_profile_1d_draws_the_given_arrays():

@@ -56,6 +56,7 @@ import re
 import sys
 import time
 import traceback
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -443,14 +444,22 @@ _RAILS: dict = {}
 FUZZ_CHUNK_BYTES = 4096
 
 
-def _small_reads() -> None:
-    """Read sources in small chunks: a fresh 8 MB read buffer per case would cost more than the case, and
-    small chunks also put lines across chunk boundaries (the reader's chunk size is a keyword default)."""
+@contextmanager
+def _small_reads():
+    """Read sources in small chunks while planning one case: a fresh 8 MB read buffer per case would cost more
+    than the case, and small chunks also put lines across chunk boundaries. The reader's chunk size is a
+    keyword default; it is put back on leaving, so a process that fuzzes (the test suite) reads as before."""
     from gcodeplan.gcode.reader import GcodeReader
 
     kw = GcodeReader.__init__.__kwdefaults__
-    if kw is not None and "chunk_bytes" in kw and kw["chunk_bytes"] != FUZZ_CHUNK_BYTES:
+    old = kw.get("chunk_bytes") if kw else None
+    if old is not None:
         kw["chunk_bytes"] = FUZZ_CHUNK_BYTES
+    try:
+        yield
+    finally:
+        if old is not None:
+            kw["chunk_bytes"] = old
 
 
 def _machine(case: Case):
@@ -470,20 +479,11 @@ def run_case(case: Case, lines: list[bytes] | None = None, max_steps: int = 2_00
     """Run one case: None when it passes, ``REJECTED`` when it raised a GcodeplanError (a clear error is a
     pass too), else (signature, traceback text)."""
     from gcodeplan.errors import GcodeplanError
-    from gcodeplan.pipeline import run
-    from gcodeplan.stepper.source import rails_from
 
     lines = case.lines if lines is None else lines
-    _small_reads()
     try:
-        machine = _machine(case)
-        key = (case.machine, case.flavor)
-        if key not in _RAILS:
-            _RAILS[key] = rails_from(machine)
-        checks = _Checks(machine, _RAILS[key], max_steps)
-        run([ln + b"\n" for ln in lines], machine, policy=case.policy, jerk=case.jerk, sinks=checks.sinks,
-            batch_moves=512)
-        checks.finish()
+        with _small_reads():
+            return _run_case(case, lines, max_steps)
     except GcodeplanError:
         return REJECTED
     except Bad as err:
@@ -492,7 +492,21 @@ def run_case(case: Case, lines: list[bytes] | None = None, max_steps: int = 2_00
         tb = traceback.extract_tb(err.__traceback__)
         where = f"{Path(tb[-1].filename).name}:{tb[-1].lineno}" if tb else "?"
         return f"{type(err).__name__} at {where}", traceback.format_exc()
-    return None
+
+
+def _run_case(case: Case, lines: list[bytes], max_steps: int) -> None:
+    """Plan and step one case through every check (run_case's body; raises what it finds)."""
+    from gcodeplan.pipeline import run
+    from gcodeplan.stepper.source import rails_from
+
+    machine = _machine(case)
+    key = (case.machine, case.flavor)
+    if key not in _RAILS:
+        _RAILS[key] = rails_from(machine)
+    checks = _Checks(machine, _RAILS[key], max_steps)
+    run([ln + b"\n" for ln in lines], machine, policy=case.policy, jerk=case.jerk, sinks=checks.sinks,
+        batch_moves=512)
+    checks.finish()
 
 
 # --------------------------------------------------------------------------- interpreted == compiled
@@ -504,12 +518,12 @@ def plan_digest(case: Case) -> str:
     from gcodeplan.errors import GcodeplanError
     from gcodeplan.pipeline import Collect, LineTimes, run
 
-    _small_reads()
     h = hashlib.sha256()
     try:
         collect, times = Collect(segments=True), LineTimes()
-        run([ln + b"\n" for ln in case.lines], _machine(case), policy=case.policy, jerk=case.jerk,
-            sinks=[collect, times], batch_moves=512)
+        with _small_reads():
+            run([ln + b"\n" for ln in case.lines], _machine(case), policy=case.policy, jerk=case.jerk,
+                sinks=[collect, times], batch_moves=512)
         for arr in (*collect.arrays(), *times.arrays()):
             names = arr.dtype.names or (None,)
             for name in names:
