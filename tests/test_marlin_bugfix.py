@@ -18,8 +18,8 @@ from gcodeplan.config import load_machine
 from gcodeplan.gcode.reader import read_moves
 from gcodeplan.planner import marlin_kernels as mk
 from gcodeplan.planner.marlin import run_marlin
-from gcodeplan.stepper.marlin_isr import (MARLIN_TIMER_HZ, acceleration_rate, block_ticks_kernel,
-                                          block_ticks_kernel_bugfix)
+from gcodeplan.stepper.marlin_isr import (MARLIN_TIMER_HZ, acceleration_rate, block_step_times_kernel_bugfix,
+                                          block_ticks_kernel, block_ticks_kernel_bugfix)
 from conftest import shared_path
 
 CUBE = "prusaslicer25_cube20_marlin2"
@@ -67,6 +67,33 @@ def test_bugfix_isr_times_every_reference_block_to_the_tick(name):
     assert np.array_equal(mine, ref_ticks)
     old = np.array([block_ticks_kernel(*a, MARLIN_TIMER_HZ, ph) for a in args[:200]])
     assert np.count_nonzero(old != ref_ticks[:200]) > 100
+
+
+def test_leading_axis_pulses_are_bugfixs_to_the_tick():
+    """Every step pulse of the leading axis of the cube's blocks, as far as the reference stores pulses (all of
+    Z, the first 200,000 of X, Y and E): the interrupt model's tick of each step equals the firmware's."""
+    b = _blocks(CUBE)
+    steps = np.load(shared_path("reference", "marlin", "bugfix-2.1.x", "steps", CUBE + "_steps.npz"))
+    checked = 0
+    for col, key in (("steps_z", "stepper_z"), ("steps_x", "stepper_x"), ("steps_y", "stepper_y"),
+                     ("steps_e", "extruder")):
+        ref = np.round(steps[key] * MARLIN_TIMER_HZ).astype(np.int64)
+        for i in np.flatnonzero(b[col] == b["step_event_count"]):
+            t_pick = int(round(b["t_pick_s"][i] * MARLIN_TIMER_HZ))
+            t_end = int(round(b["t_end_s"][i] * MARLIN_TIMER_HZ))
+            if t_end > ref[-1]:
+                break                                   # past the stored pulses
+            n = int(b["step_event_count"][i])
+            out = np.zeros(n, dtype=np.int64)
+            block_step_times_kernel_bugfix(n, int(b["initial_rate"][i]), int(b["nominal_rate"][i]),
+                                           int(b["final_rate"][i]), int(b["accelerate_end"][i]),
+                                           int(b["decelerate_start"][i]),
+                                           acceleration_rate(int(b["acceleration_steps_per_s2"][i])),
+                                           MARLIN_TIMER_HZ, t_pick, out)
+            lo, hi = np.searchsorted(ref, [t_pick, t_end], side="right")
+            assert np.array_equal(ref[lo:hi], out), (key, i)
+            checked += n
+    assert checked > 400000
 
 
 @pytest.mark.parametrize("name", FILES)

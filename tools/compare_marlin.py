@@ -8,6 +8,7 @@ trapezoid (step count, rates, step boundaries, acceleration) or pick-up time dif
     python tools/compare_marlin.py                       # --machine marlin-2.1.2, both programs
     python tools/compare_marlin.py --machine marlin      # the generic classic-jerk policy, for contrast
     python tools/compare_marlin.py --files cura413_ender3_cylinder30
+    python tools/compare_marlin.py --machine marlin-bugfix --reference bugfix-2.1.x   # the bugfix-2.1.x model
 
 The estimate runs through the same pipeline as ``gcodeplan estimate`` (per-line end times from its
 PLAN rows); the block check runs the model itself (planner.marlin.run_marlin) on the parsed rows.

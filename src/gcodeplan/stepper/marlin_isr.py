@@ -273,3 +273,46 @@ def block_ticks_kernel_bugfix(n_steps, initial_rate, nominal_rate, final_rate, a
         phase_ticks[2] += interval
         total += interval
     return total
+
+
+@njit(cache=True)
+def block_step_times_kernel_bugfix(n_steps, initial_rate, nominal_rate, final_rate, accelerate_before,
+                                   decelerate_start, acc_rate, timer_hz, t_pick, out):
+    """Tick of every step of the leading axis (``out[:n_steps]``) in bugfix-2.1.x, from the pick-up tick
+    ``t_pick``: the same rules as :func:`block_ticks_kernel_bugfix`, one step at the end of each interval."""
+    if n_steps <= 0:
+        return
+    interval = np.int64(timer_hz) // np.int64(initial_rate)
+    t = t_pick + interval
+    out[0] = t
+    acc_time = interval // 2
+    dec_time = interval // 2
+    acc_step_rate = np.int64(initial_rate)
+    ticks_nominal = np.int64(0)
+    for n in range(1, n_steps):
+        if n < accelerate_before:
+            r = ((acc_time * acc_rate + _HALF_24) >> 24) + initial_rate
+            if r > nominal_rate:
+                r = nominal_rate
+            acc_step_rate = r
+            interval = np.int64(timer_hz) // r
+            acc_time += interval
+            dec_time = 0
+        elif n >= decelerate_start:
+            s = (dec_time * acc_rate + _HALF_24) >> 24
+            if s < acc_step_rate:
+                s = acc_step_rate - s
+                if s < final_rate:
+                    s = final_rate
+            else:
+                s = final_rate
+            interval = np.int64(timer_hz) // s
+            dec_time += interval
+        else:
+            if ticks_nominal == 0:
+                ticks_nominal = np.int64(timer_hz) // np.int64(nominal_rate)
+                acc_step_rate = np.int64(nominal_rate)
+                dec_time = ticks_nominal // 2
+            interval = ticks_nominal
+        t += interval
+        out[n] = t
