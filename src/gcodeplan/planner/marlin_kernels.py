@@ -1,4 +1,5 @@
-"""Marlin 2.1.2's planner as it runs, in numba: block buffer, look-ahead passes, trapezoids, and its stepper.
+"""Marlin 2.1.2's (and bugfix-2.1.x's) planner as it runs, in numba: block buffer, look-ahead passes, trapezoids,
+and its stepper.
 
 The functions keep the names and boundaries of Marlin's ``planner.cpp`` (``_populate_block``,
 ``reverse_pass_kernel``, ``reverse_pass``, ``forward_pass_kernel``, ``forward_pass``,
@@ -20,6 +21,22 @@ What it models (docs/design.md, "Marlin 2.1.2 model"):
   in steps/s² limited per axis (integer or float rule by ``acceleration_long_cutoff``), classic jerk with
   the Průša safe-speed rule and the coasting / reversal jerk, ``MINIMUM_PLANNER_SPEED``;
 * ``calculate_trapezoid_for_block``: rates rounded up, the 120 steps/s floor, integer step boundaries.
+
+bugfix-2.1.x as of 2024-07-30 (``VERSION_BUGFIX``, the ``marlin-bugfix`` model) has parallel functions where
+its rule changed (``*_bugfix``: ``calculate_trapezoid_for_block_bugfix``, ``reverse_pass_kernel_bugfix``,
+``reverse_pass_bugfix``, ``forward_pass_kernel_bugfix``, ``recalculate_trapezoids_bugfix``,
+``recalculate_bugfix``, ``_classic_jerk_sqr_bugfix``, and ``block_ticks_kernel_bugfix`` in the stepper) and a
+version switch inside ``_populate_block``, ``_pick_and_run`` and ``marlin_run_kernel``:
+
+* a block starts and stops at v² = a / (2 · steps/mm) (``minimum_planner_speed_sqr``, the average speed over one
+  step accelerating from rest: √(a/2) steps/s), also the floor of every junction speed and of the forward pass;
+* ``calculate_trapezoid_for_block``: rates = speed × steps/mm rounded to nearest, both ramps rounded up, the
+  meeting point of a cruise-less block rounded to nearest; no 120 steps/s floor;
+* classic jerk: the per-axis speed difference at the lower nominal speed (no Průša safe speed, no
+  coasting/reversal cases);
+* look-ahead: no nominal-length flag and no ``block_buffer_planned``; the reverse pass stops at the first block
+  whose entry cannot rise; the forward pass runs inside ``recalculate_trapezoids``;
+* stepper: each rate is read half an interval into its step.
 
 Row kinds handed in (``ROW_*``): a move, a wait (the queue drains first: M400, G4, homing), or nothing.
 """
@@ -66,7 +83,8 @@ JUNCTION_CLASSIC_JERK, JUNCTION_DEVIATION = 0, 1
 # firmware version whose rules run: Marlin 2.1.2.4, or bugfix-2.1.x of 2024-07-30 (its start/stop speed from the
 # acceleration, speed-based trapezoids, one look-ahead pass fewer, its classic jerk and its stepper ISR)
 VERSION_2_1_2, VERSION_BUGFIX = 0, 1
-#: steps/s, bugfix-2.1.x: no fixed floor any more; a rate of 0 would divide by zero in the ISR
+#: steps/s, bugfix-2.1.x: no fixed 120 steps/s floor any more (its reference runs go down to 35 steps/s, the
+#: start/stop speed keeps rates up); 1 only keeps the interrupt's rate-to-interval division defined
 MINIMAL_STEP_RATE_BUGFIX = 1
 # planner.h's acos table for JD_HANDLE_SMALL_SEGMENTS (JD_USE_LOOKUP_TABLE, on by default): slope and offset of
 # 16 chords of acos(t), entry i covering 1 − t in [2^-(i+1), 2^-i)
