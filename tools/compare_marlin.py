@@ -11,6 +11,7 @@ share within 1 µs over the steps the reference stores).
     python tools/compare_marlin.py --machine marlin      # the generic classic-jerk policy, for contrast
     python tools/compare_marlin.py --files cura413_ender3_cylinder30
     python tools/compare_marlin.py --reference variants/jd --policy junction-deviation
+    python tools/compare_marlin.py --machine marlin-bugfix --reference bugfix-2.1.x   # the bugfix-2.1.x model
 
 The estimate runs through the same pipeline as ``gcodeplan estimate`` (per-line end times from its
 PLAN rows); the block check runs the model itself (planner.marlin.run_marlin) on the parsed rows.

@@ -13,7 +13,7 @@ import numpy as np
 from . import pipeline
 
 
-_FIRMWARE_MODELS = ("grbl-1.1", "marlin-2.1.2")
+_FIRMWARE_MODELS = ("grbl-1.1", "marlin-2.1.2", "marlin-bugfix")
 
 
 def load_machine(spec: str | None = None, *, klipper_config: str | None = None, linuxcnc_ini: str | None = None,
@@ -22,7 +22,8 @@ def load_machine(spec: str | None = None, *, klipper_config: str | None = None, 
     ``.toml`` path, or ``klipper_config=`` a Klipper ``printer.cfg`` (includes followed; the G-code then
     has Klipper's meanings), or ``linuxcnc_ini=`` a LinuxCNC machine ``.ini`` (planned with the ``linuxcnc``
     policy). ``flavor`` overrides the G-code dialect; ``firmware`` the firmware model (``grbl-1.1``,
-    ``marlin-2.1.2``, or ``generic`` for the junction policy alone). Default: the ``klipper`` preset.
+    ``marlin-2.1.2``, ``marlin-bugfix``, or ``generic`` for the junction policy alone). Default: the ``klipper``
+    preset.
     Its limits are in mm, mm/s, mm/s² (docs/machine.md lists every key)."""
     from dataclasses import replace
 

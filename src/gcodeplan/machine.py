@@ -25,7 +25,7 @@ SHAPER_TYPE_CODES = {name: i for i, name in enumerate(SHAPER_TYPES)}
 POLICIES = ("klipper", "junction-deviation", "classic-jerk", "blend", "exact-stop", "linuxcnc")
 # firmware models: "generic" = planned by the junction policy alone; the others run the firmware's own planner
 # and step timing: grbl 1.1 (planner/grbl.py), Marlin 2.1.2.4 (planner/marlin.py)
-FIRMWARES = ("generic", "grbl-1.1", "marlin-2.1.2")
+FIRMWARES = ("generic", "grbl-1.1", "marlin-2.1.2", "marlin-bugfix")
 ACCELERATION_PROFILES = ("trapezoid", "s-curve")
 AXES = ("x", "y", "z", "e")
 
@@ -50,7 +50,7 @@ class Machine:
     # G-code dialect: G4 P unit, M204 meaning, whether M201/M203/M205 apply, G0 rapid rate
     flavor: str = "marlin"
     # firmware model (FIRMWARES): "generic" plans with junction_policy; a firmware's own planning and step timing
-    # replace it otherwise (grbl-1.1: planner/grbl.py, marlin-2.1.2: planner/marlin.py)
+    # replace it otherwise (grbl-1.1: planner/grbl.py, marlin-2.1.2 and marlin-bugfix: planner/marlin.py)
     firmware: str = "generic"
     # a firmware model's speed ramps (ACCELERATION_PROFILES): "s-curve" = Marlin's S_CURVE_ACCELERATION
     acceleration_profile: str = "trapezoid"

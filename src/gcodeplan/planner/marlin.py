@@ -1,6 +1,10 @@
-"""The ``marlin-2.1.2`` firmware model: plan and time a program as Marlin 2.1.2.4 runs it.
+"""The ``marlin-2.1.2`` and ``marlin-bugfix`` firmware models: plan and time a program as Marlin runs it.
 
-A machine whose ``firmware`` is ``"marlin-2.1.2"`` is planned by this module instead of a junction policy:
+``marlin-2.1.2`` is Marlin 2.1.2.4; ``marlin-bugfix`` is Marlin bugfix-2.1.x as of 2024-07-30 (after 2.1.2.4): its
+start/stop speed from the acceleration (√(a/2) steps/s instead of a 120 steps/s floor), speed-based trapezoids
+rounded to nearest, a different classic jerk, one look-ahead pass folded into the trapezoid sweep, and a stepper
+interrupt that reads each rate half a step later (:mod:`gcodeplan.planner.marlin_kernels`, the ``*_bugfix``
+functions). A machine whose ``firmware`` is one of them is planned by this module instead of a junction policy:
 every MOVE row goes through Marlin's own host loop, planner and stepper interrupt
 (:mod:`gcodeplan.planner.marlin_kernels`, :mod:`gcodeplan.stepper.marlin_isr`), and its PLAN row carries the
 firmware's real start and end time: the tick its block was picked up and the tick of its last step, on the
@@ -29,7 +33,9 @@ from ..stepper.marlin_isr import MARLIN_TIMER_HZ
 from . import marlin_kernels as mk
 
 #: firmware names this module models (machine TOML ``firmware``, CLI ``--firmware``)
-FIRMWARES = ("marlin-2.1.2",)
+FIRMWARES = ("marlin-2.1.2", "marlin-bugfix")
+#: the kernels' version code of each firmware name
+_VERSIONS = {"marlin-2.1.2": mk.VERSION_2_1_2, "marlin-bugfix": mk.VERSION_BUGFIX}
 #: µs, Marlin's DEFAULT_MINSEGMENTTIME (SLOWDOWN)
 MIN_SEGMENT_TIME_US = 20000
 _AXES = ("x", "y", "z", "e")
@@ -67,14 +73,22 @@ class MarlinModel:
     def __init__(self, machine, timer_hz: int = MARLIN_TIMER_HZ, e_position_sets=None,
                  junction: str | None = None):
         self.machine = machine
+        # the firmware version whose rules run (a machine of another firmware gets 2.1.2's, as before)
+        self.firmware = getattr(machine, "firmware", FIRMWARES[0])
+        if self.firmware not in _VERSIONS:
+            self.firmware = FIRMWARES[0]
+        self.version = _VERSIONS[self.firmware]
         # the build's junction rule: CLASSIC_JERK (the reference) or junction deviation (CLASSIC_JERK off)
         junction = junction or machine.junction_policy
         if junction not in JUNCTIONS:
-            raise ConfigError(f"firmware {FIRMWARES[0]}: junction policy {junction!r} is not one of Marlin's "
+            raise ConfigError(f"firmware {self.firmware}: junction policy {junction!r} is not one of Marlin's "
                               f"({', '.join(JUNCTIONS)})")
         self.junction_mode = mk.JUNCTION_DEVIATION if junction == "junction-deviation" else mk.JUNCTION_CLASSIC_JERK
         # S_CURVE_ACCELERATION: the same blocks, Bézier speed ramps in the stepper interrupt
         self.s_curve = getattr(machine, "acceleration_profile", "trapezoid") == "s-curve"
+        if self.s_curve and self.version == mk.VERSION_BUGFIX:
+            raise ConfigError("firmware marlin-bugfix: S-curve acceleration is not modelled for bugfix-2.1.x (its "
+                              "stepper interrupt changed and no reference covers it); use marlin-2.1.2")
         # (line, logical E) of each G92 E, in file order (GcodeReader.interp.e_position_sets): Marlin's E is
         # logical (G92 E0 resets it, and its step position is re-rounded there); None = E never reset
         self.e_position_sets = e_position_sets
@@ -82,7 +96,7 @@ class MarlinModel:
         self.timer_hz = int(timer_hz)
         self.spm = np.array([machine.axes[a].steps_per_mm for a in _AXES], dtype=np.float32)
         if not np.all(self.spm > 0):
-            raise ConfigError("marlin-2.1.2: every axis needs steps_per_mm > 0")
+            raise ConfigError(f"{self.firmware}: every axis needs steps_per_mm > 0")
         self.mm_per_step = (np.float32(1) / self.spm).astype(np.float32)
         self.acc_rate_scale = np.float32(np.float32(16777216.0) / np.float32(self.timer_hz))
         self.state = mk.new_state()
@@ -241,7 +255,7 @@ class MarlinModel:
                                      a["min_feed"], a["min_travel"], a["wait_ticks"], self.spm, self.mm_per_step,
                                      MIN_SEGMENT_TIME_US, self.timer_hz, self.acc_rate_scale, final,
                                      self.row_base, bf, bi, gi, gf, self._out_i, self._out_f, self.junction_mode,
-                                     a["amax_mm"], a["jdev"], a["advance_k"], self.s_curve)
+                                     a["amax_mm"], a["jdev"], a["advance_k"], self.s_curve, self.version)
         n_done = int(first) - self.row_base
         if final:
             n_done = len(self._moves)
@@ -375,6 +389,7 @@ def make_stream_mode(base_cls):
             self.want_steps = bool(getattr(sp, "want_firmware_steps", False))
             self.last_steps = None
             self.model = self._new_model()
+            self.name = self.model.firmware
             self._ready: list[np.ndarray] = []
             self._ready_steps: list[dict] = []
 

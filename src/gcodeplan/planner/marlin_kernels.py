@@ -1,4 +1,5 @@
-"""Marlin 2.1.2's planner as it runs, in numba: block buffer, look-ahead passes, trapezoids, and its stepper.
+"""Marlin 2.1.2's (and bugfix-2.1.x's) planner as it runs, in numba: block buffer, look-ahead passes, trapezoids,
+and its stepper.
 
 The functions keep the names and boundaries of Marlin's ``planner.cpp`` (``_populate_block``,
 ``reverse_pass_kernel``, ``reverse_pass``, ``forward_pass_kernel``, ``forward_pass``,
@@ -21,6 +22,22 @@ What it models (docs/design.md, "Marlin 2.1.2 model"):
   the Průša safe-speed rule and the coasting / reversal jerk, ``MINIMUM_PLANNER_SPEED``;
 * ``calculate_trapezoid_for_block``: rates rounded up, the 120 steps/s floor, integer step boundaries.
 
+bugfix-2.1.x as of 2024-07-30 (``VERSION_BUGFIX``, the ``marlin-bugfix`` model) has parallel functions where
+its rule changed (``*_bugfix``: ``calculate_trapezoid_for_block_bugfix``, ``reverse_pass_kernel_bugfix``,
+``reverse_pass_bugfix``, ``forward_pass_kernel_bugfix``, ``recalculate_trapezoids_bugfix``,
+``recalculate_bugfix``, ``_classic_jerk_sqr_bugfix``, and ``block_ticks_kernel_bugfix`` in the stepper) and a
+version switch inside ``_populate_block``, ``_pick_and_run`` and ``marlin_run_kernel``:
+
+* a block starts and stops at v² = a / (2 · steps/mm) (``minimum_planner_speed_sqr``, the average speed over one
+  step accelerating from rest: √(a/2) steps/s), also the floor of every junction speed and of the forward pass;
+* ``calculate_trapezoid_for_block``: rates = speed × steps/mm rounded to nearest, both ramps rounded up, the
+  meeting point of a cruise-less block rounded to nearest; no 120 steps/s floor;
+* classic jerk: the per-axis speed difference at the lower nominal speed (no Průša safe speed, no
+  coasting/reversal cases);
+* look-ahead: no nominal-length flag and no ``block_buffer_planned``; the reverse pass stops at the first block
+  whose entry cannot rise; the forward pass runs inside ``recalculate_trapezoids``;
+* stepper: each rate is read half an interval into its step.
+
 Row kinds handed in (``ROW_*``): a move, a wait (the queue drains first: M400, G4, homing), or nothing.
 """
 from __future__ import annotations
@@ -30,7 +47,7 @@ import math
 import numpy as np
 
 from .._jit import njit
-from ..stepper.marlin_isr import block_ticks_kernel, block_ticks_scurve_kernel
+from ..stepper.marlin_isr import block_ticks_kernel, block_ticks_kernel_bugfix, block_ticks_scurve_kernel
 
 BLOCK_BUFFER_SIZE = 16
 MIN_STEPS_PER_SEGMENT = 6
@@ -46,7 +63,9 @@ FLAG_SYNC_POSITION = 8
 
 # float32 block fields (bf[slot, ...])
 BF_MM, BF_NOMINAL_SPEED, BF_ENTRY_SQR, BF_MAX_ENTRY_SQR, BF_ACCEL = 0, 1, 2, 3, 4
-N_BF = 5
+# bugfix-2.1.x only: the entry speed² the forward pass may not go below, and the block's leading-axis steps per mm
+BF_MIN_ENTRY_SQR, BF_STEPS_PER_MM = 5, 6
+N_BF = 7
 # integer block fields (bi[slot, ...])
 (BI_FLAG, BI_SEC, BI_NOMINAL_RATE, BI_INITIAL_RATE, BI_FINAL_RATE, BI_ACCEL_UNTIL, BI_DECEL_AFTER, BI_ACCEL_STEPS,
  BI_ROW, BI_SX, BI_SY, BI_SZ, BI_SE, BI_CRUISE_RATE, BI_ACC_TIME, BI_DEC_TIME, BI_ACC_TIME_INV,
@@ -61,6 +80,12 @@ GF_PREV_SPEED, GF_PREV_NOMINAL, GF_PREV_SAFE, GF_PREV_UNIT, GF_POS_FLOAT = 0, 4,
 N_GF = 14
 # junction rule of the build
 JUNCTION_CLASSIC_JERK, JUNCTION_DEVIATION = 0, 1
+# firmware version whose rules run: Marlin 2.1.2.4, or bugfix-2.1.x of 2024-07-30 (its start/stop speed from the
+# acceleration, speed-based trapezoids, one look-ahead pass fewer, its classic jerk and its stepper ISR)
+VERSION_2_1_2, VERSION_BUGFIX = 0, 1
+#: steps/s, bugfix-2.1.x: no fixed 120 steps/s floor any more (its reference runs go down to 35 steps/s, the
+#: start/stop speed keeps rates up); 1 only keeps the interrupt's rate-to-interval division defined
+MINIMAL_STEP_RATE_BUGFIX = 1
 # planner.h's acos table for JD_HANDLE_SMALL_SEGMENTS (JD_USE_LOOKUP_TABLE, on by default): slope and offset of
 # 16 chords of acos(t), entry i covering 1 − t in [2^-(i+1), 2^-i)
 JD_LUT_K = np.array([-1.03145837, -1.30760646, -1.75205851, -2.41705704, -3.37769222, -4.74888992, -6.69649887,
@@ -287,6 +312,168 @@ def recalculate(bf, bi, gi):
     recalculate_trapezoids(bf, bi, gi)
 
 
+# ---------------------------------------------------------------- bugfix-2.1.x (2024-07-30): the look-ahead
+# Marlin's pull requests #27013, #27089 and #27035 (2024) rewrote these functions; the 2.1.2 ones above stay as
+# they were, so each version's rule can be read (and diffed) function by function.
+
+
+@njit(cache=True)
+def calculate_trapezoid_for_block_bugfix(bf, bi, slot, entry_speed, exit_speed, timer_hz=25000000):
+    """bugfix-2.1.x: rates and step boundaries of a block from its entry and exit speeds in mm/s.
+
+    Rates are the speeds times the block's steps/mm, rounded to nearest (2.1.2: factors of the nominal rate,
+    rounded up, floored at 120 steps/s); an entry speed of 0 keeps the block's initial rate. Both ramps are
+    rounded up to whole steps (2.1.2 rounds the braking down); without a cruise the ramps meet at the rounded
+    midpoint and the braking takes the remaining steps."""
+    spmm = bf[slot, BF_STEPS_PER_MM]
+    if entry_speed != 0:
+        initial_rate = _lroundf(F32(entry_speed * spmm))
+    else:
+        initial_rate = bi[slot, BI_INITIAL_RATE]
+    final_rate = _lroundf(F32(exit_speed * spmm))
+    if initial_rate < MINIMAL_STEP_RATE_BUGFIX:
+        initial_rate = np.int64(MINIMAL_STEP_RATE_BUGFIX)
+    if final_rate < MINIMAL_STEP_RATE_BUGFIX:
+        final_rate = np.int64(MINIMAL_STEP_RATE_BUGFIX)
+    nominal_rate = bi[slot, BI_NOMINAL_RATE]
+    if nominal_rate < MINIMAL_STEP_RATE_BUGFIX:
+        nominal_rate = np.int64(MINIMAL_STEP_RATE_BUGFIX)
+        bi[slot, BI_NOMINAL_RATE] = nominal_rate
+    cruise_rate = nominal_rate
+    sec = bi[slot, BI_SEC]
+    accel = bi[slot, BI_ACCEL_STEPS]
+    accelerate_steps = np.int64(0)
+    decelerate_steps = np.int64(0)
+    inverse_accel = F32(0)
+    if accel != 0:
+        inverse_accel = F32(F32(1) / F32(accel))
+        half_inverse_accel = F32(F32(0.5) * inverse_accel)
+        f_nom_sq = F32(F32(nominal_rate) * F32(nominal_rate))
+        decelerate_f = F32(half_inverse_accel * F32(f_nom_sq - F32(F32(final_rate) * F32(final_rate))))
+        accelerate_f = F32(half_inverse_accel * F32(f_nom_sq - F32(F32(initial_rate) * F32(initial_rate))))
+        accelerate_steps = _ceilf(accelerate_f)
+        decelerate_steps = _ceilf(decelerate_f)
+        if sec - accelerate_steps - decelerate_steps < 0:
+            # no cruise: the ramps meet at (steps + accel − decel) / 2, rounded to nearest
+            accelerate_steps = _lroundf(F32(F32(F32(F32(sec) + accelerate_f) - decelerate_f) * F32(0.5)))
+            if accelerate_steps < 0:
+                accelerate_steps = np.int64(0)
+            if accelerate_steps > sec:
+                accelerate_steps = sec
+            decelerate_steps = sec - accelerate_steps
+            # S_CURVE_ACCELERATION: the rate reached where the ramps meet, final_speed() = √(v0² + 2·a·d)
+            peak = np.int64(F32(math.sqrt(F32(F32(F32(initial_rate) * F32(initial_rate))
+                                              + F32(F32(F32(2) * F32(accel)) * F32(accelerate_steps))))))
+            if peak < cruise_rate:
+                cruise_rate = peak
+    rate_factor = F32(inverse_accel * F32(timer_hz))
+    acc_time = np.int64(F32(rate_factor * F32(cruise_rate - initial_rate)))
+    dec_time = np.int64(F32(rate_factor * F32(cruise_rate - final_rate)))
+    bi[slot, BI_CRUISE_RATE] = cruise_rate
+    bi[slot, BI_ACC_TIME] = acc_time
+    bi[slot, BI_DEC_TIME] = dec_time
+    bi[slot, BI_ACC_TIME_INV] = 0xFFFFFFFF // acc_time if acc_time > 0 else 0xFFFFFFFF
+    bi[slot, BI_DEC_TIME_INV] = 0xFFFFFFFF // dec_time if dec_time > 0 else 0xFFFFFFFF
+    # stored as the stepper reads them: accelerate while fewer than accelerate_before steps are done, brake from
+    # decelerate_start on (the BI_ACCEL_UNTIL / BI_DECEL_AFTER slots of 2.1.2)
+    bi[slot, BI_ACCEL_UNTIL] = accelerate_steps
+    bi[slot, BI_DECEL_AFTER] = sec - decelerate_steps
+    bi[slot, BI_INITIAL_RATE] = initial_rate
+    bi[slot, BI_FINAL_RATE] = final_rate
+
+
+@njit(cache=True)
+def reverse_pass_kernel_bugfix(bf, bi, cur, nxt, safe_exit_speed_sqr):
+    """bugfix-2.1.x: raise a block's entry speed² to what it can brake from over its length to the next block's
+    entry (the newest block: to the safe exit speed), within its junction limit. True when it rose."""
+    if nxt < 0 or (bi[nxt, BI_FLAG] & FLAG_RECALCULATE) != 0:
+        if bf[cur, BF_ENTRY_SQR] != bf[cur, BF_MAX_ENTRY_SQR]:
+            nxt_entry = bf[nxt, BF_ENTRY_SQR] if nxt >= 0 else safe_exit_speed_sqr
+            new_entry = _max_allowable_speed_sqr(-bf[cur, BF_ACCEL], nxt_entry, bf[cur, BF_MM])
+            if new_entry > bf[cur, BF_MAX_ENTRY_SQR]:
+                new_entry = bf[cur, BF_MAX_ENTRY_SQR]
+            if bf[cur, BF_ENTRY_SQR] != new_entry:
+                bi[cur, BI_FLAG] |= FLAG_RECALCULATE
+                bf[cur, BF_ENTRY_SQR] = new_entry
+                return True
+    return False
+
+
+@njit(cache=True)
+def reverse_pass_bugfix(bf, bi, gi, safe_exit_speed_sqr):
+    """bugfix-2.1.x: from the newest block back to the first non-busy one (whose entry is the busy block's exit,
+    not changed), sync blocks skipped; it stops at the first block whose entry speed cannot rise."""
+    idx = _prev(gi[GI_HEAD])
+    nonbusy = gi[GI_NONBUSY]
+    nxt = -1
+    while idx != nonbusy:
+        if (bi[idx, BI_FLAG] & FLAG_SYNC_POSITION) == 0:
+            if not reverse_pass_kernel_bugfix(bf, bi, idx, nxt, safe_exit_speed_sqr):
+                return
+            nxt = idx
+        idx = _prev(idx)
+
+
+@njit(cache=True)
+def forward_pass_kernel_bugfix(bf, bi, prv, cur):
+    """bugfix-2.1.x: lower a block's entry speed² to what the previous block reaches accelerating over its length
+    (not below the block's minimum); the result becomes the block's new minimum and, when lowered, its maximum."""
+    if bf[prv, BF_ENTRY_SQR] < bf[cur, BF_ENTRY_SQR]:
+        new_exit = _max_allowable_speed_sqr(-bf[prv, BF_ACCEL], bf[prv, BF_ENTRY_SQR], bf[prv, BF_MM])
+        if new_exit < bf[cur, BF_ENTRY_SQR]:
+            if new_exit < bf[cur, BF_MIN_ENTRY_SQR]:
+                new_exit = bf[cur, BF_MIN_ENTRY_SQR]
+            bf[cur, BF_ENTRY_SQR] = new_exit
+            bf[cur, BF_MAX_ENTRY_SQR] = new_exit
+    bf[cur, BF_MIN_ENTRY_SQR] = bf[cur, BF_ENTRY_SQR]
+
+
+@njit(cache=True)
+def recalculate_trapezoids_bugfix(bf, bi, gi, safe_exit_speed_sqr, timer_hz):
+    """bugfix-2.1.x: the forward pass and the trapezoids in one sweep from the oldest block. A block whose exit
+    changed is recomputed (entry speed 0 = keep its initial rate); the first block enters at its minimum speed;
+    behind the busy block the entry cannot change; the newest block exits at the safe exit speed."""
+    idx = gi[GI_TAIL]
+    head = gi[GI_HEAD]
+    block = -1
+    next_entry_speed = F32(0)
+    while idx != head:
+        nxt = idx
+        if (bi[nxt, BI_FLAG] & FLAG_SYNC_POSITION) == 0:
+            if (bi[nxt, BI_FLAG] & FLAG_RECALCULATE) != 0:
+                if block < 0:
+                    bf[nxt, BF_ENTRY_SQR] = bf[nxt, BF_MIN_ENTRY_SQR]
+                    next_entry_speed = F32(math.sqrt(bf[nxt, BF_MIN_ENTRY_SQR]))
+                else:
+                    bi[block, BI_FLAG] |= FLAG_RECALCULATE
+                    if _is_busy(gi, block):
+                        # the running block's exit is fixed: the next one starts at its final rate
+                        bf[nxt, BF_ENTRY_SQR] = bf[nxt, BF_MIN_ENTRY_SQR]
+                        if bi[nxt, BI_INITIAL_RATE] == 0:
+                            bi[nxt, BI_INITIAL_RATE] = bi[block, BI_FINAL_RATE]
+                    else:
+                        if bf[nxt, BF_ENTRY_SQR] != bf[nxt, BF_MIN_ENTRY_SQR]:
+                            forward_pass_kernel_bugfix(bf, bi, block, nxt)
+                        current_entry_speed = next_entry_speed
+                        next_entry_speed = F32(math.sqrt(bf[nxt, BF_ENTRY_SQR]))
+                        calculate_trapezoid_for_block_bugfix(bf, bi, block, current_entry_speed, next_entry_speed,
+                                                             timer_hz)
+                    bi[block, BI_FLAG] &= ~FLAG_RECALCULATE
+            block = nxt
+        idx = _next(idx)
+    if block >= 0 and (bi[block, BI_FLAG] & FLAG_RECALCULATE) != 0:
+        calculate_trapezoid_for_block_bugfix(bf, bi, block, next_entry_speed,
+                                             F32(math.sqrt(safe_exit_speed_sqr)), timer_hz)
+        bi[block, BI_FLAG] &= ~FLAG_RECALCULATE
+
+
+@njit(cache=True)
+def recalculate_bugfix(bf, bi, gi, safe_exit_speed_sqr, timer_hz):
+    """bugfix-2.1.x Planner::recalculate(): the reverse pass, then the forward pass with the trapezoids."""
+    reverse_pass_bugfix(bf, bi, gi, safe_exit_speed_sqr)
+    recalculate_trapezoids_bugfix(bf, bi, gi, safe_exit_speed_sqr, timer_hz)
+
+
 @njit(cache=True)
 def _queued(gi):
     return (gi[GI_HEAD] - gi[GI_TAIL]) & (BLOCK_BUFFER_SIZE - 1)
@@ -338,10 +525,11 @@ def _limit_value_by_axis_maximum(max_value, unit_vec, amax_mm):
 
 @njit(cache=True)
 def _junction_deviation_sqr(gf, dist, inverse_millimeters, esteps, millimeters, acceleration, nominal_speed,
-                            moves_queued, amax_mm, junction_deviation_mm, scratch_f):
+                            moves_queued, amax_mm, junction_deviation_mm, scratch_f, reversal_sqr, start_sqr):
     """max_entry_speed² by junction deviation (HAS_JUNCTION_DEVIATION, JD_HANDLE_SMALL_SEGMENTS on): the
     centripetal speed on a circle deviating junction_deviation_mm from the corner, with the acceleration the
-    axes allow along the junction; short moves at sharp corners are held to an approximate arc."""
+    axes allow along the junction; short moves at sharp corners are held to an approximate arc. A reversal
+    gets ``reversal_sqr``, a start from rest ``start_sqr`` (mm²/s²; the version's minimum planner speed)."""
     unit_vec = scratch_f[2]
     for a in range(4):
         unit_vec[a] = dist[a]
@@ -357,7 +545,7 @@ def _junction_deviation_sqr(gf, dist, inverse_millimeters, esteps, millimeters, 
         for a in range(3):
             c = F32(c + F32(-gf[GF_PREV_UNIT + a] * unit_vec[a]))
         if c > F32(0.999999):
-            vmax_junction_sqr = F32(F32(0.05) * F32(0.05))     # a reversal: MINIMUM_PLANNER_SPEED
+            vmax_junction_sqr = reversal_sqr     # a reversal: the minimum planner speed
         else:
             if c < F32(-0.999999):
                 c = F32(-0.999999)
@@ -394,7 +582,7 @@ def _junction_deviation_sqr(gf, dist, inverse_millimeters, esteps, millimeters, 
         if psq < vmax_junction_sqr:
             vmax_junction_sqr = psq
     else:
-        vmax_junction_sqr = F32(0)
+        vmax_junction_sqr = start_sqr
     for a in range(4):
         gf[GF_PREV_UNIT + a] = unit_vec[a]
     return vmax_junction_sqr
@@ -403,8 +591,10 @@ def _junction_deviation_sqr(gf, dist, inverse_millimeters, esteps, millimeters, 
 @njit(cache=True)
 def _populate_block(bf, bi, gi, gf, row, tgt, fr_mm_s, acc_p, acc_t, acc_r, vmax, amax_steps, cutoff, jerk,
                     min_feed, min_travel, spm, mm_per_step, min_segment_time_us, junction_mode, amax_mm, jdev,
-                    advance_k, scratch_f, scratch_i):
-    """Fill the head slot from a move; False (nothing queued, position kept) when under 6 steps."""
+                    advance_k, scratch_f, scratch_i, version=VERSION_2_1_2):
+    """Fill the head slot from a move; False (nothing queued, position kept) when under 6 steps.
+
+    ``version``: VERSION_2_1_2 or VERSION_BUGFIX (the start/stop speed and the classic jerk differ)."""
     h = gi[GI_HEAD]
     # scratch rows (no allocation per block): steps, targets and deltas; distances, speeds, unit vectors
     da = scratch_i[0]
@@ -491,11 +681,24 @@ def _populate_block(bf, bi, gi, gf, row, tgt, fr_mm_s, acc_p, acc_t, acc_r, vmax
                     if max_possible < F32(accel):
                         accel = np.int64(max_possible)
     acceleration = F32(F32(accel) / steps_per_mm)
+    if version == VERSION_BUGFIX:
+        # bugfix-2.1.x: the average speed over one step accelerating from rest, v² = a / (2 · steps/mm), is the
+        # slowest a block starts or ends (2.1.2: MINIMUM_PLANNER_SPEED 0.05 mm/s)
+        min_sqr = F32(F32(F32(0.5) * acceleration) / steps_per_mm)
+        start_sqr = min_sqr
+    else:
+        min_sqr = F32(F32(0.05) * F32(0.05))
+        start_sqr = F32(0)
     if junction_mode == JUNCTION_DEVIATION:
         max_entry_sqr = _junction_deviation_sqr(gf, dist, inverse_millimeters, esteps, millimeters, acceleration,
-                                                nominal_speed, moves_queued, amax_mm, jdev, scratch_f)
+                                                nominal_speed, moves_queued, amax_mm, jdev, scratch_f, min_sqr,
+                                                start_sqr)
+    elif version == VERSION_BUGFIX:
+        max_entry_sqr = _classic_jerk_sqr_bugfix(gf, current_speed, nominal_speed, moves_queued, jerk, scratch_f)
     else:
         max_entry_sqr = _classic_jerk_sqr(gf, current_speed, nominal_speed, moves_queued, jerk)
+    if version == VERSION_BUGFIX and max_entry_sqr < min_sqr:
+        max_entry_sqr = min_sqr           # a high acceleration overrides a low jerk / junction limit
     # the block
     for k in range(N_BF):
         bf[h, k] = F32(0)
@@ -505,12 +708,17 @@ def _populate_block(bf, bi, gi, gf, row, tgt, fr_mm_s, acc_p, acc_t, acc_r, vmax
     bf[h, BF_NOMINAL_SPEED] = nominal_speed
     bf[h, BF_ACCEL] = acceleration
     bf[h, BF_MAX_ENTRY_SQR] = max_entry_sqr
-    min_sqr = F32(F32(0.05) * F32(0.05))
-    v_allowable_sqr = _max_allowable_speed_sqr(-acceleration, min_sqr, millimeters)
     bf[h, BF_ENTRY_SQR] = min_sqr
     flag = FLAG_RECALCULATE
-    if F32(nominal_speed * nominal_speed) <= v_allowable_sqr:
-        flag |= FLAG_NOMINAL_LENGTH
+    if version == VERSION_BUGFIX:
+        # no nominal-length flag in bugfix; the forward pass keeps the entry at or above this minimum, and the
+        # trapezoid's rates come from speeds times the block's steps/mm
+        bf[h, BF_MIN_ENTRY_SQR] = min_sqr
+        bf[h, BF_STEPS_PER_MM] = steps_per_mm
+    else:
+        v_allowable_sqr = _max_allowable_speed_sqr(-acceleration, min_sqr, millimeters)
+        if F32(nominal_speed * nominal_speed) <= v_allowable_sqr:
+            flag |= FLAG_NOMINAL_LENGTH
     bi[h, BI_FLAG] = flag
     bi[h, BI_SEC] = sec
     bi[h, BI_NOMINAL_RATE] = nominal_rate
@@ -584,7 +792,38 @@ def _classic_jerk_sqr(gf, current_speed, nominal_speed, moves_queued, jerk):
 
 
 @njit(cache=True)
-def _pick_and_run(bf, bi, gi, out_i, out_f, timer_hz, acc_rate_scale, row_base, s_curve, scratch_i):
+def _classic_jerk_sqr_bugfix(gf, current_speed, nominal_speed, moves_queued, jerk, scratch_f):
+    """bugfix-2.1.x max_entry_speed² by classic jerk: the junction speed is the lower nominal speed, the other
+    move's per-axis speeds scaled to it; each axis' speed difference (from rest for a first move) within its
+    jerk scales the junction down. No Průša safe-speed rule and no coasting/reversal cases (2.1.2's)."""
+    speed_diff = scratch_f[2]
+    for a in range(4):
+        speed_diff[a] = current_speed[a]
+    prev_nominal = gf[GF_PREV_NOMINAL]
+    if moves_queued == 0 or prev_nominal < F32(0.000001):
+        vmax_junction = nominal_speed            # a jerk from or to a full halt
+    elif nominal_speed < prev_nominal:
+        vmax_junction = nominal_speed
+        previous_scale = F32(vmax_junction / prev_nominal)
+        for a in range(4):
+            speed_diff[a] = F32(speed_diff[a] - F32(gf[GF_PREV_SPEED + a] * previous_scale))
+    else:
+        vmax_junction = prev_nominal
+        current_scale = F32(vmax_junction / nominal_speed)
+        for a in range(4):
+            speed_diff[a] = F32(F32(speed_diff[a] * current_scale) - gf[GF_PREV_SPEED + a])
+    v_factor = F32(1)
+    for a in range(4):
+        j = F32(abs(speed_diff[a]))
+        if F32(j * v_factor) > jerk[a]:
+            v_factor = F32(jerk[a] / j)
+    v = F32(vmax_junction * v_factor)
+    return F32(v * v)
+
+
+@njit(cache=True)
+def _pick_and_run(bf, bi, gi, out_i, out_f, timer_hz, acc_rate_scale, row_base, s_curve, scratch_i,
+                  version=VERSION_2_1_2):
     """The stepper: finish the busy block, skip sync blocks, pick up the next move block and time it
     (get_current_block + block_phase_isr). Returns False when the buffer is empty."""
     if gi[GI_BUSY] != 0:
@@ -610,6 +849,10 @@ def _pick_and_run(bf, bi, gi, out_i, out_f, timer_hz, acc_rate_scale, row_base, 
                                               bi[t, BI_FINAL_RATE], bi[t, BI_ACCEL_UNTIL], bi[t, BI_DECEL_AFTER],
                                               bi[t, BI_CRUISE_RATE], bi[t, BI_ACC_TIME], bi[t, BI_DEC_TIME],
                                               bi[t, BI_ACC_TIME_INV], bi[t, BI_DEC_TIME_INV], timer_hz, ph)
+        elif version == VERSION_BUGFIX:
+            ticks = block_ticks_kernel_bugfix(bi[t, BI_SEC], bi[t, BI_INITIAL_RATE], bi[t, BI_NOMINAL_RATE],
+                                              bi[t, BI_FINAL_RATE], bi[t, BI_ACCEL_UNTIL], bi[t, BI_DECEL_AFTER],
+                                              acc_rate, timer_hz, ph)
         else:
             ticks = block_ticks_kernel(bi[t, BI_SEC], bi[t, BI_INITIAL_RATE], bi[t, BI_NOMINAL_RATE],
                                        bi[t, BI_FINAL_RATE], bi[t, BI_ACCEL_UNTIL], bi[t, BI_DECEL_AFTER], acc_rate,
@@ -653,13 +896,14 @@ def _pick_and_run(bf, bi, gi, out_i, out_f, timer_hz, acc_rate_scale, row_base, 
 def marlin_run_kernel(kind, tgt, reset_bits, reset_pos, fr, acc_p, acc_t, acc_r, vmax, amax_steps, cutoff, jerk,
                       min_feed, min_travel, wait_ticks, spm, mm_per_step, min_segment_time_us, timer_hz,
                       acc_rate_scale, final, row_base, bf, bi, gi, gf, out_i, out_f, junction_mode, amax_mm, jdev,
-                      advance_k, s_curve):
+                      advance_k, s_curve, version=VERSION_2_1_2):
     """Run rows ``gi[GI_NEXT_ROW] - row_base ..`` of this window through Marlin's host loop, planner and
     stepper until the input runs out (``final``: then until the buffer is empty).
 
     Row arrays are indexed from ``row_base`` (``bi[., BI_ROW]`` and ``gi[GI_NEXT_ROW]`` are absolute row
     numbers); times are ticks of ``timer_hz`` from the first pick-up. Returns the absolute number of the
-    first row whose block has not run yet (rows before it are final)."""
+    first row whose block has not run yet (rows before it are final). ``version``: whose rules run
+    (VERSION_2_1_2, VERSION_BUGFIX)."""
     n = len(kind)
     end_row = row_base + n
     scratch_f = np.zeros((4, 4), dtype=np.float32)
@@ -701,13 +945,19 @@ def marlin_run_kernel(kind, tgt, reset_bits, reset_pos, fr, acc_p, acc_t, acc_r,
             if _populate_block(bf, bi, gi, gf, gi[GI_NEXT_ROW], tgt[r], fr[r], acc_p[r], acc_t[r], acc_r[r], vmax[r],
                                amax_steps[r], cutoff[r], jerk[r], min_feed[r], min_travel[r], spm, mm_per_step,
                                min_segment_time_us, junction_mode, amax_mm[r], jdev[r], advance_k[r], scratch_f,
-                               scratch_i):
-                gi[GI_HEAD] = _next(gi[GI_HEAD])
-                recalculate(bf, bi, gi)
+                               scratch_i, version):
+                h = gi[GI_HEAD]
+                gi[GI_HEAD] = _next(h)
+                if version == VERSION_BUGFIX:
+                    # the newest block must be able to stop at its own minimum speed (no arc hint here)
+                    recalculate_bugfix(bf, bi, gi, bf[h, BF_MIN_ENTRY_SQR], timer_hz)
+                else:
+                    recalculate(bf, bi, gi)
             gi[GI_NEXT_ROW] += 1
         if not final and gi[GI_NEXT_ROW] >= end_row and _queued(gi) < BLOCK_BUFFER_SIZE - 1:
             break                              # the host would queue more: wait for the next rows
-        if not _pick_and_run(bf, bi, gi, out_i, out_f, timer_hz, acc_rate_scale, row_base, s_curve, scratch_i):
+        if not _pick_and_run(bf, bi, gi, out_i, out_f, timer_hz, acc_rate_scale, row_base, s_curve, scratch_i,
+                             version):
             if gi[GI_NEXT_ROW] >= end_row:
                 break
     # rows before the oldest block not yet run (or the next row to read) are final

@@ -220,7 +220,8 @@ class StreamPlanner:
         # a firmware model (machine.firmware) plans with the junction rules the firmware has (Marlin: classic
         # jerk or junction deviation; grbl: junction deviation); another policy asked for plans without the model
         firmware = getattr(machine, "firmware", "generic")
-        allowed = {"marlin-2.1.2": ("classic-jerk", "junction-deviation"), "grbl-1.1": ("junction-deviation",)}
+        allowed = {"marlin-2.1.2": ("classic-jerk", "junction-deviation"), "marlin-bugfix": ("classic-jerk",),
+                   "grbl-1.1": ("junction-deviation",)}
         self.firmware = firmware if self.policy in allowed.get(firmware, ()) else "generic"
         self.e_position_sets = None                       # G92 E positions for a firmware model (pipeline sets)
         self.want_firmware_steps = False                  # a firmware model keeps its own step pulses

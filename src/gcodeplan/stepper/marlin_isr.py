@@ -305,3 +305,106 @@ def blocks_pulses_kernel(t_pick, n_steps, axis_steps, dir_bits, initial_rate, no
             pulse_phase_isr(delta_error, advance_dividend, advance_divisor, dir_bits[i], t, out_t, out_d, n_out)
             if n < sec:
                 t += block_phase_isr(isr, n, timer_hz)
+
+
+@njit(cache=True)
+def block_ticks_kernel_bugfix(n_steps, initial_rate, nominal_rate, final_rate, accelerate_before, decelerate_start,
+                              acc_rate, timer_hz, phase_ticks):
+    """Ticks from a block's pick-up to its last step in Marlin bugfix-2.1.x (2024-07-30, stepper.cpp
+    ``block_phase_isr`` after Marlin's pull request #27013), ``phase_ticks`` as :func:`block_ticks_kernel`.
+
+    What changed against 2.1.2: the acceleration and deceleration clocks start half an interval in (at pick-up
+    half the first interval, at the first cruising step half the cruise interval), so each rate is read near
+    the middle of its step rather than at its start, and every accelerating step resets the braking clock; the
+    phases are by step count, accelerating while fewer than
+    ``accelerate_before`` steps are done and braking from ``decelerate_start`` on."""
+    phase_ticks[0] = 0
+    phase_ticks[1] = 0
+    phase_ticks[2] = 0
+    if n_steps <= 0:
+        return np.int64(0)
+    interval = np.int64(timer_hz) // np.int64(initial_rate)
+    total = interval
+    phase_ticks[0] += interval
+    acc_time = interval // 2
+    dec_time = interval // 2
+    acc_step_rate = np.int64(initial_rate)
+    # steps 1 .. accelerate_before − 1 accelerate, then cruise up to decelerate_start − 1, then brake
+    acc_end = accelerate_before - 1 if accelerate_before - 1 < n_steps - 1 else n_steps - 1
+    for n in range(1, acc_end + 1):
+        r = ((acc_time * acc_rate + _HALF_24) >> 24) + initial_rate
+        if r > nominal_rate:
+            r = nominal_rate
+        acc_step_rate = r
+        interval = np.int64(timer_hz) // r
+        acc_time += interval
+        dec_time = 0
+        phase_ticks[0] += interval
+        total += interval
+    cruise_lo = accelerate_before if accelerate_before > 1 else 1
+    cruise_hi = decelerate_start if decelerate_start < n_steps else n_steps
+    if cruise_hi > cruise_lo:
+        ticks_nominal = np.int64(timer_hz) // np.int64(nominal_rate)
+        acc_step_rate = np.int64(nominal_rate)
+        dec_time = ticks_nominal // 2
+        phase_ticks[1] += ticks_nominal * (cruise_hi - cruise_lo)
+        total += ticks_nominal * (cruise_hi - cruise_lo)
+    dec_lo = decelerate_start if decelerate_start > 1 else 1
+    if accelerate_before > dec_lo:
+        dec_lo = accelerate_before
+    for n in range(dec_lo, n_steps):
+        s = (dec_time * acc_rate + _HALF_24) >> 24
+        if s < acc_step_rate:
+            s = acc_step_rate - s
+            if s < final_rate:
+                s = final_rate
+        else:
+            s = final_rate
+        interval = np.int64(timer_hz) // s
+        dec_time += interval
+        phase_ticks[2] += interval
+        total += interval
+    return total
+
+
+@njit(cache=True)
+def block_step_times_kernel_bugfix(n_steps, initial_rate, nominal_rate, final_rate, accelerate_before,
+                                   decelerate_start, acc_rate, timer_hz, t_pick, out):
+    """Tick of every step of the leading axis (``out[:n_steps]``) in bugfix-2.1.x, from the pick-up tick
+    ``t_pick``: the same rules as :func:`block_ticks_kernel_bugfix`, one step at the end of each interval."""
+    if n_steps <= 0:
+        return
+    interval = np.int64(timer_hz) // np.int64(initial_rate)
+    t = t_pick + interval
+    out[0] = t
+    acc_time = interval // 2
+    dec_time = interval // 2
+    acc_step_rate = np.int64(initial_rate)
+    ticks_nominal = np.int64(0)
+    for n in range(1, n_steps):
+        if n < accelerate_before:
+            r = ((acc_time * acc_rate + _HALF_24) >> 24) + initial_rate
+            if r > nominal_rate:
+                r = nominal_rate
+            acc_step_rate = r
+            interval = np.int64(timer_hz) // r
+            acc_time += interval
+            dec_time = 0
+        elif n >= decelerate_start:
+            s = (dec_time * acc_rate + _HALF_24) >> 24
+            if s < acc_step_rate:
+                s = acc_step_rate - s
+                if s < final_rate:
+                    s = final_rate
+            else:
+                s = final_rate
+            interval = np.int64(timer_hz) // s
+            dec_time += interval
+        else:
+            if ticks_nominal == 0:
+                ticks_nominal = np.int64(timer_hz) // np.int64(nominal_rate)
+                acc_step_rate = np.int64(nominal_rate)
+                dec_time = ticks_nominal // 2
+            interval = ticks_nominal
+        t += interval
+        out[n] = t

@@ -72,8 +72,11 @@ COPY = [
     f"grbl/steps/{n}_steps.npz" for n in ("synth_square", "synth_polycircle30", "synth_arcs")] + [
     f"grbl/per_line/{n}.per_line_end_time.csv.gz" for n in (
         "synth_square", "synth_polycircle30", "synth_arcs", "linuxcnc_plasmatest", "linuxcnc_arcspiral")] + [
-    # Marlin 2.1.2.4: the figures (step counts of the whole runs) of the reference and its S-curve build
-    "marlin/times.json", "marlin/variants/scurve/times.json"]
+    # Marlin 2.1.2.4: the figures (step counts of the whole runs) of the reference and its S-curve build;
+    # Marlin bugfix-2.1.x: the cube's every block and per-line ends (times.json has both versions' totals)
+    "marlin/times.json", "marlin/variants/scurve/times.json",
+    "marlin/bugfix-2.1.x/blocks/prusaslicer25_cube20_marlin2.blocks.csv.gz",
+    "marlin/bugfix-2.1.x/per_line/prusaslicer25_cube20_marlin2.per_line_end_time.csv.gz"]
 
 # step file -> keep the steps before about this time (s); the cut moves to the next pause of GAP_S
 PREFIX = {
