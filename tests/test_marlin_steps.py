@@ -62,10 +62,14 @@ def _machine(variant, tmp_path):
         return gp.load_machine(str(m)), None
     if variant == "jd":
         return gp.load_machine("marlin-2.1.2"), "junction-deviation"
+    if variant == "bugfix":
+        return gp.load_machine("marlin-bugfix"), None
     return gp.load_machine("marlin-2.1.2"), None
 
 
 def _ref_dir(variant):
+    if variant == "bugfix":
+        return ("marlin", "bugfix-2.1.x")
     return ("marlin",) if variant == "" else ("marlin", "variants", variant)
 
 
@@ -83,7 +87,7 @@ def _check_prefix(sink, ref, cut):
         assert np.array_equal(d[keep], rd[rkeep]), f"{rn}: directions differ"
 
 
-@pytest.mark.parametrize("variant", ["", "scurve"])
+@pytest.mark.parametrize("variant", ["", "scurve", "bugfix"])
 def test_cube_prefix_pulses_are_marlins_to_the_tick(variant, tmp_path):
     """The first seconds of the cube (the vendored prefix when ../shared is absent): every X, Y, Z and E pulse
     of ``gcodeplan steps`` at the tick and in the direction Marlin 2.1.2.4 issued it (its S-curve build's too),
@@ -101,13 +105,15 @@ def test_cube_prefix_pulses_are_marlins_to_the_tick(variant, tmp_path):
 
 @pytest.mark.slow
 @pytest.mark.parametrize("name,variant", [(CUBE, ""), ("cura413_ender3_cylinder30", ""), (CUBE, "jd"),
-                                          (CUBE, "scurve")])
+                                          (CUBE, "scurve"), (CUBE, "bugfix")])
 def test_whole_run_counts_and_stored_pulses_are_marlins(name, variant, tmp_path):
     """Whole programs: the pulses per stepper and their net equal Marlin's counts (times.json), and every pulse
     the reference stores (the first 200,000 per stepper) is at Marlin's tick, in Marlin's direction."""
-    times = json.loads(shared_path("reference", *_ref_dir(variant), "times.json").read_text())
+    times_dir = _ref_dir(variant) if variant != "bugfix" else ("marlin",)
+    times = json.loads(shared_path("reference", *times_dir, "times.json").read_text())
     entry = times[name + ".gcode"]
-    run = entry.get("marlin-2.1.2.4") or next(v for k, v in entry.items() if k.startswith("marlin-2.1.2.4-"))
+    version = "bugfix-2.1.x" if variant == "bugfix" else "marlin-2.1.2.4"
+    run = entry.get(version) or next(v for k, v in entry.items() if k.startswith(version + "-"))
     ref = np.load(shared_path("reference", *_ref_dir(variant), "steps", name + "_steps.npz"))
     if steps_window(ref) is not None:
         pytest.skip("only a prefix of the reference's pulses is here (../shared is absent)")

@@ -268,7 +268,7 @@ class MarlinModel:
             self.blocks.append((oi.copy(), of.copy(), moves_out["line"].copy()))
         if self.want_steps:
             self._check_no_advance(moves_out, a["advance_k"][:n_done])
-            self.last_steps = block_pulses(oi, self.timer_hz, self.s_curve)
+            self.last_steps = block_pulses(oi, self.timer_hz, self.s_curve, self.version == mk.VERSION_BUGFIX)
         self._moves = self._moves[n_done:].copy()
         self._arrays = {k: v[n_done:].copy() for k, v in a.items()}
         self._out_i = self._out_i[n_done:].copy()
@@ -337,9 +337,10 @@ class MarlinModel:
         return plan
 
 
-def block_pulses(oi: np.ndarray, timer_hz: int, s_curve: bool) -> dict:
+def block_pulses(oi: np.ndarray, timer_hz: int, s_curve: bool, bugfix: bool = False) -> dict:
     """The step pulses of the blocks in per-row outputs ``oi`` (rows without a block are skipped), as
-    Marlin's stepper interrupt issues them (:func:`gcodeplan.stepper.marlin_isr.blocks_pulses_kernel`):
+    Marlin's stepper interrupt issues them (:func:`gcodeplan.stepper.marlin_isr.blocks_pulses_kernel`;
+    ``bugfix``: bugfix-2.1.x's interrupt timing):
     {axis 0..3 (X, Y, Z, E): (times s from the first pick-up, int8 directions)}."""
     from ..stepper.marlin_isr import acceleration_rate, blocks_pulses_kernel
 
@@ -357,7 +358,7 @@ def block_pulses(oi: np.ndarray, timer_hz: int, s_curve: bool) -> dict:
                              col(mk.OI_ACCEL_UNTIL), col(mk.OI_DECEL_AFTER),
                              acceleration_rate(col(mk.OI_ACCEL_STEPS), timer_hz), col(mk.OI_CRUISE_RATE),
                              col(mk.OI_ACCELERATION_TIME), col(mk.OI_DECELERATION_TIME), col(mk.OI_ACC_TIME_INV),
-                             col(mk.OI_DEC_TIME_INV), bool(s_curve), int(timer_hz), out_t, out_d, n_out)
+                             col(mk.OI_DEC_TIME_INV), bool(s_curve), int(timer_hz), out_t, out_d, n_out, bool(bugfix))
     if not np.array_equal(n_out, n_axis):
         raise RuntimeError("marlin model: pulses issued differ from the blocks' step counts (a model bug)")
     hz = float(timer_hz)

@@ -278,14 +278,17 @@ def pulse_phase_isr(delta_error, advance_dividend, advance_divisor, dir_bits, t,
 def blocks_pulses_kernel(t_pick, n_steps, axis_steps, dir_bits, initial_rate, nominal_rate, final_rate,
                          accelerate_until, decelerate_after, acc_rate, cruise_rate, acceleration_time,
                          deceleration_time, acceleration_time_inverse, deceleration_time_inverse, s_curve, timer_hz,
-                         out_t, out_d, n_out):
+                         out_t, out_d, n_out, bugfix=False):
     """Every step pulse of a run of blocks as Marlin's interrupt issues them: block ``i`` picked up at tick
     ``t_pick[i]``, its ``n_steps[i]`` step events timed by :func:`block_phase_isr`, each axis (X, Y, Z, E)
     stepping on them by Bresenham (:func:`pulse_phase_isr`; ``axis_steps[i]``: 4 step counts).
 
     Appends tick and direction per axis to ``out_t`` / ``out_d`` (4 × capacity; ``n_out``: 4 fill counts,
-    updated); each axis needs room for the sum of its steps."""
+    updated); each axis needs room for the sum of its steps. ``bugfix``: the step events are timed by
+    bugfix-2.1.x's interrupt (:func:`block_step_times_kernel_bugfix`; its ``accelerate_before`` /
+    ``decelerate_start`` are in the ``accelerate_until`` / ``decelerate_after`` columns); Bresenham is the same."""
     isr = np.empty(N_ISR, np.int64)
+    ticks = np.empty(0, np.int64)
     delta_error = np.empty(4, np.int64)
     advance_dividend = np.empty(4, np.int64)
     for i in range(len(t_pick)):
@@ -297,6 +300,15 @@ def blocks_pulses_kernel(t_pick, n_steps, axis_steps, dir_bits, initial_rate, no
             delta_error[a] = -sec
             advance_dividend[a] = 2 * axis_steps[i, a]
         advance_divisor = 2 * sec
+        if bugfix:
+            if ticks.size < sec:
+                ticks = np.empty(2 * sec, np.int64)
+            block_step_times_kernel_bugfix(sec, initial_rate[i], nominal_rate[i], final_rate[i], accelerate_until[i],
+                                           decelerate_after[i], acc_rate[i], timer_hz, t_pick[i], ticks)
+            for n in range(sec):
+                pulse_phase_isr(delta_error, advance_dividend, advance_divisor, dir_bits[i], ticks[n], out_t, out_d,
+                                n_out)
+            continue
         t = t_pick[i] + block_pickup(isr, sec, initial_rate[i], nominal_rate[i], final_rate[i], accelerate_until[i],
                                      decelerate_after[i], acc_rate[i], cruise_rate[i], acceleration_time[i],
                                      deceleration_time[i], acceleration_time_inverse[i],
