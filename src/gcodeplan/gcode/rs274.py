@@ -29,7 +29,7 @@ from . import scan as S
 from .lexing import QUIET_G, Word
 
 CYCLE_G = (73, 81, 82, 83, 85, 86, 89)
-MOTION_G = {0.0, 1.0, 2.0, 3.0, 33.0, 38.2, 38.3, 38.4, 38.5, 73.0, 76.0, 80.0, 81.0, 82.0, 83.0, 84.0, 85.0,
+MOTION_G = {0.0, 1.0, 2.0, 3.0, 33.0, 33.1, 38.2, 38.3, 38.4, 38.5, 73.0, 76.0, 80.0, 81.0, 82.0, 83.0, 84.0, 85.0,
             86.0, 87.0, 88.0, 89.0}
 # modal groups of G codes (LinuxCNC's G-code reference, "Modal Groups"); group 0 (non-modal) below
 G_GROUPS = {
