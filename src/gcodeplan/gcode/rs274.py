@@ -12,13 +12,26 @@ them. A word grbl does not accept is named with grbl's own error (error:20) and 
 
 LinuxCNC specifics kept: F is read before G20/G21 on the same line, so ``G20 F10`` keeps the old units
 for its feed (interp_convert.cc convert_feed_rate runs before convert_length_units; grbl converts F
-with the line's units). M3/M4/M5, M7/M8/M9, M6 and G43/G43.1/G49 wait for LinuxCNC's motion queue to
-empty (full stops). G28/G30 rapid to the intermediate point (the axis words, in the current coordinate
-system), then to the stored position (#5161–5163 / #5181–5183 of the .var file, machine coordinates;
-zero when absent) for the named axes (all axes when none is named) — interp_convert.cc convert_home.
-G28.1/G30.1 store the current machine position. M6 moves to ``[EMCIO]TOOL_CHANGE_POSITION`` at rapid
-speed when the .ini has one. G43 H takes the tool length from ``[EMCIO]TOOL_TABLE`` (H omitted: the
-tool in the spindle).
+with the line's units). M3/M4/M5, M7/M8/M9, M6 and G43/G43.1/G43.2/G49 wait for LinuxCNC's motion queue
+to empty (full stops). M6 moves to ``[EMCIO]TOOL_CHANGE_POSITION`` at rapid speed when the .ini has one.
+
+One parameter table per program (:class:`.ngc.NgcParams`, ``self.params``), in the machine's ("user")
+units as LinuxCNC stores them, started from the .var file: G28/G30 rapid to the intermediate point (the
+axis words, in the current coordinate system), then to #5161-5163 / #5181-5183 (machine coordinates) for
+the named axes (all axes when none is named) — convert_home; G28.1/G30.1 write the machine position there
+(convert_savehome); G92 writes #5210-5213, G92.1/G92.2/G92.3 clear or restore from them
+(convert_axis_offsets); G10 L2/L20 write #5221 + 20·(P − 1) … and a coordinate system's origin is read
+from the table when G54..G59.3 selects it (convert_setup, convert_coordinate_system); the start-up takes
+#5220 and #5210 from the .var as LinuxCNC's init does. The tool table ([EMCIO]TOOL_TABLE, Z lengths)
+serves G43 H (H0 or none: the tool in the spindle), G43.2 H adds a tool's length, G43.1 / G43.2 take Z;
+G10 L1 / L10 / L11 write the table (L10: the length that makes the current Z read the word with the current
+offsets, L11: in G59.3 without G92 — convert_setup_tool), the offset in force changes at the next G43.
+
+Motion LinuxCNC has that depends on the machine's sensors is timed as it runs when nothing stops it early:
+G38.2-G38.5 (probe) run in full to their target at the feed rate from rest to rest, with one named warning
+per file; G33 runs at K·S/60 (S: the last S word) from rest (the spindle index) to rest, G33.1 in and out
+(at K·S·I/60), G76 as LinuxCNC's threading passes (gcode/cycles.py ``threading_passes``). G41/G42 are
+warned about and planned uncompensated.
 """
 from __future__ import annotations
 
