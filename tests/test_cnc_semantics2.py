@@ -182,11 +182,12 @@ def test_tool_offset_errors(tmp_path, line, match):
 # ------------------------------------------------------------------ probe
 def test_probe_moves_run_to_their_target_from_rest_to_rest(tmp_path):
     """G38.2 Z-10 at F600 and a modal G38.3 continuation: each a feed move (10 mm/s, 5 mm/s after F300) to
-    its target, a queue drain before it, an exact stop at its end; one named warning per file."""
+    its target, the queue drained before and after it, an exact stop at its end; one named warning per
+    file."""
     a, r = run(tmp_path, PRE + "G38.2 Z-10\nG38.3 Z-20 F300\nZ-30\nM2\n", mill(tmp_path))
     for line, z, v in ((3, -10.0, 10.0), (4, -20.0, 5.0), (5, -30.0, 5.0)):
         rows = a[a["line"] == line]
-        assert list(rows["kind"]) == [KIND_WAIT, rows["kind"][1]]          # the drain, then the move
+        assert list(rows["kind"]) == [KIND_WAIT, rows["kind"][1], KIND_WAIT]     # drain, move, drain
         mv = rows[1]
         assert (float(mv["z1"]), float(mv["feed_v"]), int(mv["exact_stop"])) == (z, v, 1)
         assert not mv["flags"] & FLAG_RAPID

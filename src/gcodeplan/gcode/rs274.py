@@ -680,8 +680,9 @@ class Rs274Commands:
 
     def _probe(self, motion: int, params: dict[str, Word], used: set[str], lcnc: bool) -> None:
         """G38.n (convert_probe): where the probe trips is not known before the program runs, so the move is
-        timed in full to its target at the feed rate, from rest to rest, as LinuxCNC runs it when no contact
-        happens (G38.2 / G38.4 then stop with an error, G38.3 / G38.5 go on); a named warning says so once."""
+        timed in full to its target at the feed rate, from rest to rest (the queue empties before and after
+        it), as LinuxCNC runs it when no contact happens (G38.2 / G38.4 then stop with an error, G38.3 /
+        G38.5 go on); a named warning says so once per file."""
         name = f"G38.{motion - 380}"
         used.update("XYZF")
         target = self._targets(params, False)
@@ -694,6 +695,9 @@ class Rs274Commands:
         self._note_once("probe", f"{name}: probe moves are timed to their target (where contact happens is not "
                                  f"known); without contact G38.2 / G38.4 {failure}, G38.3 / G38.5 go on")
         self._exact_feed_row(target, float(self.st[S.S_FEED]) * float(self.st[S.S_SPEED_F]), name)
+        # the interpreter reads the probed position back before the next line (LinuxCNC's probe_flag sync,
+        # grbl's mc_probe_cycle waits for the cycle to end): the queue empties after it too
+        self._wait(name)
 
     def _synced_feed(self, name: str, params: dict[str, Word], used: set[str]) -> float:
         """mm/s of a spindle-synchronised move: K (distance per revolution) × S (rpm) / 60; LinuxCNC's
