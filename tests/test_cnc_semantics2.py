@@ -303,3 +303,20 @@ def test_g76_tapers_and_compound_angle():
 def test_g76_errors(tmp_path, line, match):
     with pytest.raises(GcodeError, match=match):
         run(tmp_path, "G21 G90 G18\nG0 X10 Z5\nM3 S600\n" + line + "\nM2\n", mill(tmp_path))
+
+
+def test_order_of_execution_with_g10(tmp_path):
+    """Coordinate system (step 15) and tool length offset (step 14) act before G10 (step 19) on one line:
+    `G10 L20 P0 X0 G55` sets G55's origin; `G10 L1 P2 Z4 G43` applies the old length 10.5."""
+    a, _ = run(tmp_path, PRE + "G10 L20 P0 X0 G55\nG54 G0 X1\nG55 G0 X0\nT2 M6\nG10 L1 P2 Z4 G43\nG0 Z0\nM2\n",
+               mill(tmp_path))
+    assert ends(a, 4) == [(1.0, 10.0, 5.0)]       # G54 untouched (origin 0)
+    assert ends(a, 5) == [(10.0, 10.0, 5.0)]      # G55 X origin 10
+    assert ends(a, 8) == [(10.0, 10.0, 10.5)]
+
+
+def test_negative_spindle_speed_is_each_dialects_error(tmp_path):
+    with pytest.raises(GcodeError, match="Negative spindle speed used"):
+        run(tmp_path, PRE + "S-5\nM2\n", mill(tmp_path))
+    with pytest.raises(GcodeError, match="grbl error:4"):
+        run(tmp_path, "G0 X1\nS-5\n", Machine(flavor="grbl", max_velocity=100.0), "p.nc")

@@ -277,7 +277,8 @@ class Rs274Commands:
             used.add("S")
             rpm = self._value(params, "S")
             if rpm < 0.0:
-                self.error("S must be >= 0 (LinuxCNC: 'Negative spindle speed used')")
+                self.error("S must be >= 0 " + ("(LinuxCNC: 'Negative spindle speed used')" if lcnc
+                                                else "(grbl error:4, negative value)"))
             self.spindle_rpm = rpm
             if not mset & {3, 4}:
                 self.spindle_commands += 1
@@ -418,9 +419,7 @@ class Rs274Commands:
             if code == 43.1:
                 if "H" in params:
                     self.error("G43.1 takes axis words, not H")
-                if not axes:
-                    self.error("G43.1 needs an axis word (Z: the tool length offset)")
-                if "Z" in axes:
+                if "Z" in axes:            # no axis word: the offsets stay (convert_tool_length_offset)
                     self.tool_z = self._value(params, "Z") * scale
             else:
                 h = self._value(params, "H")
