@@ -320,3 +320,14 @@ def test_negative_spindle_speed_is_each_dialects_error(tmp_path):
         run(tmp_path, PRE + "S-5\nM2\n", mill(tmp_path))
     with pytest.raises(GcodeError, match="grbl error:4"):
         run(tmp_path, "G0 X1\nS-5\n", Machine(flavor="grbl", max_velocity=100.0), "p.nc")
+
+
+def test_grbl_coordinate_systems_and_stored_positions(tmp_path):
+    """grbl: six coordinate systems (G10 L2 P7 is its error:29), G28.1 stores the machine position that G28
+    returns to, G10 L20 as LinuxCNC's."""
+    g = Machine(flavor="grbl", max_velocity=100.0)
+    a, _ = run(tmp_path, "G21 G90\nG0 X5 Y6 Z7\nG28.1\nG10 L20 P1 X0\nG0 X1 Y0 Z0\nG28\n", g, "p.nc")
+    assert ends(a, 5) == [(6.0, 0.0, 0.0)]
+    assert ends(a, 6) == [(5.0, 6.0, 7.0)]
+    with pytest.raises(GcodeError, match="grbl error:29"):
+        run(tmp_path, "G10 L2 P7 X1\n", g, "q.nc")
