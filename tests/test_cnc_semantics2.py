@@ -131,25 +131,32 @@ def test_g10_l2_r_and_bad_p_are_errors(tmp_path):
 def test_g10_l1_l10_l11_and_g43_family(tmp_path):
     """Hand-worked: T2 (10.5 long) loaded; G10 L1 P2 Z4 changes the table, not the offset in force (G43
     must be issued again); G10 L10 P2 Z2 at machine Z 7 (no G92) makes the length 7 − 2 = 5; G43.2 Z1 adds 1;
-    G43.2 H1 adds T1's length (0); G10 L11 P1 Z0 at machine Z 10 with a G59.3 Z origin of 3 gives T1 7;
-    G49 cancels."""
+    G43.2 H1 adds T1's length; G10 L11 P1 Z2 at machine Z 11 with a G59.3 Z origin of 3 gives T1 6; G49
+    cancels."""
     prog = (PRE + "T2 M6 G43\n"                   # 3: offset 10.5
             "G0 Z0\n"                              # 4: machine 10.5
             "G10 L1 P2 Z4\n"                       # 5
             "G0 Z1\n"                              # 6: machine 11.5 (still 10.5)
             "G43\nG0 Z3\n"                         # 7, 8: machine 7
             "G10 L10 P2 Z2\nG43\nG0 Z2\n"          # 9-11: length 5: Z2 is machine 7 (no move)
-            "G43.2 Z1\nG0 Z2\n"                    # 12, 13: machine 8
+            "G43.2 Z1\nG0 Z2\n"                    # 12: offset 6, its Z1 (modal G0) is machine 7: no move; 13: 8
             "G10 L2 P9 Z3\nG0 Z5\n"                # 14, 15: G59.3 Z origin 3; machine 11
             "G10 L11 P1 Z2\nG43.2 H1\nG0 Z0\n"     # 16-18: T1 = 11 - 3 - 2 = 6; offset 6 + 6 = 12
             "G49\nG0 Z0\nM2\n")                    # 19, 20: machine 0
     a, r = run(tmp_path, prog, mill(tmp_path))
-    got = {k: ends(a, k) for k in (4, 6, 8, 11, 13, 15, 18, 20)}
+    got = {k: ends(a, k) for k in (4, 6, 8, 11, 12, 13, 15, 18, 20)}
     assert got == {4: [(10.0, 10.0, 10.5)], 6: [(10.0, 10.0, 11.5)], 8: [(10.0, 10.0, 7.0)], 11: [],
-                   13: [(10.0, 10.0, 8.0)], 15: [(10.0, 10.0, 11.0)], 18: [(10.0, 10.0, 12.0)],
+                   12: [], 13: [(10.0, 10.0, 8.0)], 15: [(10.0, 10.0, 11.0)], 18: [(10.0, 10.0, 12.0)],
                    20: [(10.0, 10.0, 0.0)]}
     assert r.interp.tool_table == {1: 6.0, 2: 5.0}
     assert r.interp.waits["G43.2"] == 2 and r.interp.waits["G49"] == 1      # queue drains, as G43
+
+
+def test_g43_2_axis_words_move_except_under_g80(tmp_path):
+    """G43.2 Z1 in G0 mode: offset +1, then the modal G0 to Z1 (machine 2); under G80 only the offset."""
+    a, _ = run(tmp_path, PRE + "G43.2 Z1\nG80\nG43.2 Z1\nG0 Z1\nM2\n", mill(tmp_path))
+    assert ends(a, 3) == [(10.0, 10.0, 2.0)]
+    assert ends(a, 5) == [] and ends(a, 6) == [(10.0, 10.0, 3.0)]      # offset 2
 
 
 def test_g43_h0_is_the_loaded_tool(tmp_path):

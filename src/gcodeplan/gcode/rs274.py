@@ -392,7 +392,8 @@ class Rs274Commands:
     def _tool_length(self, gset: set, params: dict[str, Word], used: set[str], lcnc: bool) -> bool:
         """G49, G43 [H], G43.1 axes, G43.2 H|axes (convert_tool_length_offset); Z offsets are modelled, an X
         or Y offset is refused by name. LinuxCNC's task waits for the motion queue to empty for each.
-        Returns True when the axis words were taken (G43.1 / G43.2)."""
+        Returns True when the axis words were taken (G43.1; G43.2 under G80), G43.2's axis words else
+        move too."""
         consumed = False
         code = next((g for g in (49.0, 43.0, 43.1, 43.2) if g in gset), None)
         if code is None:
@@ -412,7 +413,9 @@ class Rs274Commands:
             name = _gname(code)
             axes = [k for k in "XYZ" if k in params]
             used.update(axes)
-            consumed = True
+            # G43.1 takes the axis words; G43.2's also move in the modal motion mode (LinuxCNC's
+            # enhance_block sets motion_to_be for every tool length code but G43.1), none under G80
+            consumed = code == 43.1 or int(self.ist[S.I_MOTION]) == 80
             for k in axes:
                 if k != "Z" and self._value(params, k) != 0.0:
                     self.error(f"{name} {k}: tool offsets in X and Y are not modelled (Z only)")
