@@ -14,8 +14,10 @@ absent), units as the file's [TRAJ]LINEAR_UNITS (mm or inch; converted to mm):
 * ``[AXIS_X|Y|Z]`` MIN_LIMIT, MAX_LIMIT (travel limits, enforced like a printer's position_min/max;
   MIN_LIMIT above MAX_LIMIT is an error);
 * for the interpreter: ``[TRAJ]LINEAR_UNITS`` (the units of a program that states none),
-  ``[RS274NGC]PARAMETER_FILE`` (the .var file: stored G28/G30 positions #5161-5163 / #5181-5183, relative to
-  the .ini's folder; absent or missing file: zero), ``[RS274NGC]RS274NGC_STARTUP_CODE``,
+  ``[RS274NGC]PARAMETER_FILE`` (the .var file, relative to the .ini's folder, read by gcode/ngc.py
+  ``read_var``: the interpreter's parameter table starts from it — stored G28/G30 positions #5161-5169 /
+  #5181-5189, coordinate systems #5221…, G92 #5210-5219, in the machine's units; absent or missing file:
+  zero), ``[RS274NGC]RS274NGC_STARTUP_CODE``,
   ``[EMCIO]TOOL_TABLE`` (tool length offsets for G43) and ``[EMCIO]TOOL_CHANGE_POSITION`` (M6 moves there);
 * every other section ([DISPLAY], [HAL], [TASK], ...) is ignored.
 
@@ -212,11 +214,20 @@ def _interpreter_settings(ini: _Ini, settings, scale: float, inch: bool) -> None
     settings.program_units_mm = 25.4 if inch else 1.0
     got = ini.get("RS274NGC", "RS274NGC_STARTUP_CODE")
     settings.startup_code = got[0] if got else ""
+    settings.user_units_mm = scale       # the unit of the .var values and the tool table (LinuxCNC's "user")
     got = ini.get("RS274NGC", "PARAMETER_FILE")
     if got is not None and got[0]:
         path = os.path.join(base, got[0])
         if os.path.exists(path):
-            settings.parameters = _read_var(path, scale)
+            from ..gcode.ngc import read_var
+
+            try:
+                # as written (machine units): the interpreter's parameter table starts from these
+                settings.parameters = read_var(path)
+            except OSError as err:
+                raise ConfigError(f"{path}: cannot read LinuxCNC parameter file: {err.strerror or err}") from None
+            except ValueError as err:
+                raise ConfigError(str(err)) from None
     got = ini.get("EMCIO", "TOOL_TABLE")
     if got is not None and got[0]:
         path = os.path.join(base, got[0])
@@ -238,29 +249,6 @@ def _interpreter_settings(ini: _Ini, settings, scale: float, inch: bool) -> None
             raise ConfigError(f"{ini.path}:{got[1]}: [EMCIO]TOOL_CHANGE_POSITION: expected X Y Z numbers, "
                               f"got {got[0]!r}")
         settings.tool_change_position = tuple(xyz)
-
-
-def _read_var(path: str, scale: float) -> dict[int, float]:
-    """A LinuxCNC parameter (.var) file: ``<number> <value>`` per line; lengths scaled to mm for the
-    G28/G30 positions (#5161-5169, #5181-5189; the first three of each are X Y Z)."""
-    out: dict[int, float] = {}
-    try:
-        with open(path, "rb") as f:
-            text = f.read().decode("utf-8", "replace")
-    except OSError as err:
-        raise ConfigError(f"{path}: cannot read LinuxCNC parameter file: {err.strerror or err}") from None
-    for no, line in enumerate(text.splitlines(), 1):
-        parts = line.split()
-        if not parts:
-            continue
-        try:
-            k, v = int(parts[0]), float(parts[1])
-        except (ValueError, IndexError):
-            continue          # LinuxCNC reads 'number value' lines and passes over the rest
-        if not math.isfinite(v):
-            raise ConfigError(f"{path}:{no}: parameter #{k} must be a finite number")
-        out[k] = v * scale if k in (5161, 5162, 5163, 5181, 5182, 5183) else v
-    return out
 
 
 def _read_tool_table(path: str, scale: float) -> dict[int, float]:

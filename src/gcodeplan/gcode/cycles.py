@@ -28,8 +28,8 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-__all__ = ["CycleError", "CycleState", "expand_cycle", "CYCLE_CODES", "MOTION_RAPID", "MOTION_FEED",
-           "MOTION_DWELL", "MAX_CYCLE_ROWS"]
+__all__ = ["CycleError", "CycleState", "expand_cycle", "threading_passes", "CYCLE_CODES", "MOTION_RAPID",
+           "MOTION_FEED", "MOTION_DWELL", "MAX_CYCLE_ROWS", "THREAD_RAPID", "THREAD_CUT_FROM_INDEX", "THREAD_CUT"]
 
 CYCLE_CODES = (73, 81, 82, 83, 85, 86, 89)
 PECK_CODES = (73, 83)
@@ -244,3 +244,100 @@ def expand_cycle(code: int, words: dict[str, float], state: CycleState, peck_ret
     new_state = replace(state, x=x, y=y, z=z, r=r_word, q=q_word, p=p_word, l=repeats, z_word=z_word,
                         code=code)
     return rows[:count].copy(), new_state
+
+
+# --------------------------------------------------------------------------- G76 threading
+# kinds of the moves threading_passes returns
+THREAD_RAPID = 0
+THREAD_CUT = 1                 # spindle-synchronised, following the previous cut
+THREAD_CUT_FROM_INDEX = 2      # spindle-synchronised, the first after a rapid: waits for the spindle index
+
+
+def threading_passes(start_x: float, start_y: float, start_z: float, end_z: float, words: dict,
+                     unit: float) -> list[tuple[float, float, float, int, float]]:
+    """The moves of LinuxCNC's G76 threading cycle (interp_convert.cc convert_threading_cycle and its
+    threading_pass; G-code manual "G76 Threading Cycle"), XZ plane, radius mode.
+
+    ``start_*`` and ``end_z`` are program coordinates in mm (the drive line is X = ``start_x``);
+    ``words`` holds the line's P Z I J K [R Q H E L] in program units (``unit`` mm each; Q in degrees).
+    Returns (x, y, z, kind, pitch ratio) per move: kind :data:`THREAD_RAPID`, :data:`THREAD_CUT_FROM_INDEX`
+    or :data:`THREAD_CUT`; a cut runs at (pitch ratio × P) per spindle revolution along its path (the
+    taper moves' pitch makes Z advance by P per revolution).
+    """
+    pitch = words["P"]
+    i_num, j_num, k_num = words["I"] * unit, words["J"] * unit, words["K"] * unit
+    if pitch < 0 or words.get("H", 0.0) < 0:
+        raise CycleError("P and H must not be negative")
+    if not pitch > 0:
+        raise CycleError("P (thread pitch) must be > 0")
+    if i_num == 0.0:
+        raise CycleError("In G76, I must not be 0")
+    if j_num <= 0.0:
+        raise CycleError("In G76, J must be greater than 0")
+    if k_num <= j_num:
+        raise CycleError("In G76, K must be greater than J")
+    boring = i_num > 0.0
+    safe_x = start_x
+    full_dia_depth = abs(i_num)
+    start_depth = abs(i_num) + abs(j_num)
+    cut_increment = abs(j_num)
+    full_threadheight = abs(k_num)
+    end_depth = abs(k_num) + abs(i_num)
+    angle = math.radians(words.get("Q", 0.0))
+    if end_z > start_z:
+        angle = -angle
+    spring_cuts = int(words.get("H", 0.0))
+    degression = words.get("R", 1.0)
+    if degression < 1.0:
+        degression = 1.0
+    taper_dist = max(words.get("E", 0.0) * unit, 0.0)
+    if taper_dist > abs(end_z - start_z) / 2.0:
+        raise CycleError("E (taper length) is greater than half the drive line length")
+    taper_ratio = math.hypot(taper_dist, full_threadheight) / taper_dist if taper_dist > 0.0 else 1.0
+    if end_z > start_z:
+        taper_dist = -taper_dist
+    flags = max(int(words.get("L", 0.0)), 0)
+    entry_taper, exit_taper = bool(flags & 1), bool(flags & 2)
+    target_z = end_z + abs(k_num) * math.tan(angle)
+    y = start_y
+    out: list[tuple[float, float, float, int, float]] = []
+
+    def at(depth: float) -> float:
+        """X of the tool tip ``depth`` beyond the drive line (into the work)."""
+        return safe_x + depth if boring else safe_x - depth
+
+    clear = end_depth          # the back and out moves stand clear by the full depth: at(depth - clear)
+
+    def one_pass(depth: float, zoff: float) -> None:
+        out.append((at(depth - clear), y, start_z - zoff, THREAD_RAPID, 1.0))                # back
+        if taper_dist and entry_taper:
+            out.append((at(depth - full_threadheight), y, start_z - zoff, THREAD_CUT_FROM_INDEX,
+                        taper_ratio))                                                          # in
+            out.append((at(depth), y, start_z - zoff - taper_dist, THREAD_CUT, taper_ratio))  # angled in
+            first = THREAD_CUT
+        else:
+            out.append((at(depth), y, start_z - zoff, THREAD_RAPID, 1.0))                     # in
+            first = THREAD_CUT_FROM_INDEX
+        if taper_dist and exit_taper:
+            out.append((at(depth), y, target_z - zoff + taper_dist, first, 1.0))              # over
+            out.append((at(depth - full_threadheight), y, target_z - zoff, THREAD_CUT, taper_ratio))  # angled out
+        else:
+            out.append((at(depth), y, target_z - zoff, first, 1.0))                           # over
+        out.append((at(depth - clear), y, target_z - zoff, THREAD_RAPID, 1.0))               # out
+        if len(out) > MAX_CYCLE_ROWS:
+            raise CycleError("more than a million moves (J far smaller than K, or R very large)")
+
+    depth = start_depth
+    n_pass = 1
+    zoff = (depth - full_dia_depth) * math.tan(angle)
+    while depth < end_depth:
+        one_pass(depth, zoff)
+        n_pass += 1
+        depth = full_dia_depth + cut_increment * n_pass ** (1.0 / degression)
+        zoff = (depth - full_dia_depth) * math.tan(angle)
+    depth = end_depth
+    zoff = (depth - full_dia_depth) * math.tan(angle)
+    for _ in range(spring_cuts + 1):
+        one_pass(depth, zoff)
+    out.append((start_x, start_y, end_z, THREAD_RAPID, 1.0))
+    return out

@@ -641,9 +641,7 @@ class Interpreter(StateCommands, MotionCommands, Rs274Commands):
             self.spindle_commands += 1
         if 4 in gset:
             self._dwell(params, used)
-        for g in (17, 18, 19):
-            if g in gset:
-                self.plane = g
+        self._set_plane(gset)
         if 49 in gset:
             self.tool_z = 0.0
             self._update_offsets()
@@ -663,41 +661,8 @@ class Interpreter(StateCommands, MotionCommands, Rs274Commands):
             axis_consumed = True
             self.tool_z = z * scale
             self._update_offsets()
-        for i, g in enumerate((54, 55, 56, 57, 58, 59, 59.1, 59.2, 59.3)):
-            if g in gset:
-                self.work_index = i
-                self._update_offsets()
-        if 61 in gset or 61.1 in gset:
-            # LinuxCNC's G61 is exact *path* (tangent joins pass without stopping): 2; G61.1 exact stop: 1
-            ist[S.I_EXACT_STOP] = 2 if (61 in gset and self.machine.flavor == "linuxcnc") else 1
-        if 64 in gset:
-            ist[S.I_EXACT_STOP] = 0
-            p = self._value(params, "P")
-            used.add("P")
-            if p is not None and p < 0:
-                self.error("G64 P must be >= 0")
-            st[S.S_BLEND_P] = math.nan if p is None else p * scale
-            q = self._value(params, "Q")
-            if q is not None and q < 0:
-                self.error("G64 Q must be >= 0")
-            # LinuxCNC (interp_convert.cc): Q is the naive-CAM tolerance; P without Q sets Q = P
-            st[S.S_BLEND_Q] = q * scale if q is not None else (p * scale if p is not None else 0.0)
-            if "Q" in params:
-                used.add("Q")
-                if self.machine.flavor != "linuxcnc":
-                    self.g64_q_ignored += 1
-        if 90 in gset or 91 in gset:
-            ist[S.I_ABS_COORD] = 1 if 90 in gset else 0
-            if ist[S.I_G90_SETS_E]:
-                ist[S.I_ABS_E] = ist[S.I_ABS_COORD]
-        if 90.1 in gset:
-            self.arc_abs_centre = True
-        if 91.1 in gset:
-            self.arc_abs_centre = False
-        if 98 in gset or 99 in gset:
-            self.retract_mode = 98 if 98 in gset else 99
-            if self.cycle_state is not None:
-                self.cycle_state.retract_mode = self.retract_mode
+        # coordinate system, path control, distance modes, retract mode: shared with RS274 (gcode/rs274.py)
+        self._modal_modes(gset, params, used, self.machine.flavor == "linuxcnc")
         machine_coords = 53 in gset
         if 10 in gset:
             axis_consumed = self._g10(params, used)
@@ -709,25 +674,11 @@ class Interpreter(StateCommands, MotionCommands, Rs274Commands):
         if 92 in gset:
             self._g92(params, used)
             axis_consumed = True
-        if 92.1 in gset or 92.2 in gset:
-            self.g92_saved = self.g92.copy()
-            self.g92[:] = 0.0
-            self._update_offsets()
-        if 92.3 in gset:
-            self.g92 = self.g92_saved.copy()
-            self._update_offsets()
+        self._g92_family(gset)
 
         # motion
         for g in motion_codes:
-            if g == 80:
-                ist[S.I_MOTION] = 80
-                self.cycle_state = None
-            else:
-                if int(g) not in (73, 81, 82, 83, 85, 86, 89):
-                    self.cycle_state = None
-                elif int(ist[S.I_MOTION]) not in (73, 81, 82, 83, 85, 86, 89):
-                    self.cycle_state = None
-                ist[S.I_MOTION] = int(g)
+            self._set_motion(g)
         # on a line with an M code and no motion G code, X Y Z E are the M code's parameters (M201 X1000)
         axis_consumed = axis_consumed or (bool(ms) and not motion_codes)
         has_axes = any(k in params for k in "XYZE") and not axis_consumed
@@ -736,14 +687,9 @@ class Interpreter(StateCommands, MotionCommands, Rs274Commands):
             if any(k in params for k in "IJKR"):
                 self.error(f"G{motion} needs an end point (X/Y/Z)")
         if has_axes or (motion in (73, 81, 82, 83, 85, 86, 89) and motion_codes and not axis_consumed):
-            if motion in (0, 1):
-                self._linear(motion, params, used, f, machine_coords)
-            elif motion in (2, 3):
-                self._arc(motion == 2, params, used, f)
-            elif motion == 80:
+            if motion == 80:
                 self.error("axis words without a motion command (G80 in force)")
-            else:
-                self._cycle(motion, params, used, f)
+            self._motion(motion, params, used, f, machine_coords)
         elif f is not None:
             st[S.S_FEED] = f * scale / 60.0
         for k in ("A", "B", "C", "U", "V", "W"):

@@ -69,8 +69,10 @@ _NUMBER_TEXT = re.compile(r"[+-]*[0-9.]*")
 
 class NgcParams:
     """The parameter table: numbered ``#1``..``#5601``, global named ``#<_name>``, one dict of local named
-    parameters per call level. Others read it (``get(5161)``: G28 home, in program units); the values of
-    interpreter-owned numbers (position, offsets, tool) come from ``state`` (:class:`InterpState`) when set.
+    parameters per call level. The interpreter owns one per CNC program (gcode/rs274.py): G28/G30 read
+    ``#5161``/``#5181``…, G28.1/G30.1, G10 and G92 write them, all in the machine's (user) units as
+    LinuxCNC stores them; the values of interpreter-owned numbers (position, tool) come from ``state``
+    (:class:`InterpState`) when set.
     """
 
     def __init__(self, state=None):
@@ -83,22 +85,21 @@ class NgcParams:
 
     # ------------------------------------------------------------------ .var file
     def load_var(self, path: str) -> "NgcParams":
-        """Read a LinuxCNC parameter file (``number value`` per line; other lines skipped, as LinuxCNC);
-        returns the table (``NgcParams().load_var(path).get(5161)``: G28 home X as stored)."""
+        """Read a LinuxCNC parameter file into the table (:func:`read_var`); returns the table
+        (``NgcParams().load_var(path).get(5161)``: G28 home X as stored, in the machine's units)."""
         try:
-            with open(path, encoding="utf-8", errors="replace") as fh:
-                for line in fh:
-                    parts = line.split()
-                    if len(parts) < 2:
-                        continue
-                    try:
-                        k, v = int(parts[0]), float(parts[1])
-                    except ValueError:
-                        continue
-                    if 1 <= k < MAX_PARAMETERS and math.isfinite(v):
-                        self.numbered[k] = v
+            values = read_var(path)
+        except ValueError as err:
+            raise GcodeError(str(err), path) from None
         except OSError as err:
             raise GcodeError(f"cannot read parameter file: {err.strerror or err}", path) from None
+        return self.update(values)
+
+    def update(self, values: dict[int, float]) -> "NgcParams":
+        """Store ``{number: value}`` (a .var file's values) into the numbered parameters; returns the table."""
+        for k, v in values.items():
+            if 1 <= k < MAX_PARAMETERS:
+                self.numbered[k] = float(v)
         return self
 
     # ------------------------------------------------------------------ access
@@ -135,11 +136,36 @@ class NgcParams:
         (self.globals if name.startswith("_") else self.locals[-1])[name] = value
 
 
+def read_var(path: str) -> dict[int, float]:
+    """A LinuxCNC parameter (.var) file as ``{number: value}``, values as written (the machine's units):
+    ``number value`` per line, other lines passed over as LinuxCNC's restore_parameters does. The one
+    reader of the file: the .ini reader checks it with this, the interpreter's table is filled from it.
+    Raises OSError when unreadable, ValueError naming the line for a value that is not finite."""
+    out: dict[int, float] = {}
+    with open(path, "rb") as fh:
+        text = fh.read().decode("utf-8", "replace")
+    for no, line in enumerate(text.splitlines(), 1):
+        parts = line.split()
+        if len(parts) < 2:
+            continue
+        try:
+            k, v = int(parts[0]), float(parts[1])
+        except ValueError:
+            continue
+        if not 1 <= k < MAX_PARAMETERS:
+            continue
+        if not math.isfinite(v):
+            raise ValueError(f"{path}:{no}: parameter #{k} must be a finite number")
+        out[k] = v
+    return out
+
+
 class InterpState:
     """The interpreter's state as LinuxCNC's predefined parameters, in program units (read-only).
 
-    ``numbered(i)`` answers #5021-5029 (machine position), #5210-5390 (G92, coordinate systems), #5400
-    (tool), #5403 (tool length), #5420-5428 (position in the active coordinate system); ``named(name)``
+    ``numbered(i)`` answers #5021-5029 (machine position), #5083 (tool length offset in force), #5400
+    (tool), #5403 (its stored length), #5420-5428 (position in the active coordinate system); the stored
+    positions, coordinate systems and G92 offsets are the table's own values; ``named(name)``
     answers ``_x`` …, ``_abs_x`` …, ``_metric`` …; a predefined name it cannot answer raises (never 0).
     """
 
@@ -169,11 +195,8 @@ class InterpState:
         return x / float(st[S.S_UNIT])
 
     def numbered(self, i: int) -> float | None:
-        """The interpreter's value of ``#i`` in program units, None when the table's own value applies."""
-        from . import scan as S
-
+        """The interpreter's value of ``#i``, None when the table's own value applies."""
         it = self.interp
-        unit = float(it.st[S.S_UNIT])
         if 5420 <= i <= 5422:
             return self._pos(i - 5420, True)
         if 5021 <= i <= 5023:
@@ -183,17 +206,11 @@ class InterpState:
         if i == 5400:
             return float(it.tool)
         if i == 5403:
-            return float(it.tool_z) / unit
-        if i == 5220:
-            return float(it.work_index + 1)
-        if i == 5210:
-            return 1.0 if any(it.g92 != 0.0) else 0.0
-        if 5211 <= i <= 5213:
-            return float(it.g92[i - 5211]) / unit
-        if 5221 <= i <= 5390 and (i - 5221) % 20 < 3:
-            k, axis = divmod(i - 5221, 20)
-            return float(it.work[k][axis]) / unit
-        return None
+            # the loaded tool's stored Z offset (user units); the offset in force is #5083
+            return float(it.tool_table.get(it.tool, 0.0)) / float(getattr(it, "user_mm", 1.0))
+        if i == 5083:
+            return float(it.tool_z) / float(getattr(it, "user_mm", 1.0))
+        return None                                     # the table's own value (#5161.., #5211.., #5221..)
 
     def named(self, name: str) -> float | None:
         """The value of the predefined ``#<name>``; None when unknown; raises for a name not modelled."""
@@ -215,7 +232,7 @@ class InterpState:
             "_inverse_time": 0.0,
             "_units_per_minute": 1.0,
             "_units_per_rev": 0.0,
-            "_motion_mode": float(motion * 10),
+            "_motion_mode": float(motion * 10 if motion < 100 else motion),   # G38.2 is kept as 382
             "_plane": float(it.plane * 10),
             "_coord_system": (540.0, 550.0, 560.0, 570.0, 580.0, 590.0, 591.0, 592.0, 593.0)[it.work_index],
             "_ccomp": 400.0,
@@ -1356,11 +1373,11 @@ def expand_line(interp, text: str, lineno: int) -> None:
 
     ex = interp.ngc
     if ex is None:
-        params = NgcParams()
+        # the interpreter's own table (gcode/rs274.py: the .var values, G28.1, G10, G92 write into it)
+        params = getattr(interp, "params", None)
+        if params is None:
+            params = NgcParams()
         settings = getattr(interp.machine, "linuxcnc", None)
-        var = getattr(settings, "parameter_file", None)
-        if var and os.path.isfile(var):
-            params.load_var(var)
         def on_event(row: int, msg: str) -> None:
             interp.line = row
             interp.event(msg)
@@ -1403,5 +1420,5 @@ def subroutine_dirs(ini_path: str, subroutine_path: str | None, program_prefix: 
     return out
 
 
-__all__ = ["NgcParams", "InterpState", "Expander", "evaluate", "needs_expansion", "expand_line",
+__all__ = ["NgcParams", "InterpState", "read_var", "Expander", "evaluate", "needs_expansion", "expand_line",
            "close_and_downcase", "subroutine_dirs", "MAX_LOOP_ITERATIONS"]

@@ -12,13 +12,26 @@ them. A word grbl does not accept is named with grbl's own error (error:20) and 
 
 LinuxCNC specifics kept: F is read before G20/G21 on the same line, so ``G20 F10`` keeps the old units
 for its feed (interp_convert.cc convert_feed_rate runs before convert_length_units; grbl converts F
-with the line's units). M3/M4/M5, M7/M8/M9, M6 and G43/G43.1/G49 wait for LinuxCNC's motion queue to
-empty (full stops). G28/G30 rapid to the intermediate point (the axis words, in the current coordinate
-system), then to the stored position (#5161–5163 / #5181–5183 of the .var file, machine coordinates;
-zero when absent) for the named axes (all axes when none is named) — interp_convert.cc convert_home.
-G28.1/G30.1 store the current machine position. M6 moves to ``[EMCIO]TOOL_CHANGE_POSITION`` at rapid
-speed when the .ini has one. G43 H takes the tool length from ``[EMCIO]TOOL_TABLE`` (H omitted: the
-tool in the spindle).
+with the line's units). M3/M4/M5, M7/M8/M9, M6 and G43/G43.1/G43.2/G49 wait for LinuxCNC's motion queue
+to empty (full stops). M6 moves to ``[EMCIO]TOOL_CHANGE_POSITION`` at rapid speed when the .ini has one.
+
+One parameter table per program (:class:`.ngc.NgcParams`, ``self.params``), in the machine's ("user")
+units as LinuxCNC stores them, started from the .var file: G28/G30 rapid to the intermediate point (the
+axis words, in the current coordinate system), then to #5161-5163 / #5181-5183 (machine coordinates) for
+the named axes (all axes when none is named) — convert_home; G28.1/G30.1 write the machine position there
+(convert_savehome); G92 writes #5210-5213, G92.1/G92.2/G92.3 clear or restore from them
+(convert_axis_offsets); G10 L2/L20 write #5221 + 20·(P − 1) … and a coordinate system's origin is read
+from the table when G54..G59.3 selects it (convert_setup, convert_coordinate_system); the start-up takes
+#5220 and #5210 from the .var as LinuxCNC's init does. The tool table ([EMCIO]TOOL_TABLE, Z lengths)
+serves G43 H (H0 or none: the tool in the spindle), G43.2 H adds a tool's length, G43.1 / G43.2 take Z;
+G10 L1 / L10 / L11 write the table (L10: the length that makes the current Z read the word with the current
+offsets, L11: in G59.3 without G92 — convert_setup_tool), the offset in force changes at the next G43.
+
+Motion LinuxCNC has that depends on the machine's sensors is timed as it runs when nothing stops it early:
+G38.2-G38.5 (probe) run in full to their target at the feed rate from rest to rest, with one named warning
+per file; G33 runs at K·S/60 (S: the last S word) from rest (the spindle index) to rest, G33.1 in and out
+(at K·S·I/60), G76 as LinuxCNC's threading passes (gcode/cycles.py ``threading_passes``). G41/G42 are
+warned about and planned uncompensated.
 """
 from __future__ import annotations
 
@@ -29,7 +42,7 @@ from . import scan as S
 from .lexing import QUIET_G, Word
 
 CYCLE_G = (73, 81, 82, 83, 85, 86, 89)
-MOTION_G = {0.0, 1.0, 2.0, 3.0, 33.0, 38.2, 38.3, 38.4, 38.5, 73.0, 76.0, 80.0, 81.0, 82.0, 83.0, 84.0, 85.0,
+MOTION_G = {0.0, 1.0, 2.0, 3.0, 33.0, 33.1, 38.2, 38.3, 38.4, 38.5, 73.0, 76.0, 80.0, 81.0, 82.0, 83.0, 84.0, 85.0,
             86.0, 87.0, 88.0, 89.0}
 # modal groups of G codes (LinuxCNC's G-code reference, "Modal Groups"); group 0 (non-modal) below
 G_GROUPS = {
@@ -62,6 +75,11 @@ GRBL_G = {0.0, 1.0, 2.0, 3.0, 4.0, 10.0, 17.0, 18.0, 19.0, 20.0, 21.0, 28.0, 28.
           38.5, 40.0, 43.1, 49.0, 53.0, 54.0, 55.0, 56.0, 57.0, 58.0, 59.0, 61.0, 80.0, 90.0, 91.0, 91.1, 92.0,
           92.1, 93.0, 94.0}
 GRBL_M = {0, 1, 2, 3, 4, 5, 7, 8, 9, 30, 56}
+# modal motion codes with a fraction are kept in I_MOTION as ten times the code (G38.2 -> 382, G33.1 -> 331)
+MOTION_CODE = {38.2: 382, 38.3: 383, 38.4: 384, 38.5: 385, 33.1: 331}
+PROBE_MOTION = (382, 383, 384, 385)
+MOTION_G33, MOTION_G33_1, MOTION_G76 = 33, 331, 76
+SPECIAL_MOTION = PROBE_MOTION + (MOTION_G33, MOTION_G33_1, MOTION_G76)
 # codes modelled as having no effect on the motion
 NO_EFFECT_G = {40.0, 94.0, 97.0, 17.1, 18.1, 19.1}
 
@@ -75,21 +93,30 @@ class Rs274Commands:
 
     # ------------------------------------------------------------------ set-up from the machine
     def _cnc_init(self) -> None:
-        """Machine units for programs that state none ([TRAJ]LINEAR_UNITS), stored G28/G30 positions,
-        tool table; then the .ini's [RS274NGC]RS274NGC_STARTUP_CODE as a line 0."""
+        """Machine units for programs that state none ([TRAJ]LINEAR_UNITS), the parameter table (the .var
+        file's values: stored G28/G30 positions, coordinate systems, G92), tool table; then the .ini's
+        [RS274NGC]RS274NGC_STARTUP_CODE as a line 0."""
         m = self.machine
         lc = getattr(m, "linuxcnc", None)
-        self.g28_home = [0.0, 0.0, 0.0]
-        self.g30_home = [0.0, 0.0, 0.0]
         self.tool_table: dict[int, float] = {}
         self.tool_change_position = None
         self.pending_tool = None
+        self.params = None           # the one parameter table of a CNC program (gcode/ngc.py NgcParams)
+        self.user_mm = 1.0           # mm per "user" unit: the unit of the .var and tool table (the machine's)
+        self.spindle_dir = 5         # M3 / M4 / M5 in force
+        self.spindle_rpm = 0.0       # the last S word (rpm)
+        self._noted: set[str] = set()   # named warnings given once per file
+        if not m.is_cnc:
+            return
+        from .ngc import NgcParams
+
+        self.params = NgcParams()
         if lc is None:
             return
         self.st[S.S_UNIT] = float(getattr(lc, "program_units_mm", 1.0))
-        params = getattr(lc, "parameters", {}) or {}
-        self.g28_home = [float(params.get(5161 + a, 0.0)) for a in range(3)]
-        self.g30_home = [float(params.get(5181 + a, 0.0)) for a in range(3)]
+        self.user_mm = float(getattr(lc, "user_units_mm", getattr(lc, "program_units_mm", 1.0)))
+        self.params.update(getattr(lc, "parameters", {}) or {})
+        self._restore_offsets()
         self.tool_table = dict(getattr(lc, "tool_table", {}) or {})
         self.tool_change_position = getattr(lc, "tool_change_position", None)
         startup = getattr(lc, "startup_code", "") or ""
@@ -97,6 +124,76 @@ class Rs274Commands:
             self.line = 0
             self._classic(startup.strip())
             self.rows = []           # the start-up code makes no motion rows (it sets modes)
+
+    def _restore_offsets(self) -> None:
+        """LinuxCNC's start-up (rs274ngc_pre.cc init): the coordinate system #5220 (1..9, else 1) with its
+        origin from the table, and the G92 offsets #5211-5213 when #5210 says they were applied."""
+        p = self.params
+        k = int(p.numbered[5220] + 0.0001)
+        if not 1 <= k <= 9:
+            k = 1
+            p.numbered[5220] = 1.0
+        self.work_index = k - 1
+        self.work[k - 1] = self._origin_from_params(k - 1)
+        if p.numbered[5210]:
+            self.g92[:] = [p.numbered[5211 + a] * self.user_mm for a in range(3)]
+        self._update_offsets()
+
+    # ------------------------------------------------------------------ the parameter table
+    def _origin_from_params(self, idx: int) -> list[float]:
+        """Origin (mm) of coordinate system ``idx`` (0 = G54) as the table holds it (#5221 + 20·idx …)."""
+        base = 5221 + 20 * idx
+        return [self.params.numbered[base + a] * self.user_mm for a in range(3)]
+
+    def _set_param_mm(self, index: int, value_mm: float) -> None:
+        """Store a length (mm) into ``#index`` in user units, as LinuxCNC's PROGRAM_TO_USER_LEN does."""
+        if self.params is not None:
+            self.params.numbered[index] = value_mm / self.user_mm
+
+    def _select_origin(self, idx: int) -> None:
+        """G54..G59.3: coordinate system ``idx`` (0..8); a new one loads its origin from the table
+        (convert_coordinate_system), the one in use stays as it is."""
+        if idx == self.work_index:
+            return
+        self.work_index = idx
+        if self.params is not None:
+            self.params.numbered[5220] = float(idx + 1)
+            self.work[idx] = self._origin_from_params(idx)
+        self._update_offsets()
+
+    def _store_g92(self) -> None:
+        """G92 writes its offsets to #5211-5213 and sets #5210 (convert_axis_offsets)."""
+        if self.params is not None:
+            self.params.numbered[5210] = 1.0
+            for a in range(3):
+                self._set_param_mm(5211 + a, float(self.g92[a]))
+
+    def _g92_family(self, gset: set) -> None:
+        """G92.1 (offsets and #5211.. zeroed), G92.2 (offsets zeroed, parameters kept), G92.3 (offsets from
+        #5211-5213); a table-less (printer) interpreter keeps the G92.2 values itself."""
+        p = self.params
+        if 92.1 in gset or 92.2 in gset:
+            self.g92_saved = self.g92.copy()
+            self.g92[:] = 0.0
+            if p is not None:
+                p.numbered[5210] = 0.0
+                if 92.1 in gset:
+                    for a in range(9):
+                        p.numbered[5211 + a] = 0.0
+            self._update_offsets()
+        if 92.3 in gset:
+            if p is not None:
+                p.numbered[5210] = 1.0
+                self.g92[:] = [p.numbered[5211 + a] * self.user_mm for a in range(3)]
+            else:
+                self.g92 = self.g92_saved.copy()
+            self._update_offsets()
+
+    def _note_once(self, key: str, msg: str) -> None:
+        """A named warning given once per file."""
+        if key not in self._noted:
+            self._noted.add(key)
+            self.warn(msg)
 
     # ------------------------------------------------------------------ checks
     def _grbl_unsupported(self, name: str) -> None:
@@ -178,6 +275,11 @@ class Rs274Commands:
             self._grbl_syncs(sorted(mset), params)
         if "S" in params:
             used.add("S")
+            rpm = self._value(params, "S")
+            if rpm < 0.0:
+                self.error("S must be >= 0 " + ("(LinuxCNC: 'Negative spindle speed used')" if lcnc
+                                                else "(grbl error:4, negative value)"))
+            self.spindle_rpm = rpm
             if not mset & {3, 4}:
                 self.spindle_commands += 1
         # 4. T (select: the tool the next M6 loads)
@@ -200,6 +302,7 @@ class Rs274Commands:
         for mc in (3, 4, 5):
             if mc in mset:
                 self.spindle_commands += 1
+                self.spindle_dir = mc
                 if lcnc:
                     self._wait(f"M{mc}")   # LinuxCNC's task waits for the motion queue to empty
         # 7. coolant
@@ -215,12 +318,9 @@ class Rs274Commands:
         if 4 in gset:
             self._dwell(params, used)
         # 11. plane
-        for g in (17, 18, 19):
-            if g in gset:
-                self.plane = g
+        self._set_plane(gset)
         # 12. units
         st[S.S_UNIT] = unit_line
-        scale = unit_line
         # 13. cutter compensation
         for g in (41.0, 42.0, 41.1, 42.1):
             if g in gset:
@@ -228,47 +328,244 @@ class Rs274Commands:
                 self.warn(f"{_gname(g)} cutter radius compensation is not modelled: the path is planned "
                           f"uncompensated")
         # 14. tool length offset
-        axis_consumed = False
-        if 49 in gset:
+        axis_consumed = self._tool_length(gset, params, used, lcnc)
+        # 15. coordinate system, 16. path control, 17. distance mode, 18. retract mode
+        self._modal_modes(gset, params, used, lcnc)
+        # 19. G10 / G28 / G30 / G92
+        machine_coords = 53 in gset
+        if 10 in gset:
+            self._cnc_g10(params, used, lcnc)
+            axis_consumed = True
+        if 28 in gset or 30 in gset:
+            self._cnc_home(28 if 28 in gset else 30, params, used)
+            axis_consumed = True
+        if 28.1 in gset or 30.1 in gset:
+            # convert_savehome: the machine position (tool length and offsets included) in user units
+            base = 5161 if 28.1 in gset else 5181
+            for a in range(3):
+                self._set_param_mm(base + a, float(st[S.S_X + a]))
+        if 92 in gset:
+            self._g92(params, used)
+            self._store_g92()
+            axis_consumed = True
+        self._g92_family(gset)
+        # 20. motion
+        for g in motion_codes:
+            self._set_motion(g)
+        motion = int(ist[S.I_MOTION])
+        if machine_coords and motion not in (0, 1):
+            self.error("G53 needs G0 or G1" + ("" if lcnc else " (grbl error:30)"))
+        has_axes = any(k in params for k in "XYZE") and not axis_consumed
+        if motion_codes and motion_codes[0] != 80 and not has_axes and motion in (2, 3):
+            if any(k in params for k in "IJKR"):
+                self.error(f"G{motion} needs an end point (X/Y/Z)")
+        if has_axes or (motion in CYCLE_G and motion_codes and not axis_consumed):
+            if motion == 80:
+                self.error("axis words without a motion mode (G80 in force): "
+                           + ("LinuxCNC: 'Cannot use axis values without a G code that uses them'" if lcnc
+                              else "grbl error:31 (axis words without a command)"))
+            elif motion in SPECIAL_MOTION:
+                self._cnc_special_motion(motion, params, used, lcnc)
+            else:
+                self._motion(motion, params, used, None, machine_coords)
+        elif motion_codes and motion_codes[0] in (33.0, 33.1, 38.2, 38.3, 38.4, 38.5) and not axis_consumed:
+            self.error(f"{_gname(motion_codes[0])} needs at least one axis word"
+                       + (" (grbl error:26)" if not lcnc else ""))
+        elif motion_codes and motion_codes[0] == 76.0 and not axis_consumed:
+            self._cnc_special_motion(MOTION_G76, params, used, lcnc)
+        for k in ("A", "B", "C", "U", "V", "W"):
+            if k in params:
+                used.add(k)
+                self.warn(f"axis {k} is not modelled: ignored")
+        unused = [k for k in params if k not in used and k not in "XYZEFN"]
+        if unused and not m_ok:
+            self.warn("word(s) " + " ".join(unused) + " ignored")
+        # 21. stop
+        for mc in m_ok:
+            if mc in (0, 1, 60):
+                self._m_command(mc, params, used)     # pauses, each named (commands_state)
+            elif mc in (2, 30):
+                self.event(f"M{mc} program end")
+                ist[S.I_STOPPED] = 1
+
+    # ------------------------------------------------------------------ tool length offset
+    def _tool_length(self, gset: set, params: dict[str, Word], used: set[str], lcnc: bool) -> bool:
+        """G49, G43 [H], G43.1 axes, G43.2 H|axes (convert_tool_length_offset); Z offsets are modelled, an X
+        or Y offset is refused by name. LinuxCNC's task waits for the motion queue to empty for each.
+        Returns True when the axis words were taken (G43.1; G43.2 under G80), G43.2's axis words else
+        move too."""
+        consumed = False
+        code = next((g for g in (49.0, 43.0, 43.1, 43.2) if g in gset), None)
+        if code is None:
+            return False
+        scale = float(self.st[S.S_UNIT])
+        if code == 49.0:
             self.tool_z = 0.0
-            self._update_offsets()
-            if lcnc:
-                self._wait("G49")
-        if 43 in gset:
+        elif code == 43.0:
             used.add("H")
             h = self._value(params, "H")
-            tool = self.tool if h is None else h
-            if tool != int(tool) or tool < 0:
+            if h is not None and (h != int(h) or h < 0):
                 self.error(f"G43 H must be a tool number, got {params['H'].text}")
-            tool = int(tool)
-            if tool == 0:
-                self.tool_z = 0.0
-            elif tool in self.tool_table:
-                self.tool_z = self.tool_table[tool]
-            elif self.tool_table:
-                self.error(f"G43 H{tool}: tool {tool} is not in the tool table")
+            # H0 and no H: the tool in the spindle (a nonrandom changer's index 0)
+            tool = self.tool if h is None or h == 0 else int(h)
+            self.tool_z = self._tool_length_of(tool, "G43", h is not None and h != 0)
+        else:
+            name = _gname(code)
+            axes = [k for k in "XYZ" if k in params]
+            used.update(axes)
+            # G43.1 takes the axis words; G43.2's also move in the modal motion mode (LinuxCNC's
+            # enhance_block sets motion_to_be for every tool length code but G43.1), none under G80
+            consumed = code == 43.1 or int(self.ist[S.I_MOTION]) == 80
+            for k in axes:
+                if k != "Z" and self._value(params, k) != 0.0:
+                    self.error(f"{name} {k}: tool offsets in X and Y are not modelled (Z only)")
+            if code == 43.1:
+                if "H" in params:
+                    self.error("G43.1 takes axis words, not H")
+                if "Z" in axes:            # no axis word: the offsets stay (convert_tool_length_offset)
+                    self.tool_z = self._value(params, "Z") * scale
             else:
-                self.warn(f"G43 H{tool}: no tool table, tool length offset taken as 0")
-                self.tool_z = 0.0
-            self._update_offsets()
-            if lcnc:
-                self._wait("G43")      # LinuxCNC's task waits for the motion queue to empty
-        if 43.1 in gset:
-            z = self._value(params, "Z")
-            if z is None:
-                self.error("G43.1 needs Z (the tool length offset)")
-            used.update(k for k in "XYZ" if k in params)
-            axis_consumed = True
-            self.tool_z = z * scale
-            self._update_offsets()
-            if lcnc:
-                self._wait("G43.1")
-        # 15. coordinate system
+                h = self._value(params, "H")
+                used.add("H")
+                if h is not None and axes:
+                    self.error("G43.2: Can not have both H and axis words")
+                if h is None and not axes:
+                    self.error("G43.2: No axes specified and H word missing")
+                if h is not None:
+                    if h != int(h) or h < 0:
+                        self.error(f"G43.2 H must be a tool number, got {params['H'].text}")
+                    self.tool_z += self._tool_length_of(int(h), "G43.2", True)
+                elif "Z" in axes:
+                    self.tool_z += self._value(params, "Z") * scale
+        self._update_offsets()
+        if lcnc:
+            self._wait(_gname(code))
+        return consumed
+
+    def _tool_length_of(self, tool: int, name: str, named: bool) -> float:
+        """Z length (mm) of ``tool`` in the tool table (0 for no tool; an unknown tool is LinuxCNC's error;
+        a machine without a tool table warns and takes 0)."""
+        if tool == 0 and not named:
+            return self.tool_table.get(0, 0.0)
+        if tool in self.tool_table:
+            return self.tool_table[tool]
+        if self.tool_table:
+            self.error(f"{name} H{tool}: tool {tool} is not in the tool table")
+        self.warn(f"{name} H{tool}: no tool table, tool length offset taken as 0")
+        return 0.0
+
+    # ------------------------------------------------------------------ G10
+    def _cnc_g10(self, params: dict[str, Word], used: set[str], lcnc: bool) -> None:
+        """G10 L2 / L20 (coordinate system origins, convert_setup) and G10 L1 / L10 / L11 (tool table
+        entries, convert_setup_tool); grbl accepts L2 and L20 only (error:20 for the rest)."""
+        used.update(("L", "P", "R", "X", "Y", "Z", "I", "J", "Q"))
+        ell = self._value(params, "L")
+        if ell is None:
+            self.error("G10 needs L" + (" (grbl error:20)" if not lcnc else ""))
+        if ell in (2, 20):
+            self._g10_origin(int(ell), params, lcnc)
+        elif ell in (1, 10, 11) and lcnc:
+            self._g10_tool(int(ell), params)
+        elif not lcnc:
+            self._grbl_unsupported(f"G10 L{ell:g}")
+        else:
+            self.error(f"G10 L{ell:g} is not supported (L1, L2, L10, L11, L20 are)")
+
+    def _g10_origin(self, ell: int, params: dict[str, Word], lcnc: bool) -> None:
+        """G10 L2 P axes: origin of system P (0: the active one) = the words; L20: the origin that makes the
+        current position read the words. Written to #5221 + 20·(P − 1) …; takes effect at once when P is
+        the system in use."""
+        st = self.st
+        if "I" in params or "J" in params:
+            self.error(f"I J words not allowed with G10 L{ell}")
+        p = self._value(params, "P")
+        if p is None:
+            self.error(f"G10 L{ell} needs P (the coordinate system)" + ("" if lcnc else " (grbl error:28)"))
+        p_int = int(p + 0.0001)
+        n_sys = 9 if lcnc else 6
+        if not 0 <= p_int <= n_sys or abs(p - p_int) > 0.0001:
+            self.error(f"G10 L{ell} P must be 0..{n_sys} (the coordinate system)"
+                       + ("" if lcnc else " (grbl error:29)"))
+        idx = self.work_index if p_int == 0 else p_int - 1
+        r = self._value(params, "R")
+        if r is not None:
+            if ell == 20:
+                self.error("R not allowed in G10 L20")
+            if r != 0.0:
+                self.error("G10 L2 R: a rotated coordinate system is not modelled")
+        scale = float(st[S.S_UNIT])
+        origin = (self.work[idx].tolist() if idx == self.work_index or self.params is None
+                  else self._origin_from_params(idx))
+        for a, k in enumerate("XYZ"):
+            v = self._value(params, k)
+            if v is None:
+                continue
+            if ell == 2:
+                origin[a] = v * scale
+            else:   # L20: make the current position read v in that system
+                extra = self.tool_z if a == 2 else 0.0
+                origin[a] = float(st[S.S_X + a]) - v * scale - self.g92[a] - extra
+            self._set_param_mm(5221 + 20 * idx + a, origin[a])
+        if idx == self.work_index or self.params is None:
+            self.work[idx] = origin
+        self._update_offsets()
+
+    def _g10_tool(self, ell: int, params: dict[str, Word]) -> None:
+        """G10 L1 P<tool> Z: the tool's length is Z; L10: the length that makes the current Z read the word
+        with the current coordinate system and G92 offsets; L11: the same in G59.3 without G92
+        (convert_setup_tool). The tool table changes; the offset in force changes at the next G43."""
+        st = self.st
+        p = self._value(params, "P")
+        if p is None:
+            self.error(f"G10 L{ell} needs P (the tool number)")
+        tool = int(round(p))
+        if abs(p - tool) > 0.0001 or tool <= 0:
+            self.error(f"G10 L{ell} P must be a tool number > 0, got {params['P'].text}")
+        if tool not in self.tool_table:
+            if self.tool_table:
+                self.error(f"G10 L{ell} P{tool}: tool {tool} is not in the tool table "
+                           "(LinuxCNC: 'Requested tool not found in the tool table')")
+            self._note_once("G10 L1", f"G10 L{ell} P{tool}: no tool table, the entry is made for this program")
+        if not any(k in params for k in "XYZRQIJ"):
+            self.error(f"G10 L{ell} without offsets has no effect")
+        for k in "XY":
+            if k in params and self._value(params, k) != 0.0 and ell == 1:
+                self.error(f"G10 L1 {k}: tool offsets in X and Y are not modelled (Z only)")
+            if k in params and ell != 1:
+                self.error(f"G10 L{ell} {k}: tool offsets in X and Y are not modelled (Z only)")
+        z = self._value(params, "Z")
+        if z is None:
+            self.tool_table.setdefault(tool, 0.0)
+            return
+        scale = float(st[S.S_UNIT])
+        if ell == 1:
+            length = z * scale
+        elif ell == 10:
+            # the current Z in the current system without the tool length offset (G92 included)
+            here = float(st[S.S_Z]) - float(self.work[self.work_index][2]) - float(self.g92[2])
+            length = here - z * scale
+        else:
+            origin9 = (self._origin_from_params(8)[2] if self.params is not None and self.work_index != 8
+                       else float(self.work[8][2]))
+            length = float(st[S.S_Z]) - origin9 - z * scale
+        self.tool_table[tool] = length
+
+    # ------------------------------------------------------------------ modal modes shared by every dialect
+    def _set_plane(self, gset: set) -> None:
+        """G17 / G18 / G19."""
+        for g in (17, 18, 19):
+            if g in gset:
+                self.plane = g
+
+    def _modal_modes(self, gset: set, params: dict[str, Word], used: set[str], lcnc: bool) -> None:
+        """Coordinate system (G54..G59.3), path control (G61, G61.1, G64 P Q), distance modes (G90/G91,
+        G90.1/G91.1), canned-cycle retract mode (G98/G99), in RS274NGC's order; the classic executor of
+        the printer dialects uses the same code (``lcnc``: LinuxCNC's G61 exact path and G64 Q)."""
+        st, ist = self.st, self.ist
+        scale = float(st[S.S_UNIT])
         for i, g in enumerate((54.0, 55.0, 56.0, 57.0, 58.0, 59.0, 59.1, 59.2, 59.3)):
             if g in gset:
-                self.work_index = i
-                self._update_offsets()
-        # 16. path control
+                self._select_origin(i)
         if 61 in gset or 61.1 in gset:
             # LinuxCNC's G61 is exact *path* (tangent joins pass without stopping): 2; G61.1 exact stop: 1
             ist[S.I_EXACT_STOP] = 2 if (61 in gset and lcnc) else 1
@@ -284,84 +581,44 @@ class Rs274Commands:
                 self.error("G64 Q must be >= 0")
             # LinuxCNC (interp_convert.cc): Q is the naive-CAM tolerance; P without Q sets Q = P
             st[S.S_BLEND_Q] = q * scale if q is not None else (p * scale if p is not None else 0.0)
-            used.add("Q")
-        # 17. distance mode
+            if "Q" in params:
+                used.add("Q")
+                if not lcnc:
+                    self.g64_q_ignored += 1
         if 90 in gset or 91 in gset:
             ist[S.I_ABS_COORD] = 1 if 90 in gset else 0
+            if ist[S.I_G90_SETS_E]:
+                ist[S.I_ABS_E] = ist[S.I_ABS_COORD]
         if 90.1 in gset:
             self.arc_abs_centre = True
         if 91.1 in gset:
             self.arc_abs_centre = False
-        # 18. retract mode
         if 98 in gset or 99 in gset:
             self.retract_mode = 98 if 98 in gset else 99
             if self.cycle_state is not None:
                 self.cycle_state.retract_mode = self.retract_mode
-        # 19. G10 / G28 / G30 / G92
-        machine_coords = 53 in gset
-        if 10 in gset:
-            self._g10(params, used)
-            axis_consumed = True
-        if 28 in gset or 30 in gset:
-            self._cnc_home(28 if 28 in gset else 30, params, used)
-            axis_consumed = True
-        if 28.1 in gset or 30.1 in gset:
-            pos = [float(st[S.S_X + a]) for a in range(3)]
-            if 28.1 in gset:
-                self.g28_home = pos
-            else:
-                self.g30_home = pos
-        if 92 in gset:
-            self._g92(params, used)
-            axis_consumed = True
-        if 92.1 in gset or 92.2 in gset:
-            self.g92_saved = self.g92.copy()
-            self.g92[:] = 0.0
-            self._update_offsets()
-        if 92.3 in gset:
-            self.g92 = self.g92_saved.copy()
-            self._update_offsets()
-        # 20. motion
-        for g in motion_codes:
-            if g == 80:
-                self.cycle_state = None
-            elif int(g) not in CYCLE_G or int(ist[S.I_MOTION]) not in CYCLE_G:
-                self.cycle_state = None
-            if g not in (0, 1, 2, 3, 80) and int(g) not in CYCLE_G:
-                self.error(f"{_gname(g)} is not supported")
-            ist[S.I_MOTION] = int(g)
-        motion = int(ist[S.I_MOTION])
-        if machine_coords and motion not in (0, 1):
-            self.error("G53 needs G0 or G1" + ("" if lcnc else " (grbl error:30)"))
-        has_axes = any(k in params for k in "XYZE") and not axis_consumed
-        if motion_codes and motion_codes[0] != 80 and not has_axes and motion in (2, 3):
-            if any(k in params for k in "IJKR"):
-                self.error(f"G{motion} needs an end point (X/Y/Z)")
-        if has_axes or (motion in CYCLE_G and motion_codes and not axis_consumed):
-            if motion in (0, 1):
-                self._linear(motion, params, used, None, machine_coords)
-            elif motion in (2, 3):
-                self._arc(motion == 2, params, used, None)
-            elif motion == 80:
-                self.error("axis words without a motion mode (G80 in force): "
-                           + ("LinuxCNC: 'Cannot use axis values without a G code that uses them'" if lcnc
-                              else "grbl error:31 (axis words without a command)"))
-            else:
-                self._cycle(motion, params, used, None)
-        for k in ("A", "B", "C", "U", "V", "W"):
-            if k in params:
-                used.add(k)
-                self.warn(f"axis {k} is not modelled: ignored")
-        unused = [k for k in params if k not in used and k not in "XYZEFN"]
-        if unused and not m_ok:
-            self.warn("word(s) " + " ".join(unused) + " ignored")
-        # 21. stop
-        for mc in m_ok:
-            if mc in (0, 1, 60):
-                self._m_command(mc, params, used)     # pauses, each named (commands_state)
-            elif mc in (2, 30):
-                self.event(f"M{mc} program end")
-                ist[S.I_STOPPED] = 1
+
+    # ------------------------------------------------------------------ motion
+    def _set_motion(self, g: float) -> None:
+        """A motion code of the line becomes the modal motion mode (a new cycle series unless the code is
+        a cycle continuing a cycle)."""
+        ist = self.ist
+        code = MOTION_CODE.get(g, int(g))
+        if g == 80 or int(g) not in CYCLE_G or int(ist[S.I_MOTION]) not in CYCLE_G:
+            self.cycle_state = None
+        if g not in (0, 1, 2, 3, 80) and int(g) not in CYCLE_G and code not in SPECIAL_MOTION:
+            self.error(f"{_gname(g)} is not supported")
+        ist[S.I_MOTION] = code
+
+    def _motion(self, motion: int, params: dict[str, Word], used: set[str], f: float | None,
+                machine_coords: bool) -> None:
+        """Axis words in the motion mode ``motion``: G0/G1, G2/G3 or a drilling cycle."""
+        if motion in (0, 1):
+            self._linear(motion, params, used, f, machine_coords)
+        elif motion in (2, 3):
+            self._arc(motion == 2, params, used, f)
+        else:
+            self._cycle(motion, params, used, f)
 
     # ------------------------------------------------------------------ G28 / G30
     def _rapid_row(self, x1: float, y1: float, z1: float, flags: int = 0) -> None:
@@ -378,18 +635,147 @@ class Rs274Commands:
                       float(st[S.S_ACC_T]), 0.0)
 
     def _cnc_home(self, code: int, params: dict[str, Word], used: set[str]) -> None:
-        """LinuxCNC convert_home / grbl G28, G30: rapid to the intermediate point, then to the stored one."""
+        """LinuxCNC convert_home / grbl G28, G30: rapid to the intermediate point, then to the stored one
+        (#5161-5163 / #5181-5183 of the parameter table, machine coordinates in user units)."""
         axes = [k for k in "XYZ" if k in params]
         used.update(axes)
         x1, y1, z1 = self._targets(params, False)
         self._rapid_row(x1, y1, z1)
-        home = self.g28_home if code == 28 else self.g30_home
+        base = 5161 if code == 28 else 5181
         end = [float(self.st[S.S_X + a]) for a in range(3)]
         for a, k in enumerate("XYZ"):
             if k in axes or not axes:
-                end[a] = home[a]
+                end[a] = self.params.numbered[base + a] * self.user_mm
         self._rapid_row(*end)
         self.event(f"G{code} to the stored position " + ("".join(axes) or "XYZ"))
+
+    # ------------------------------------------------------------------ probe, spindle-synchronised motion
+    def _cnc_special_motion(self, motion: int, params: dict[str, Word], used: set[str], lcnc: bool) -> None:
+        """G38.2-G38.5 (probe), G33 (spindle-synchronised), G33.1 (rigid tap), G76 (threading cycle)."""
+        if motion in PROBE_MOTION:
+            self._probe(motion, params, used, lcnc)
+        elif motion == MOTION_G33:
+            self._spindle_synced(params, used)
+        elif motion == MOTION_G33_1:
+            self._rigid_tap(params, used)
+        else:
+            self._threading_cycle(params, used)
+
+    def _exact_feed_row(self, target, feed_v: float, name: str, wait: bool = True) -> None:
+        """A feed move to ``target`` (machine mm) at ``feed_v`` mm/s that starts from rest (``wait``: a
+        zero-time wait named ``name`` before it, the motion queue empties) and ends at rest (exact stop)."""
+        st, ist = self.st, self.ist
+        if wait:
+            self._wait(name)
+        x0, y0, z0, e0 = float(st[S.S_X]), float(st[S.S_Y]), float(st[S.S_Z]), float(st[S.S_E])
+        x1, y1, z1 = target
+        dx, dy, dz = x1 - x0, y1 - y0, z1 - z0
+        move_d = math.sqrt(dx * dx + dy * dy + dz * dz)
+        if not all(math.isfinite(v) for v in (x1, y1, z1, move_d, feed_v)):
+            self.error("coordinate out of range")
+        st[S.S_X], st[S.S_Y], st[S.S_Z] = x1, y1, z1
+        if move_d > 0.0:
+            mode = int(ist[S.I_EXACT_STOP])
+            ist[S.I_EXACT_STOP] = 1
+            self._row(KIND_TRAVEL, 0, x0, y0, z0, e0, x1, y1, z1, e0, move_d, feed_v, float(st[S.S_ACC_T]), 0.0)
+            ist[S.I_EXACT_STOP] = mode
+
+    def _probe(self, motion: int, params: dict[str, Word], used: set[str], lcnc: bool) -> None:
+        """G38.n (convert_probe): where the probe trips is not known before the program runs, so the move is
+        timed in full to its target at the feed rate, from rest to rest (the queue empties before and after
+        it), as LinuxCNC runs it when no contact happens (G38.2 / G38.4 then stop with an error, G38.3 /
+        G38.5 go on); a named warning says so once per file."""
+        name = f"G38.{motion - 380}"
+        used.update("XYZF")
+        target = self._targets(params, False)
+        here = [float(self.st[S.S_X + a]) for a in range(3)]
+        if target == here and motion in (382, 384):
+            self.error(f"{name}: start point too close to probe point"
+                       + (" (LinuxCNC: 'Start point too close to probe point')" if lcnc else " (grbl error:37)"))
+        failure = ("LinuxCNC stops with 'Probe move finished without making contact'" if lcnc
+                   else "grbl stops with ALARM:5 (probe fail)")
+        self._note_once("probe", f"{name}: probe moves are timed to their target (where contact happens is not "
+                                 f"known); without contact G38.2 / G38.4 {failure}, G38.3 / G38.5 go on")
+        self._exact_feed_row(target, float(self.st[S.S_FEED]) * float(self.st[S.S_SPEED_F]), name)
+        # the interpreter reads the probed position back before the next line (LinuxCNC's probe_flag sync,
+        # grbl's mc_probe_cycle waits for the cycle to end): the queue empties after it too
+        self._wait(name)
+
+    def _synced_feed(self, name: str, params: dict[str, Word], used: set[str]) -> float:
+        """mm/s of a spindle-synchronised move: K (distance per revolution) × S (rpm) / 60; LinuxCNC's
+        errors for a missing K, an F on the line, a spindle that does not turn."""
+        used.update("K")
+        if "F" in params:
+            self.error(f"{name}: F word used with a G33/G33.1 (the feed follows from K and S)")
+        k = self._value(params, "K")
+        if k is None:
+            self.error(f"{name}: K word missing (distance per spindle revolution)")
+        if self.spindle_dir not in (3, 4):
+            self.error(f"{name}: spindle not turning (M3 or M4 must be in force)")
+        if not k > 0.0 or not self.spindle_rpm > 0.0:
+            self.error(f"{name}: K and the spindle speed S must be > 0")
+        return k * float(self.st[S.S_UNIT]) * self.spindle_rpm / 60.0
+
+    def _spindle_synced(self, params: dict[str, Word], used: set[str]) -> None:
+        """G33 X Y Z K: a straight feed move at K·S/60 that waits for the spindle index (starts from rest)
+        and ends at its end point; the axes' limits cap the speed as the planner applies them."""
+        feed_v = self._synced_feed("G33", params, used)
+        used.update("XYZ")
+        self._exact_feed_row(self._targets(params, False), feed_v, "G33")
+
+    def _rigid_tap(self, params: dict[str, Word], used: set[str]) -> None:
+        """G33.1 X Y Z K [I]: in to the end point at K·S/60, back to the start at K·S·I/60 (I < 1 is 1). The
+        spindle's reversal overrun past each end depends on the spindle's deceleration: not modelled
+        (named warning)."""
+        feed_v = self._synced_feed("G33.1", params, used)
+        used.update("XYZI")
+        i = self._value(params, "I")
+        back_v = feed_v * max(1.0, i if i is not None else 1.0)
+        start = [float(self.st[S.S_X + a]) for a in range(3)]
+        self._exact_feed_row(self._targets(params, False), feed_v, "G33.1")
+        self._exact_feed_row(start, back_v, "G33.1")
+        self._note_once("G33.1", "G33.1: rigid tapping is timed in and out at K·S/60 without the spindle's "
+                                 "reversal overrun past each end")
+
+    def _threading_cycle(self, params: dict[str, Word], used: set[str]) -> None:
+        """G76 P Z I J K [R Q H E L]: LinuxCNC's threading passes (convert_threading_cycle, gcode/cycles.py
+        :func:`threading_passes`): rapids back and in, spindle-synchronised cuts at pitch·S/60 from rest,
+        the last pass repeated H times, then a rapid to the end of the drive line."""
+        from .cycles import CycleError, threading_passes
+
+        st = self.st
+        used.update("PZIJKRQHELX")
+        if self.plane != 18:
+            self.error("G76: the active plane must be the ZX plane (G18)")
+        if "X" in params or "Y" in params:
+            self.error("G76: X and Y words are not allowed (the drive line is the current X)")
+        if self.spindle_dir not in (3, 4):
+            self.error("G76: spindle not turning (M3 or M4 must be in force)")
+        words = {k: self._value(params, k) for k in "PZIJKRQHEL" if k in params}
+        if "P" not in words:
+            self.error("G76: P word missing (thread pitch)")
+        if not all(k in words for k in "IJK"):
+            self.error("G76: I J or K words missing")
+        scale = float(st[S.S_UNIT])
+        off = [float(st[S.S_OX + a]) for a in range(3)]
+        start = [float(st[S.S_X + a]) - off[a] for a in range(3)]
+        end_z = self._targets(params, False)[2] - off[2]
+        try:
+            moves = threading_passes(start[0], start[1], start[2], end_z, words, scale)
+        except CycleError as err:
+            self.error(f"G76: {err}")
+        pitch_mm = words["P"] * scale
+        for x, y, z, kind, pitch_ratio in moves:
+            target = [x + off[0], y + off[1], z + off[2]]
+            if kind == 0:
+                self._rapid_row(*target)
+            else:
+                v = pitch_mm * pitch_ratio * self.spindle_rpm / 60.0
+                if not v > 0.0:
+                    self.error("G76: the spindle speed S must be > 0")
+                # a cut after a rapid waits for the spindle index (from rest); the next cut follows it
+                self._exact_feed_row(target, v, "G76", wait=kind == 2)
+        self.canned_cycles += 1
 
     # ------------------------------------------------------------------ M6
     def _cnc_tool_change(self, lcnc: bool) -> None:
