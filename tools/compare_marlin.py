@@ -84,6 +84,14 @@ def block_check(name: str, machine_spec: str, ref_dir: str, policy: str | None) 
     ref = read_csv_gz(path)
     moving = ref["sync"] == 0
     ref = {k: v[moving] for k, v in ref.items()}
+    if machine.firmware == "marlin-bugfix":
+        # bugfix-2.1.x stores a bit per axis that moves forward (AxisBits); 2.1.2 and the model a bit per axis
+        # that moves backward: the same directions, read in the model's convention
+        back = np.zeros(len(ref["seq"]), np.int64)
+        for bit, col in enumerate(("steps_x", "steps_y", "steps_z", "steps_e")):
+            forward = (ref["direction_bits"].astype(np.int64) >> bit) & 1
+            back |= np.where((ref[col] > 0) & (forward == 0), 1 << bit, 0)
+        ref["direction_bits"] = back
     n = min(len(oi), len(ref["seq"]))
     first = None
     what = ""
