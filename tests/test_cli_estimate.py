@@ -108,3 +108,17 @@ def test_over_extrusion_stops_like_klipper_but_tiny_amounts_pass(tmp_path, capsy
     assert main(["estimate", "--quiet", str(p)]) == 0
     p.write_text("G1 X10 F600\nG1 X11 E100\n")
     assert main(["estimate", "--quiet", "--machine", "marlin", str(p)]) == 0   # Marlin has no such check
+
+
+def test_the_readers_warnings_are_in_the_text_not_only_in_json(tmp_path, capsys):
+    """A probe move timed to its target is a named warning: the plain `estimate` text shows it with its line,
+    once (the JSON lists the same)."""
+    p = tmp_path / "probe.ngc"
+    p.write_text("G21 G90\nG0 X0 Y0 Z5\nG38.2 Z-5 F100\nM2\n")
+    assert main(["estimate", "--machine", "grbl", str(p)]) == 0
+    out = capsys.readouterr().out
+    hits = [ln for ln in out.splitlines() if "probe moves are timed to their target" in ln]
+    assert len(hits) == 1 and hits[0].startswith("  warning: ") and "probe.ngc:3:" in hits[0]
+    assert main(["estimate", "--json", "--machine", "grbl", str(p)]) == 0
+    warnings = json.loads(capsys.readouterr().out)["warnings"]
+    assert any("probe moves are timed to their target" in w for w in warnings)

@@ -184,3 +184,13 @@ def print_text(est: Estimate, out=None) -> None:
     if unknown:
         items = ", ".join(f"{k}×{v}" for k, v in sorted(unknown.items(), key=lambda kv: -kv[1])[:12])
         w(f"  not modelled (counted): {items}\n")
+    # the reader's warnings (probe moves timed to their target, a G41 planned uncompensated, …): a user reading
+    # only the text must see them too; the dialect's own warning is printed above
+    said = dialect.get("warning") if dialect else None
+    warns = [x for x in (getattr(s, "warnings", None) or []) if x != said]
+    if warns:
+        more = max(int(getattr(s, "warning_count", 0) or 0), len(warns)) - len(warns)
+        for x in warns[:5]:
+            w(f"  warning: {x}\n")
+        if len(warns) > 5 or more > 0:
+            w(f"  … {len(warns) - 5 + more if len(warns) > 5 else more} more warnings (--json lists them)\n")
