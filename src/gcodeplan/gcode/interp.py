@@ -734,7 +734,9 @@ class Interpreter(StateCommands, MotionCommands, Rs274Commands):
         motion = int(ist[S.I_MOTION])
         if motion_codes and motion_codes[0] != 80 and not has_axes and motion in (2, 3):
             if any(k in params for k in "IJKR"):
-                self.error(f"G{motion} needs an end point (X/Y/Z)")
+                if not self.machine.firmware.startswith("marlin"):
+                    self.error(f"G{motion} needs an end point (X/Y/Z)")
+                has_axes = True          # Marlin: G2/G3 I J without X Y is a full circle (G2_G3.cpp)
         if has_axes or (motion in (73, 81, 82, 83, 85, 86, 89) and motion_codes and not axis_consumed):
             if motion in (0, 1):
                 self._linear(motion, params, used, f, machine_coords)
