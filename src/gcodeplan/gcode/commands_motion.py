@@ -325,6 +325,10 @@ class MotionCommands:
         from .arcs_marlin import PLANE_AXES, arc_settings, marlin_arc_points, marlin_r_offset
 
         st = self.st
+        settings = arc_settings(self.machine)
+        if not settings.enabled:
+            self.error("G2/G3: this Marlin build has ARC_SUPPORT off; the firmware ignores the line (unknown "
+                       "command) and every move after it starts elsewhere")
         p, q, _ = PLANE_AXES[self.plane]
         if ijk is not None:
             offset = (ijk[p], ijk[q])
@@ -339,7 +343,7 @@ class MotionCommands:
         fr = float(fr * np.float32(float(st[S.S_SPEED_F]) * 100.0))
         try:
             pts = marlin_arc_points(start[:3] + (elog0,), end[:3] + (elog1,), offset, clockwise, self.plane, fr,
-                                    arc_settings(self.machine), circles=int(circles))
+                                    settings, circles=int(circles))
         except ValueError as err:
             self.error(str(err))
         self.arcs += 1
