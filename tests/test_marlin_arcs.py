@@ -162,3 +162,47 @@ def test_invalid_arc_args_name_the_line(tmp_path):
     with pytest.raises(GcodeError) as err:
         _rows(tmp_path, "G1 X10 Y10 F3000\nG2 X10 Y10 R5\n")
     assert err.value.line == 2 and "Invalid arc args" in str(err.value)
+
+
+# ---------------------------------------------------------------- relative moves in Marlin's floats
+
+def _m83_spiral(tmp_path, n=8000):
+    lines = ["G21", "G90", "M83", "G1 Z0.2 F600"]
+    for i in range(n):
+        a = i * 0.05
+        lines.append(f"G1 X{100 + 40 * math.cos(a):.3f} Y{100 + 40 * math.sin(a):.3f} E0.07 F1800")
+    p = tmp_path / "m83.gcode"
+    p.write_text("\n".join(lines) + "\n")
+    return p
+
+
+def test_relative_e_sums_in_float_as_marlin_and_changes_the_step_count(tmp_path):
+    """M83 without G92 E0: Marlin's E is current_position.e + 0.07 in float, 8000 times: 560.0447 mm, not 560;
+    at 280 steps/mm the extruder makes 156813 steps, 13 more than a double sum would give."""
+    from gcodeplan.planner import marlin_kernels as mk
+    from gcodeplan.planner.marlin import run_marlin
+
+    chain = np.float32(0.0)
+    for _ in range(8000):
+        chain = np.float32(chain + np.float32(0.07))
+    assert float(chain) == pytest.approx(560.0447, abs=1e-4)
+    m = load_machine("marlin")
+    moves, reader = read_moves(str(_m83_spiral(tmp_path)), m)
+    assert moves["e1"][-1] == float(chain)
+    _, model = run_marlin(moves, reader.limits, m, keep_blocks=True, e_position_sets=reader.interp.e_position_sets)
+    oi = np.concatenate([x[0] for x in model.blocks])
+    e_steps = int(oi[oi[:, mk.OI_HAS_BLOCK] == 1, mk.OI_SE].sum())
+    assert e_steps == round(float(chain) * 280) == 156813          # round(560.0 × 280) would be 156800
+    # the generic planner (and Klipper) keep the double sum: their results do not change
+    generic, _ = read_moves(str(tmp_path / "m83.gcode"), load_machine("klipper"))
+    assert generic["e1"][-1] == pytest.approx(560.0, abs=1e-9)
+
+
+def test_relative_xyz_sums_in_float(tmp_path):
+    p = tmp_path / "g91.gcode"
+    p.write_text("G21\nG90\nG1 X10.1 Y0 F3000\nG91\n" + "G1 X0.1\n" * 1000)
+    moves, _ = read_moves(str(p), load_machine("marlin"))
+    x = np.float32(10.1)
+    for _ in range(1000):
+        x = np.float32(x + np.float32(0.1))
+    assert moves["x1"][-1] == float(x) != pytest.approx(110.1, abs=1e-6)

@@ -157,6 +157,7 @@ class MotionCommands:
         scale = float(st[S.S_UNIT])
         x0, y0, z0 = float(st[S.S_X]), float(st[S.S_Y]), float(st[S.S_Z])
         absc = ist[S.I_ABS_COORD] != 0
+        f32 = ist[S.I_F32_REL] != 0
         out = [x0, y0, z0]
         for a, k in enumerate("XYZ"):
             v = self._value(params, k)
@@ -167,7 +168,7 @@ class MotionCommands:
             elif absc:
                 out[a] = v * scale + float(st[S.S_OX + a])
             else:
-                out[a] = out[a] + v * scale
+                out[a] = float(S.relative_sum(out[a], v * scale, f32))
         return out
 
     def _e_target(self, params: dict[str, Word]):
@@ -183,8 +184,10 @@ class MotionCommands:
             de_log = ev - elog
             elog = ev
         else:
-            de_log = ev
-            elog = elog + ev
+            f32 = ist[S.I_F32_REL] != 0
+            new_elog = float(S.relative_sum(elog, ev, f32))
+            de_log = new_elog - elog if f32 else ev
+            elog = new_elog
         return e0 + de_log * float(st[S.S_FLOW_F]), elog
 
     def _accel(self, has_xyz: bool, de: float) -> float:

@@ -67,6 +67,7 @@ class Interpreter(StateCommands, MotionCommands, Rs274Commands):
         st[S.S_MAXZ] = -math.inf
         ist[S.I_ABS_COORD] = 1
         ist[S.I_ABS_E] = 1
+        ist[S.I_F32_REL] = 1 if m.firmware.startswith("marlin") else 0
         # modal motion at start: grbl powers up in G0, LinuxCNC with no motion mode (G80), printers in G1
         ist[S.I_MOTION] = {"grbl": 0, "linuxcnc": 80}.get(m.flavor, 1)
         ist[S.I_DIALECT] = self.dialect
