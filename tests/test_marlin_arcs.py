@@ -206,3 +206,19 @@ def test_relative_xyz_sums_in_float(tmp_path):
     for _ in range(1000):
         x = np.float32(x + np.float32(0.1))
     assert moves["x1"][-1] == float(x) != pytest.approx(110.1, abs=1e-6)
+
+
+def test_p_word_follows_arc_p_circles(tmp_path):
+    """Marlin's default build (the marlin preset's) has ARC_P_CIRCLES off: P is ignored, and gcodeplan says so;
+    a build with it on draws the circles first (18 + 72 segments for a quarter arc and one circle)."""
+    from dataclasses import replace
+
+    p = tmp_path / "p.gcode"
+    p.write_text("G21\nG90\nG1 X50 Y50 F3000\nG2 X60 Y60 I10 J0 P1\n")
+    m = load_machine("marlin")
+    moves, reader = read_moves(str(p), m)
+    assert len(moves[moves["line"] == 4]) == 18
+    assert any("ARC_P_CIRCLES off" in w for w in reader.summary.warnings)
+    m2 = replace(m, marlin_arcs=MarlinArcSettings(p_circles=True))
+    moves, _ = read_moves(str(p), m2)
+    assert len(moves[moves["line"] == 4]) == 18 + 72

@@ -174,9 +174,10 @@ def test_arrays_expressions_and_extruder_lists(tmp_path):
 def test_arc_settings_are_read(tmp_path):
     adv = ADV.replace("MAX_ARC_SEGMENT_MM      1.0", "MAX_ARC_SEGMENT_MM      2.0") \
         .replace("//#define ARC_SEGMENTS_PER_SEC 50", "#define ARC_SEGMENTS_PER_SEC 40") \
-        .replace("N_ARC_CORRECTION       25", "N_ARC_CORRECTION       12")
+        .replace("N_ARC_CORRECTION       25", "N_ARC_CORRECTION       12") \
+        .replace("//#define ARC_P_CIRCLES", "#define ARC_P_CIRCLES")
     m, _ = _load(_pair(tmp_path, adv=adv))
-    assert m.marlin_arcs == MarlinArcSettings(0.1, 2.0, 72, 40.0, 12)
+    assert m.marlin_arcs == MarlinArcSettings(0.1, 2.0, 72, 40.0, 12, p_circles=True)
     assert m.arc_resolution == 2.0
 
 

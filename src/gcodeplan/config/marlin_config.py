@@ -327,7 +327,6 @@ def load_marlin_config(path: str, adv_path: str | None = None):
             raise ConfigError("no such file", adv_path)
     pre = _Pre()
     pre.read(main_text, main_path)
-    notes: list[str] = []
 
     def warn(msg: str, name: str | None = None) -> None:
         where = pre.where.get(name) or pre.off.get(name) if name else None
@@ -438,13 +437,12 @@ def load_marlin_config(path: str, adv_path: str | None = None):
             min_segment_mm=mn, max_segment_mm=mx,
             min_circle_segments=int(scalar("MIN_CIRCLE_SEGMENTS")) if "MIN_CIRCLE_SEGMENTS" in pre.values else 72,
             segments_per_sec=scalar("ARC_SEGMENTS_PER_SEC", lo_ok=True) if pre.enabled("ARC_SEGMENTS_PER_SEC") else 0.0,
-            n_arc_correction=max(1, int(_number(pre, "N_ARC_CORRECTION"))) if "N_ARC_CORRECTION" in pre.values else 25)
+            n_arc_correction=max(1, int(_number(pre, "N_ARC_CORRECTION"))) if "N_ARC_CORRECTION" in pre.values else 25,
+            p_circles=pre.enabled("ARC_P_CIRCLES"))
         top["arc_resolution"] = mx
         if "ARC_SEGMENTS_PER_R" in pre.values:
             warn("ARC_SEGMENTS_PER_R: not a Marlin 2.1.2 setting; the segment length rule is MIN/MAX_ARC_SEGMENT_MM",
                  "ARC_SEGMENTS_PER_R")
-        if not pre.enabled("ARC_P_CIRCLES"):
-            notes.append("ARC_P_CIRCLES off")
     else:
         arcs = MarlinArcSettings(enabled=False)
         warn("ARC_SUPPORT off: this build ignores G2/G3 (unknown command); gcodeplan refuses a program that has "

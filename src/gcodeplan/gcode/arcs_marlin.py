@@ -36,6 +36,7 @@ class MarlinArcSettings:
     segments_per_sec: float = 0.0      # 1/s, ARC_SEGMENTS_PER_SEC; 0 = off (the segment length is the maximum)
     n_arc_correction: int = 25         # segments between exact sin/cos corrections, N_ARC_CORRECTION
     enabled: bool = True               # ARC_SUPPORT (off: the build ignores G2/G3)
+    p_circles: bool = False            # ARC_P_CIRCLES (off, Marlin's default: a P word is ignored)
 
 
 def arc_settings(machine) -> MarlinArcSettings:

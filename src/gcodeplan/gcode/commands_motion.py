@@ -332,6 +332,11 @@ class MotionCommands:
         if not settings.enabled:
             self.error("G2/G3: this Marlin build has ARC_SUPPORT off; the firmware ignores the line (unknown "
                        "command) and every move after it starts elsewhere")
+        if circles and not settings.p_circles:
+            self.warn("G2/G3 P: this Marlin build has ARC_P_CIRCLES off (Marlin's default): it ignores P")
+            circles = 0
+        elif circles > 100:
+            self.error("G2/G3 P: Marlin refuses more than 100 circles (\"Invalid arc args\")")
         p, q, _ = PLANE_AXES[self.plane]
         if ijk is not None:
             offset = (ijk[p], ijk[q])
