@@ -211,11 +211,25 @@ def marlin_arc_points(start, end, offset, clockwise: bool, plane: int = 17, feed
     off = np.array([_f(offset[0]), _f(offset[1])], dtype=np.float32)
     args = (p, q, l, bool(clockwise), _f(feed_mm_s), float(s.min_segment_mm), float(s.max_segment_mm),
             int(s.min_circle_segments), float(s.segments_per_sec), int(max(1, s.n_arc_correction)))
+    # room for an estimate of the count; exactly what the kernel asks for when that was short
+    r_est = math.hypot(float(off[0]), float(off[1]))
+    est = int(min(MAX_SEGMENTS, 2 * math.pi * r_est / max(float(s.min_segment_mm), 1e-9)
+                  + s.min_circle_segments + 2)) if math.isfinite(r_est) else MAX_SEGMENTS
+
+    def one_arc(start, target):
+        out = np.empty((est + 2, 4), np.float32)
+        n = marlin_arc_kernel(start, target, off, *args, out)
+        if n < 0 and -1 - n <= MAX_SEGMENTS:
+            out = np.empty((-1 - n + 1, 4), np.float32)
+            n = marlin_arc_kernel(start, target, off, *args, out)
+        if n < 0:
+            raise ValueError(_too_many(-1 - n))
+        return out[:n]
+
     pieces = []
     if circles:
         # ARC_P_CIRCLES: each circle ends where it starts in the plane, the helical axis and E shared by angle
         whole = _radians_360()
-        probe = np.empty((MAX_SEGMENTS + 1, 4), np.float32)
         # the arc's own angle, as plan_arc computes it before the circles (a full circle when the end is the start)
         rv_a, rv_b = _f(-off[0]), _f(-off[1])
         c_p, c_q = _f(pos[p] - rv_a), _f(pos[q] - rv_b)
@@ -240,25 +254,12 @@ def marlin_arc_points(start, end, offset, clockwise: bool, plane: int = 17, feed
         for _ in range(int(circles)):
             temp[l] = _f(temp[l] + per_l)
             temp[3] = _f(temp[3] + per_e)
-            n = marlin_arc_kernel(cur, temp.copy(), off, *args, probe)
-            if n < 0:
-                raise ValueError(_too_many(-1 - n))
-            if n:
-                pieces.append(probe[:n].copy())
-                cur = probe[n - 1].copy()
+            pts = one_arc(cur, temp.copy())
+            if len(pts):
+                pieces.append(pts)
+                cur = pts[-1].copy()
         pos = cur
-    # an estimate of the count, then exactly what the kernel asks for when short
-    r_est = math.hypot(float(off[0]), float(off[1]))
-    est = int(min(MAX_SEGMENTS, 2 * math.pi * r_est / max(float(s.min_segment_mm), 1e-9)
-                  + s.min_circle_segments + 2)) if math.isfinite(r_est) else MAX_SEGMENTS
-    out = np.empty((est + 2, 4), np.float32)
-    n = marlin_arc_kernel(pos, tgt, off, *args, out)
-    if n < 0 and -1 - n <= MAX_SEGMENTS:
-        out = np.empty((-1 - n + 1, 4), np.float32)
-        n = marlin_arc_kernel(pos, tgt, off, *args, out)
-    if n < 0:
-        raise ValueError(_too_many(-1 - n))
-    pieces.append(out[:n])
+    pieces.append(one_arc(pos, tgt))
     return np.concatenate(pieces).astype(np.float64)
 
 
