@@ -278,7 +278,7 @@ def _number(pre: _Pre, name: str, text: str | None = None, depth: int = 0) -> fl
         s = re.sub(r"\b([A-Za-z_]\w*)\b",
                    lambda m: f"({_number(pre, m.group(1), depth=depth + 1)!r})" if m.group(1) in pre.values
                    and m.group(1) != name else m.group(0), s)
-    if not s or not _EXPR_OK.fullmatch(s):
+    if not s or not _EXPR_OK.fullmatch(s) or "**" in s or len(s) > 400:     # C has no power operator
         raise ConfigError(f"{name}: not a number gcodeplan can read: {src[:40]!r}", path, no)
     try:
         v = float(eval(s, {"__builtins__": {}}, {}))           # digits, operators and parentheses only
