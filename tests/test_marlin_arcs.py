@@ -189,6 +189,8 @@ def test_relative_e_sums_in_float_as_marlin_and_changes_the_step_count(tmp_path)
     m = load_machine("marlin")
     moves, reader = read_moves(str(_m83_spiral(tmp_path)), m)
     assert moves["e1"][-1] == float(chain)
+    slow, _ = read_moves(str(tmp_path / "m83.gcode"), m, force_python=True)
+    assert np.array_equal(moves["e1"], slow["e1"])
     _, model = run_marlin(moves, reader.limits, m, keep_blocks=True, e_position_sets=reader.interp.e_position_sets)
     oi = np.concatenate([x[0] for x in model.blocks])
     e_steps = int(oi[oi[:, mk.OI_HAS_BLOCK] == 1, mk.OI_SE].sum())
@@ -202,6 +204,8 @@ def test_relative_xyz_sums_in_float(tmp_path):
     p = tmp_path / "g91.gcode"
     p.write_text("G21\nG90\nG1 X10.1 Y0 F3000\nG91\n" + "G1 X0.1\n" * 1000)
     moves, _ = read_moves(str(p), load_machine("marlin"))
+    slow, _ = read_moves(str(p), load_machine("marlin"), force_python=True)    # the Python interpreter's sum
+    assert np.array_equal(moves["x1"], slow["x1"])
     x = np.float32(10.1)
     for _ in range(1000):
         x = np.float32(x + np.float32(0.1))
