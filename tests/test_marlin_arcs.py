@@ -226,3 +226,17 @@ def test_p_word_follows_arc_p_circles(tmp_path):
     m2 = replace(m, marlin_arcs=MarlinArcSettings(p_circles=True))
     moves, _ = read_moves(str(p), m2)
     assert len(moves[moves["line"] == 4]) == 18 + 72
+
+
+def test_absurd_arcs_are_errors_without_numpy_warnings(tmp_path):
+    import warnings
+
+    huge = "1" + "0" * 60
+    for line in (f"G2 X10 Y10 I{huge} J0", f"G2 X{huge} Y10 R5", f"G2 X10 Y10 R{huge}"):
+        p = tmp_path / "a.gcode"
+        p.write_text("G1 X0 Y0 F3000\n" + line + "\n")
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")
+            with pytest.raises(GcodeError) as err:
+                read_moves(str(p), load_machine("marlin"))
+        assert err.value.line == 2

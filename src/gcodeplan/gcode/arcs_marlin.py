@@ -57,6 +57,18 @@ def _f(x):
     return np.float32(x)
 
 
+def _floats_overflow_quietly(fn):
+    """Run ``fn`` with numpy's overflow warnings off: an absurd arc overflows Marlin's floats to inf, which the
+    kernel refuses by name (a numpy warning would only repeat it)."""
+    import functools
+
+    @functools.wraps(fn)
+    def wrapper(*args, **kwargs):
+        with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+            return fn(*args, **kwargs)
+    return wrapper
+
+
 @njit(cache=True)
 def _radians_360():
     """RADIANS(360) as Marlin's macro evaluates it: 360 · float(π) / 180.0f in float."""
@@ -177,6 +189,7 @@ def marlin_arc_kernel(position, target, offset, p, q, l, clockwise, fr_mm_s, min
     return n + 1
 
 
+@_floats_overflow_quietly
 def marlin_r_offset(start, end, r: float, clockwise: bool, p: int = 0, q: int = 1):
     """The centre offset (float32 a, b) G2/G3 R gives in Marlin: the perpendicular bisector of the chord at
     distance √(r² − (chord/2)²) from its midpoint, or the midpoint itself when |r| is shorter than half the
@@ -197,6 +210,7 @@ def marlin_r_offset(start, end, r: float, clockwise: bool, p: int = 0, q: int = 
     return (_f(d_a + _f(_f(_f(s_a / length) * sign) * h)), _f(d_b + _f(_f(_f(s_b / length) * sign) * h)))
 
 
+@_floats_overflow_quietly
 def marlin_arc_points(start, end, offset, clockwise: bool, plane: int = 17, feed_mm_s: float = 0.0,
                       settings: MarlinArcSettings | None = None, circles: int = 0) -> np.ndarray:
     """The segment end points (n, 4: x, y, z, logical E in mm, float32 values) Marlin plans for one G2/G3,
