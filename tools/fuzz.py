@@ -77,7 +77,10 @@ _NUM = re.compile(rb"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?")
 
 ABSURD = (b"0", b"-0", b"0.0", b"1e9", b"-1e9", b"1e-9", b"1e20", b"-1e20", b"1e308", b"1e-320", b"nan", b"inf",
           b"-inf", b"99999999999999999999", b".", b"-", b"+", b"1.2.3", b"0x10", b"1e", b"--1", b"+-2", b"1_000",
-          b"2147483648", b"-2147483649", b"1e400", b"3.4e38", b"0.000001", b"12345.6789")
+          b"2147483648", b"-2147483649", b"1e400", b"3.4e38", b"0.000001", b"12345.6789",
+          # G-code has no exponents (1e-320 is 1 then E-320): absurd magnitudes as decimals, under a float32's
+          # smallest (0 in Marlin's and grbl's floats) and past a double's largest
+          b"0." + b"0" * 50 + b"1", b"0." + b"0" * 330 + b"1", b"1" + b"0" * 40, b"1" + b"0" * 320, b"0.4")
 ODD_BYTES = (b"\t", b"\r", b" ", b"\xc3\xa9", b"\xff", b"\x0b", b"\x0c", b"*", b";", b"(", b")", b"%", b"\\",
              b"=", b"[", b"]", b"{", b"}", b"\"", b"#", b"\x7f")
 LETTERS = b"GMXYZEFIJKRPQSTNLDHABCUVW"
@@ -193,7 +196,8 @@ def generated_line(rng: random.Random) -> bytes:
             f"M204 S{n()}", f"M204 P{n()} T{n()}", f"M204 P{n()}", f"M204 R{n()}",
             f"M201 X{n()} Y{n()} Z{n()} E{n()}", f"M203 X{n()} Y{n()} Z{n(True)} E{n()}",
             f"M205 X{n(True)} Y{n(True)} Z{n(True)} E{n(True)}", f"M205 J{n(True)}",
-            f"M220 S{n()}", f"M221 S{n()}", f"M566 X{n()} Y{n()}",
+            f"M220 S{n()}", f"M221 S{n()}", f"M566 X{n()} Y{n()}", f"M92 X{n()} Y{n()} Z{n()} E{n()}",
+            f"SET_VELOCITY_LIMIT ACCEL={rng.choice(('1e-320', '1e-46', '1e308', '0.5', '1e39'))}",
             f"SET_VELOCITY_LIMIT VELOCITY={n()} ACCEL={n()}",
             f"SET_VELOCITY_LIMIT SQUARE_CORNER_VELOCITY={n(True)} MINIMUM_CRUISE_RATIO={n(True)}",
             f"SET_VELOCITY_LIMIT ACCEL_TO_DECEL={n()}",

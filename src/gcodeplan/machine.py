@@ -85,6 +85,9 @@ class Machine:
     # arcs: chord tolerance (max sagitta, mm); when arc_resolution > 0 Klipper's rule is used instead
     arc_tolerance: float = 0.002
     arc_resolution: float = 0.0              # mm per segment (Klipper [gcode_arcs] resolution)
+    # a Marlin build's ARC_SUPPORT settings (gcode.arcs_marlin.MarlinArcSettings, from its Configuration_adv.h);
+    # None = Marlin 2.1.2's defaults with arc_resolution as MAX_ARC_SEGMENT_MM
+    marlin_arcs: object = None
 
     # firmware retraction (G10/G11)
     retract_length: float = 0.0              # mm

@@ -63,6 +63,7 @@ def load_grbl_settings(path: str):
 
     text = read_text(path)
     values: dict[int, float] = {}
+    where: dict[int, int] = {}
     for no, line in enumerate(text.splitlines(), 1):
         s = line.strip()
         m = _SETTING.match(s)
@@ -71,9 +72,11 @@ def load_grbl_settings(path: str):
                 continue
             raise ConfigError(f"line {no}: not a grbl setting ($N=value): {s[:40]!r}", path)
         key, value = int(m.group(1)), float(m.group(2))
-        if not math.isfinite(value):
-            raise ConfigError(f"line {no}: ${key} must be a finite number", path)
+        # grbl keeps its settings as floats: past 3.4e38 a value is inf there, under 1.4e-45 it is 0
+        if not math.isfinite(value) or abs(value) > 3.4e38:
+            raise ConfigError(f"line {no}: ${key}={m.group(2)[:20]} is beyond grbl's float range (3.4e38)", path)
         values[key] = value
+        where[key] = no
     machine = load_machine("grbl")
     axes = dict(machine.axes)
     top = {}
@@ -105,10 +108,17 @@ def load_grbl_settings(path: str):
             pass
         else:
             raise ConfigError(f"${key} is not a grbl 1.1 setting gcodeplan knows", path)
+    for key, value in values.items():
+        if key in TIMING and 0 < abs(value) < 1.4e-45:
+            raise ConfigError(f"line {where[key]}: ${key} ({TIMING[key][0]}) is 0 in grbl's float (a float holds "
+                              f"nothing under 1.4e-45), got {value:g}", path)
     idle = top.pop("grbl_idle_lock_ms", None)
     machine = replace(machine, axes=axes, firmware="grbl-1.1", name=f"grbl $$ ({path})", **top)
     if idle is not None:
         if not (0 <= idle <= 255):
             raise ConfigError(f"$1 (step idle delay ms) must be 0…255, got {idle:g}", path)
         machine = replace(machine, grbl_idle_lock_ms=idle)
+    from .fields import validate
+
+    validate(machine, path)              # the limits every machine obeys (absurdly small or large values …)
     return machine

@@ -50,6 +50,10 @@ def load_machine(path_or_preset: str) -> Machine:
 
         if is_marlin_report(spec):            # Marlin's M503 report
             return load_marlin_report(spec)
+        from .marlin_config import is_marlin_config, load_marlin_config
+
+        if is_marlin_config(spec):            # Marlin's Configuration.h (+ Configuration_adv.h beside it)
+            return load_marlin_config(spec)
         return load_machine_toml(spec)
     presets = preset_names()
     if spec in presets:

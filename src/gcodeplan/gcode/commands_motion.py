@@ -157,6 +157,7 @@ class MotionCommands:
         scale = float(st[S.S_UNIT])
         x0, y0, z0 = float(st[S.S_X]), float(st[S.S_Y]), float(st[S.S_Z])
         absc = ist[S.I_ABS_COORD] != 0
+        f32 = ist[S.I_F32_REL] != 0
         out = [x0, y0, z0]
         for a, k in enumerate("XYZ"):
             v = self._value(params, k)
@@ -167,7 +168,7 @@ class MotionCommands:
             elif absc:
                 out[a] = v * scale + float(st[S.S_OX + a])
             else:
-                out[a] = out[a] + v * scale
+                out[a] = float(S.relative_sum(out[a], v * scale, f32))
         return out
 
     def _e_target(self, params: dict[str, Word]):
@@ -183,8 +184,10 @@ class MotionCommands:
             de_log = ev - elog
             elog = ev
         else:
-            de_log = ev
-            elog = elog + ev
+            f32 = ist[S.I_F32_REL] != 0
+            new_elog = float(S.relative_sum(elog, ev, f32))
+            de_log = new_elog - elog if f32 else ev
+            elog = new_elog
         return e0 + de_log * float(st[S.S_FLOW_F]), elog
 
     def _accel(self, has_xyz: bool, de: float) -> float:
@@ -295,6 +298,8 @@ class MotionCommands:
         else:
             r = r * scale
         m = self.machine
+        if m.firmware.startswith("marlin"):     # Marlin's ARC_SUPPORT segments in its floats (arcs_marlin.py)
+            return self._marlin_arc(clockwise, (x0, y0, z0, e0), (x1, y1, z1, e1), elog, ijk, r, turns - 1)
         try:
             if flavor == "grbl":        # grbl's own chord count and single-precision chords (arcs_grbl.py)
                 pts = grbl_arc_chords((x0, y0, z0), (x1, y1, z1), ijk, r, self.plane, clockwise, m.arc_tolerance)
@@ -316,6 +321,57 @@ class MotionCommands:
         st[S.S_E] = e1
         st[S.S_ELOG] = elog
         self._bulk(pts, starts, es, e_starts, d, FLAG_ARC, float(st[S.S_FEED]) * float(st[S.S_SPEED_F]))
+
+    def _marlin_arc(self, clockwise, start, end, elog1, ijk, r, circles) -> None:
+        """G2/G3 on a Marlin-model machine: plan_arc's segments (gcode/arcs_marlin.py), E by Marlin's equal
+        float steps of the logical E; an arc Marlin plans nothing for leaves the position where it was."""
+        from .arcs_marlin import PLANE_AXES, arc_settings, marlin_arc_points, marlin_r_offset
+
+        st = self.st
+        settings = arc_settings(self.machine)
+        if not settings.enabled:
+            self.error("G2/G3: this Marlin build has ARC_SUPPORT off; the firmware ignores the line (unknown "
+                       "command) and every move after it starts elsewhere")
+        if circles and not settings.p_circles:
+            self.warn("G2/G3 P: this Marlin build has ARC_P_CIRCLES off (Marlin's default): it ignores P")
+            circles = 0
+        elif circles > 100:
+            self.error("G2/G3 P: Marlin refuses more than 100 circles (\"Invalid arc args\")")
+        p, q, _ = PLANE_AXES[self.plane]
+        if ijk is not None:
+            offset = (ijk[p], ijk[q])
+        else:
+            offset = marlin_r_offset(start, end, r, clockwise)    # Marlin takes R's chord in X/Y whatever the plane
+        if offset is None or offset[0] == 0 and offset[1] == 0:
+            self.error("G2/G3: Marlin refuses this arc (\"Invalid arc args\": no centre offset, R0, or R with the "
+                       "end at the start)")
+        elog0 = float(st[S.S_ELOG])
+        # the feed as Marlin scales it (MMS_SCALED), only for ARC_SEGMENTS_PER_SEC
+        fr = np.float32(np.float32(np.float32(float(st[S.S_FEED]) * 60.0) / np.float32(60.0)) * np.float32(0.01))
+        fr = float(fr * np.float32(float(st[S.S_SPEED_F]) * 100.0))
+        try:
+            pts = marlin_arc_points(start[:3] + (elog0,), end[:3] + (elog1,), offset, clockwise, self.plane, fr,
+                                    settings, circles=int(circles))
+        except ValueError as err:
+            self.error(str(err))
+        self.arcs += 1
+        n = pts.shape[0]
+        if n == 0:
+            return
+        x0, y0, z0, e0 = start
+        e1 = end[3]
+        ends = np.ascontiguousarray(pts[:, :3])
+        ends[-1] = end[:3]               # the target as the file gives it (the model rounds it as Marlin does)
+        starts, d, es, e_starts = pieces_through_kernel(ends, x0, y0, z0, e0, e1)
+        # E at each segment end: Marlin's float steps of the logical E, carried into the machine's E
+        es[:-1] = e0 + (pts[:-1, 3] - elog0) * float(st[S.S_FLOW_F])
+        e_starts[1:] = es[:-1]
+        if e1 - e0 > 0.0 and d.max() > 0.0:
+            self._layer_check(float(pts[0, 2]))
+        st[S.S_X], st[S.S_Y], st[S.S_Z] = end[:3]
+        st[S.S_E] = e1
+        st[S.S_ELOG] = elog1
+        self._bulk(ends, starts, es, e_starts, d, FLAG_ARC, float(st[S.S_FEED]) * float(st[S.S_SPEED_F]))
 
     def _bulk(self, ends, starts, es, e_starts, d, flags, feed_v, rapid_mask=None, dwell=None) -> None:
         """Rows for a sequence of straight pieces (arc chords, cycle moves)."""

@@ -18,6 +18,10 @@ class StateCommands:
     # ------------------------------------------------------------------ Klipper extended commands
     def _extended(self, name: str, rest: str) -> None:
         uname = name.upper()
+        if uname == "SET_VELOCITY_LIMIT" and self.machine.firmware == "grbl-1.1":
+            # grbl has no such command (it rejects the line): its limits are its $ settings, unchanged
+            self.unknown_command(uname)
+            return
         params: dict[str, str] = {}
         pos = 0
         rest = rest.rstrip()

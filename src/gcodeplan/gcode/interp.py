@@ -67,6 +67,7 @@ class Interpreter(StateCommands, MotionCommands, Rs274Commands):
         st[S.S_MAXZ] = -math.inf
         ist[S.I_ABS_COORD] = 1
         ist[S.I_ABS_E] = 1
+        ist[S.I_F32_REL] = 1 if m.firmware.startswith("marlin") else 0
         # modal motion at start: grbl powers up in G0, LinuxCNC with no motion mode (G80), printers in G1
         ist[S.I_MOTION] = {"grbl": 0, "linuxcnc": 80}.get(m.flavor, 1)
         ist[S.I_DIALECT] = self.dialect
@@ -685,7 +686,9 @@ class Interpreter(StateCommands, MotionCommands, Rs274Commands):
         motion = int(ist[S.I_MOTION])
         if motion_codes and motion_codes[0] != 80 and not has_axes and motion in (2, 3):
             if any(k in params for k in "IJKR"):
-                self.error(f"G{motion} needs an end point (X/Y/Z)")
+                if not self.machine.firmware.startswith("marlin"):
+                    self.error(f"G{motion} needs an end point (X/Y/Z)")
+                has_axes = True          # Marlin: G2/G3 I J without X Y is a full circle (G2_G3.cpp)
         if has_axes or (motion in (73, 81, 82, 83, 85, 86, 89) and motion_codes and not axis_consumed):
             if motion == 80:
                 self.error("axis words without a motion command (G80 in force)")

@@ -60,7 +60,9 @@ I_G90_SETS_E = 14   # 1 on Marlin 2: G90/G91 also set the E mode (the last of G9
 I_OBJECT = 15       # object index (EXCLUDE_OBJECT_START, M486 S, slicer labels), -1 outside any object
 I_TO_PYTHON = 16    # 1: every line goes to the Python interpreter (inside or just after an excluded object,
                     # a pending start wait): the scanner returns at once
-N_IST = 17
+I_F32_REL = 17      # 1 on a Marlin-model machine: a relative X/Y/Z/E target is current + value in float32, as
+                    # Marlin's get_destination_from_command sums (its positions are floats)
+N_IST = 18
 
 DIALECT_KLIPPER = 0   # M204: S, else min(P, T) when both; one accel for every move
 DIALECT_MARLIN = 1    # marlin / reprap: M204 S/P/T/R, accel chosen by the move's kind
@@ -303,6 +305,15 @@ def piece_rows_kernel(ends, starts, es, e_starts, d, line, flags, feed_v, rapid,
 # _nrt=False: the scanner allocates nothing, and without numba's reference counting the inlined helpers
 # that take arrays cost no atomic incref/decref per word (measured: 66 -> 52 ns per "G1 X Y E" line,
 # 24 -> 2 ns per comment line). error_model="numpy": no zero-division checks in the hot loop.
+@njit(cache=True)
+def relative_sum(current, value, f32):
+    """A relative target: ``current + value`` (mm), in float32 when ``f32`` (Marlin's float positions:
+    destination = current_position + value), else in double."""
+    if f32:
+        return np.float64(np.float32(np.float32(current) + np.float32(value)))
+    return current + value
+
+
 @njit(cache=True, error_model="numpy", _nrt=False)
 def scan_chunk(buf, pos, end, st, ist, out, n_out, feat_raw, feat_len, feat_idx):
     """Interpret lines of ``buf[pos:end]`` until the chunk ends, the output is full, or a line
@@ -436,12 +447,13 @@ def scan_chunk(buf, pos, end, st, ist, out, n_out, feat_raw, feat_len, feat_idx)
             z1 = z0
             e1 = e0
             absc = ist[I_ABS_COORD] != 0
+            f32 = ist[I_F32_REL] != 0
             if has & 1:
-                x1 = vx * scale + st[S_OX] if absc else x0 + vx * scale
+                x1 = vx * scale + st[S_OX] if absc else relative_sum(x0, vx * scale, f32)
             if has & 2:
-                y1 = vy * scale + st[S_OY] if absc else y0 + vy * scale
+                y1 = vy * scale + st[S_OY] if absc else relative_sum(y0, vy * scale, f32)
             if has & 4:
-                z1 = vz * scale + st[S_OZ] if absc else z0 + vz * scale
+                z1 = vz * scale + st[S_OZ] if absc else relative_sum(z0, vz * scale, f32)
             elog = st[S_ELOG]
             if has & 8:
                 ev = ve * scale
@@ -449,8 +461,9 @@ def scan_chunk(buf, pos, end, st, ist, out, n_out, feat_raw, feat_len, feat_idx)
                     de_log = ev - elog
                     elog = ev
                 else:
-                    de_log = ev
-                    elog = elog + ev
+                    new_elog = relative_sum(elog, ev, f32)
+                    de_log = new_elog - elog if f32 else ev
+                    elog = new_elog
                 e1 = e0 + de_log * st[S_FLOW_F]
             feed = st[S_FEED]
             if has & 16:

@@ -203,6 +203,27 @@ class MarlinModel:
                     raise GcodeError(f"{axis.upper()} {moves[col][i]:g} mm is beyond Marlin's reach (±2³¹ steps at "
                                      f"{float(self.spm[k]):g} steps/mm)", line=int(moves["line"][i]))
 
+    def _check_zero_limits(self, moves: np.ndarray, a: dict) -> None:
+        """A feed rate, acceleration or axis limit that is 0 in Marlin's own numbers (a float under 1.4e-45,
+        an M201 under 1 mm/s² kept as a whole 0, M220 at 0 %) makes the firmware divide by zero: an error
+        naming the move's line, never a traceback (tools/fuzz.py: SET_VELOCITY_LIMIT ACCEL=1e-320)."""
+        from ..errors import GcodeError
+
+        move = a["kind"] == mk.ROW_MOVE
+        d = np.stack([moves[ax + "1"] - moves[ax + "0"] for ax in _AXES], axis=1) != 0
+        cls = np.where(~d[:, :3].any(axis=1), a["acc_r"], np.where(d[:, 3], a["acc_p"], a["acc_t"]))
+        tiny = "a float holds nothing under 1.4e-45"
+        checks = (("feed rate (F × M220)", tiny, a["fr"] <= 0),
+                  ("acceleration (M204 / SET_VELOCITY_LIMIT)", tiny, cls <= 0),
+                  ("axis speed limit (M203)", tiny, ((a["vmax"] <= 0) & d).any(axis=1)),
+                  ("axis acceleration limit (M201)", "Marlin keeps whole mm/s², and whole × steps/mm as whole "
+                   "steps/s²", ((a["amax"] <= 0) & d).any(axis=1)))
+        for what, why, bad in checks:
+            rows = np.nonzero(move & bad)[0]
+            if rows.size:
+                raise GcodeError(f"the {what} in force is 0 in Marlin's own numbers ({why}): the firmware's "
+                                 "planner would divide by it", line=int(moves["line"][rows[0]]))
+
     def _limit_tables(self, limits: np.ndarray) -> dict:
         """Per LIMITS row, the firmware's settings (float32 / integer as Marlin stores them); the table only
         grows, so it is rebuilt when its length or last row changes."""
@@ -231,7 +252,9 @@ class MarlinModel:
         if len(moves) == 0:
             return []
         self._check_reach(moves)
-        arr = self._row_arrays(moves, np.asarray(limits))
+        with np.errstate(over="ignore", invalid="ignore"):    # 1e308 is Marlin's float inf: no numpy warning
+            arr = self._row_arrays(moves, np.asarray(limits))
+        self._check_zero_limits(moves, arr)
         if self._moves is None or len(self._moves) == 0:
             self._moves, self._arrays = moves, arr
         else:
