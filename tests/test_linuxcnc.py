@@ -9,7 +9,7 @@ import math
 import numpy as np
 import pytest
 
-from conftest import shared_path
+from conftest import SAMPLES, shared_path
 from gcodeplan.errors import ConfigError
 from gcodeplan.gcode.reader import read_moves
 from gcodeplan.config.linuxcnc import load_linuxcnc_ini
@@ -344,3 +344,25 @@ def test_blend_into_a_z_rapid_keeps_z_within_its_limit(tmp_path):
     vz = np.abs(np.diff(pos[:, 2])) / 0.001
     vx = np.abs(np.diff(pos[:, 0])) / 0.001
     assert vz.max() <= 20.0 + 1e-9 and vx.max() <= 100.0 + 1e-9
+
+
+def test_machine_option_reads_the_owners_files_by_content(capsys):
+    """`--machine mill.ini` is the LinuxCNC ini (as --linuxcnc-ini), `--machine printer.cfg` the Klipper config
+    (as --klipper-config): the same machine, the same total, not a TOML syntax error."""
+    import gcodeplan as gp
+    from gcodeplan.cli import main
+
+    ini = str(shared_path(*REF, "config", "mill.ini"))
+    cfg = str(shared_path("reference", "klipper", "cartesian_corpus.cfg"))
+    import dataclasses
+
+    a, b = gp.load_machine(ini), gp.load_machine(linuxcnc_ini=ini)
+    assert dataclasses.replace(a, linuxcnc=None) == dataclasses.replace(b, linuxcnc=None)
+    assert repr(sorted(vars(a.linuxcnc).items())) == repr(sorted(vars(b.linuxcnc).items()))
+    assert gp.load_machine(cfg) == gp.load_machine(klipper_config=cfg)
+    prog = str(SAMPLES / "linuxcnc_plasmatest.ngc")
+    totals = []
+    for opts in (["--machine", ini], ["--linuxcnc-ini", ini]):
+        assert main(["estimate", "--json", "-q", *opts, prog]) == 0
+        totals.append(json.loads(capsys.readouterr().out)["total_time_s"])
+    assert totals[0] == totals[1]

@@ -100,6 +100,20 @@ class _Ini:
         return x
 
 
+def is_linuxcnc_ini(path: str) -> bool:
+    """Whether ``path`` reads as a LinuxCNC machine .ini: an ``[EMCMOT]`` or ``[TRAJ]`` section header among
+    its first 64 KiB (a TOML file never has those bare upper-case tables with LinuxCNC's keys)."""
+    import re
+
+    try:
+        with open(path, "rb") as fh:
+            head = fh.read(65536).decode("utf-8", "replace")
+    except OSError:
+        return False
+    return bool(re.search(r"(?m)^\s*\[(EMCMOT|TRAJ)\]\s*$", head)) and \
+        bool(re.search(r"(?m)^\s*(SERVO_PERIOD|LINEAR_UNITS|MAX_LINEAR_VELOCITY|COORDINATES)\s*=", head))
+
+
 def load_linuxcnc_ini(path: str) -> Machine:
     """A Machine (flavor 'linuxcnc', policy 'linuxcnc') from a LinuxCNC .ini file (module docstring)."""
     from ..planner.linuxcnc import LinuxcncSettings

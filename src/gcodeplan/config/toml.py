@@ -32,7 +32,9 @@ def _preset_text(name: str) -> str:
 
 
 def load_machine(path_or_preset: str) -> Machine:
-    """A machine from a TOML file, or from a preset name (``klipper``, ``marlin``, ``grbl``).
+    """A machine from a TOML file, or from a preset name (``klipper``, ``marlin``, ``grbl``), or from what the
+    machine's owner has: a Klipper ``printer.cfg`` (by its ``.cfg`` name), a LinuxCNC ``.ini``, grbl's ``$$``
+    report, Marlin's ``M503`` report or its ``Configuration.h`` (each recognised by its content).
 
     An existing regular file wins over a preset of the same name; a directory never does.
     """
@@ -40,8 +42,14 @@ def load_machine(path_or_preset: str) -> Machine:
     if spec.endswith(".cfg"):
         if not os.path.exists(spec):
             raise ConfigError("no such file", spec)
-        raise ConfigError("this looks like a Klipper printer.cfg: use --klipper-config for it", spec)
+        from .klipper import load_klipper_config
+
+        return load_klipper_config(spec)      # Klipper's printer.cfg, read as --klipper-config reads it
     if os.path.isfile(spec):
+        from .linuxcnc import is_linuxcnc_ini, load_linuxcnc_ini
+
+        if is_linuxcnc_ini(spec):             # a LinuxCNC machine .ini, read as --linuxcnc-ini reads it
+            return load_linuxcnc_ini(spec)
         from .grbl_settings import is_grbl_settings, load_grbl_settings
 
         if is_grbl_settings(spec):            # grbl's $$ report
