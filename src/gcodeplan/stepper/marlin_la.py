@@ -34,6 +34,12 @@ from .._jit import njit
 from .marlin_isr import (ISR_NOMINAL_RATE, ISR_PHASE, ISR_STEP_RATE, N_ISR, PHASE_ACCEL, PHASE_CRUISE_FIRST,
                          PHASE_DECEL, block_phase_isr, block_pickup)
 
+#: s: the interrupt handles in the call in progress every event less than this after the call's start
+#: (``Stepper::isr`` loops while the next event is before ``HAL_timer_get_count() + STEPPER_TIMER_TICKS_PER_US``).
+#: Marlin's code says 1 µs past the timer's count at that point; the reference build's count is not 0 there: its
+#: pulses put the limit between 43 and 47 ticks of 25 MHz (events 42 ticks after a call's start are in it, 47
+#: after are not, over its first 200,000 extruder pulses), so the model takes the middle, 45 ticks.
+ISR_MERGE_S = 1.8e-6
 #: Marlin's LA_ADV_NEVER (0xFFFFFFFF): the advance phase is idle
 LA_ADV_NEVER = 0xFFFFFFFF
 _U32 = 0xFFFFFFFF
@@ -45,6 +51,11 @@ _E_BIT = 8                       # direction_bits: bit 3 is E (set = negative)
 LA_ADVANCE_STEPS, LA_DIR_BITS, LA_DIVIDEND, LA_CALL_START = range(4)
 #: length of the state array
 N_LA_STATE = 4
+
+
+def merge_ticks(timer_hz: int) -> int:
+    """Ticks of ``timer_hz`` within which the interrupt handles later events in the same call (:data:`ISR_MERGE_S`)."""
+    return int(round(ISR_MERGE_S * timer_hz))
 
 
 def new_state() -> np.ndarray:
@@ -106,8 +117,8 @@ def _emit(out_t, out_d, n_out, axis, t, d):
 def la_blocks_pulses_kernel(t_pick, n_steps, axis_steps, dir_bits, initial_rate, nominal_rate, final_rate,
                             accelerate_until, decelerate_after, acc_rate, cruise_rate, acceleration_time,
                             deceleration_time, acceleration_time_inverse, deceleration_time_inverse, s_curve,
-                            timer_hz, la_advance_rate, la_scaling, max_adv_steps, final_adv_steps, st, out_t, out_d,
-                            n_out):
+                            timer_hz, la_advance_rate, la_scaling, max_adv_steps, final_adv_steps, merge_ticks, st,
+                            out_t, out_d, n_out):
     """Every step pulse of a run of blocks as Marlin's interrupt issues them with linear advance: the block
     events as :func:`gcodeplan.stepper.marlin_isr.blocks_pulses_kernel` times them, X/Y/Z (and E of a block
     without advance) by Bresenham on them, E of an advance block from the advance phase (module
@@ -119,8 +130,6 @@ def la_blocks_pulses_kernel(t_pick, n_steps, axis_steps, dir_bits, initial_rate,
     isr = np.empty(N_ISR, np.int64)
     delta_error = np.empty(4, np.int64)
     dividend = np.empty(4, np.int64)
-    # the interrupt merges into the call in progress every event less than 1 µs after the call's start
-    merge_ticks = np.int64(timer_hz) // 1_000_000
     never = np.int64(LA_ADV_NEVER)
     for i in range(len(t_pick)):
         sec = n_steps[i]
