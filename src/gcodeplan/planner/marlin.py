@@ -11,7 +11,9 @@ row's distance is covered in its time.
 Rows that make no block (under 6 steps: Marlin carries them into the next move) last 0 s at the end of
 the block before them; their steps are issued with the block they merge into. With ``want_steps`` the model
 also hands on each settled stretch's step pulses as the interrupt issues them (:func:`block_pulses`): the
-leading axis at every interrupt tick, X/Y/Z/E on those ticks by Bresenham. Waits (M400, G4, G28, heater waits) drain the buffer; the next block is picked up
+leading axis at every interrupt tick, X/Y/Z/E on those ticks by Bresenham; under a linear-advance K factor
+the extruder's pulses come from Marlin's advance interrupt instead (:mod:`gcodeplan.stepper.marlin_la`, fed
+the blocks' :func:`advance_fields`). Waits (M400, G4, G28, heater waits) drain the buffer; the next block is picked up
 at the stepper's next 1 ms idle poll after the wait (the dwell rounded up to whole ms).
 
 Reference: ``shared/reference/marlin`` (Marlin 2.1.2.4's planner.cpp / stepper.cpp on a simulated clock);

@@ -16,8 +16,8 @@ over the block's ``2·step_event_count``), each pulse adding ±1 to ``la_advance
 
 The interrupt (``Stepper::isr``) runs, in one call, the pulse phase if the leading axis is due, then the
 advance phase if it is due (or arms it with the current ``la_interval`` when it was idle), then the block
-phase; it loops as long as the next event is less than 1 µs (``STEPPER_TIMER_TICKS_PER_US`` ticks) after the
-call's start, so every pulse of those events is issued at the call's start. Finishing a block stops the
+phase; it loops as long as the next event is within its margin of the call's start (:data:`ISR_MERGE_S`), so
+every pulse of those events, X/Y/Z's included, is issued at the call's start. Finishing a block stops the
 advance phase (``discard_current_block``: ``la_interval`` and the next advance event become "never");
 the next block's ``la_interval`` is set at its pick-up and armed at its first event.
 
@@ -47,7 +47,7 @@ _E_BIT = 8                       # direction_bits: bit 3 is E (set = negative)
 
 # The state that lives across blocks (one int64 array): la_advance_steps, last_direction_bits (the direction
 # pins as the interrupt last set them), la_dividend, and the tick at which the interrupt call in progress
-# started (pulses of events less than 1 µs after it are issued at that tick)
+# started (pulses of the events it handles are issued at that tick)
 LA_ADVANCE_STEPS, LA_DIR_BITS, LA_DIVIDEND, LA_CALL_START = range(4)
 #: length of the state array
 N_LA_STATE = 4
@@ -74,7 +74,8 @@ def calc_timer_interval(step_rate, timer_hz):
 
 @njit(cache=True)
 def _scaled(interval, la_scaling):
-    """``interval << la_scaling`` as the firmware's uint32 (it wraps)."""
+    """``interval << la_scaling`` as the firmware's uint32 (it wraps). A wrap to 0 would hang Marlin's
+    interrupt loop (it needs K · acceleration near 25 MHz · 2^-32 · 2^la_scaling); the model takes 1 tick."""
     v = (interval << la_scaling) & _U32
     return v if v > 0 else np.int64(1)
 
@@ -135,9 +136,9 @@ def la_blocks_pulses_kernel(t_pick, n_steps, axis_steps, dir_bits, initial_rate,
         sec = n_steps[i]
         if sec <= 0:
             continue
-        # pick-up (block_phase_isr after discarding the previous block: the advance phase is idle)
-        if dir_bits[i] != st[LA_DIR_BITS]:
-            st[LA_DIR_BITS] = dir_bits[i]
+        # pick-up (block_phase_isr after discarding the previous block: the advance phase is idle); the
+        # direction pins take the block's bits (set_directions when they differ, E's flip included)
+        st[LA_DIR_BITS] = dir_bits[i]
         for a in range(4):
             delta_error[a] = -sec
             dividend[a] = 2 * axis_steps[i, a]
