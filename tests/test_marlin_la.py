@@ -14,7 +14,7 @@ import gcodeplan as gp
 from gcodeplan import pipeline
 from gcodeplan.planner import marlin_kernels as mk
 from gcodeplan.planner.marlin import advance_fields, advance_lead
-from gcodeplan.stepper.marlin_la import (LA_ADVANCE_STEPS, LA_DIR_BITS, la_blocks_pulses_kernel, merge_ticks,
+from gcodeplan.stepper.marlin_la import (LA_ADVANCE_STEPS, LA_DIR_BITS, isr_ticks, la_blocks_pulses_kernel,
                                          new_state)
 from gcodeplan.stepper.source import StepSink, rails_from
 from conftest import shared_path, steps_window
@@ -57,13 +57,20 @@ def _la_run(machine, name):
     return sink, run
 
 
-def test_cube_extruder_pulses_are_marlins_to_the_tick(tmp_path):
+@pytest.fixture(scope="module")
+def cube_la(tmp_path_factory):
+    """The whole cube's pulses under K 0.05 (one run for the tests that read them), with the run's figures."""
+    machine = _la_machine(tmp_path_factory.mktemp("la"))
+    sink, run = _la_run(machine, CUBE)
+    return machine, sink, run
+
+
+def test_cube_extruder_pulses_are_marlins_to_the_tick(cube_la):
     """The cube under K 0.05: the extruder's pulses, forward and back, number what Marlin 2.1.2.4's
     linear-advance build issued (537,193: 478,854 forward, 58,339 back; net = the blocks' net E + the 4 steps
     of advance left at the end), every stored one (its first 200,000, or the vendored first 45 s) at Marlin's
     tick in Marlin's direction; X/Y/Z keep their counts."""
-    machine = _la_machine(tmp_path)
-    sink, run = _la_run(machine, CUBE)
+    _, sink, run = cube_la
     la = run["linear_advance"]
     t, d = sink.steps("e")
     assert len(t) == la["extruder_pulses_total"] == 537_193
@@ -82,6 +89,28 @@ def test_cube_extruder_pulses_are_marlins_to_the_tick(tmp_path):
         f"worst {np.max(np.abs(t[:n] - rt[:n])) * 1e6:.3f} µs"
     assert np.array_equal(d[:n], rd[:n])
     assert np.all(np.diff(t) >= 0)
+
+
+def test_cube_line_ends_are_marlins_last_pulses(cube_la):
+    """Every line's end in Marlin's linear-advance build (shared per-line CSV: when its last block's last step
+    pulse was issued) is the tick of the last pulse gcodeplan issues for that block: the block's last event,
+    or, where an advance pulse started the interrupt call less than the margin before it (1 of the cube's
+    4659 lines, 9 ticks), that call's start."""
+    machine, sink, _ = cube_la
+    import csv
+    import gzip
+
+    with gzip.open(shared_path("reference", "marlin", "variants", "la", "per_line",
+                               CUBE + ".per_line_end_time.csv.gz"), "rt") as fh:
+        rows = list(csv.reader(fh))[1:]
+    ref_line = np.array([int(r[0]) for r in rows])
+    ref_end = np.round(np.array([float(r[1]) for r in rows]) * HZ).astype(np.int64)
+    lines, ends = gp.estimate(str(shared_path("gcode", CUBE + ".gcode")), machine).line_times()
+    block_end = np.round(ends[np.searchsorted(lines, ref_line)] * HZ).astype(np.int64)
+    pulses = np.sort(np.round(np.concatenate([sink.steps(a)[0] for a in ("x", "y", "z", "e")]) * HZ).astype(np.int64))
+    last = pulses[np.searchsorted(pulses, block_end, side="right") - 1]
+    assert np.array_equal(last, ref_end)
+    assert np.count_nonzero(last != block_end) == 1 and np.max(block_end - last) == 9
 
 
 @pytest.mark.slow
@@ -105,7 +134,7 @@ def _one(v):
     return np.array([v], np.int64)
 
 
-def _block(st, sec, e_steps, la_rate, max_adv, final_adv, window=None):
+def _block(st, sec, e_steps, la_rate, max_adv, final_adv, ticks=None):
     """One block through the linear-advance interrupt: ``sec`` events of X, ``e_steps`` of E, 1000 → 2000 →
     1000 steps/s accelerating over event 1 (acceleration_rate 671089: +1000 steps/s per 25,000 ticks),
     cruising to event 3, then decelerating; picked up at tick 0."""
@@ -116,7 +145,7 @@ def _block(st, sec, e_steps, la_rate, max_adv, final_adv, window=None):
     la_blocks_pulses_kernel(_one(0), _one(sec), np.array([[sec, 0, 0, e_steps]], np.int64), zero, _one(1000),
                             _one(2000), _one(1000), _one(1), _one(3), _one(671089), _one(2000), zero, zero, zero, zero,
                             False, HZ, _one(la_rate), zero, _one(max_adv), _one(final_adv),
-                            merge_ticks(HZ) if window is None else window, st, out_t, out_d, n_out)
+                            *(isr_ticks(HZ) if ticks is None else ticks), st, out_t, out_d, n_out)
     return {a: (out_t[a, :n_out[a]].tolist(), out_d[a, :n_out[a]].tolist()) for a in range(4)}
 
 
@@ -142,16 +171,17 @@ def test_advance_event_under_two_us_after_a_step_is_issued_with_it():
     """la_advance_rate 995 makes the pick-up's interval 25e6 // (1000 + 995) = 12531 ticks: the advance phase,
     armed at the first event (25000), first runs at 37531, 31 ticks (1.24 µs) after the second event (37500),
     and from then on every 12500 (cruise) and 16666 (25e6/1500, decelerating) ticks after it, 31 ticks after
-    each event. Marlin's interrupt loops over events closer than its margin to the call's start and issues
-    their pulses in that call: E pulses at 37500, 50000, 62500, 75000 (each an event's tick, not 31 ticks
-    later); the one due at 91697 never comes, the block having ended at 91666. Each of the 6 E steps of the
-    block lowered the advance, each pulse raised it: 4 − 6 = −2 left. With a 1 µs window (25 ticks) the same
-    pulses come 31 ticks later."""
+    each event. Marlin's interrupt loops while the next event is due before its timer's count + 1 µs (25
+    ticks), the count having run on by the X step pulse's high time (20 ticks): 31 < 45, so the E pulses are
+    issued in the same call, at the events' ticks 37500, 50000, 62500, 75000; the one due at 91697 never
+    comes, the block having ended at 91666. Each of the 6 E steps of the block lowered the advance, each pulse
+    raised it: 4 − 6 = −2 left. Were the count 0 (no pulse hold), the same pulses would come 31 ticks later."""
+    assert isr_ticks(HZ) == (25, 20)
     st = new_state()
     out = _block(st, 6, 6, 995, 2, 0)
     assert out[3] == ([37500, 50000, 62500, 75000], [1, 1, 1, 1])
     assert st[LA_ADVANCE_STEPS] == -2
-    out = _block(new_state(), 6, 6, 995, 2, 0, window=25)
+    out = _block(new_state(), 6, 6, 995, 2, 0, ticks=(25, 0))
     assert out[3][0] == [37531, 50031, 62531, 75031]
 
 
@@ -209,8 +239,9 @@ PROGRAM = ("G21\nG90\nM83\nM900 K0.05\nG1 X10 F3000\nG1 X10.03 F3000\nG1 X30 Y5 
 def test_toolhead_line_by_line_gives_gp_steps_pulses_under_advance(tmp_path):
     """gp.Toolhead(steps=True) fed one line at a time (the model settles short stretches, the advance
     state and the planner's float position carried between them) hands out exactly gp.steps' pulses under
-    M900 K0.05; against the same program with K 0, X/Y/Z make the same pulses, each at most the interrupt's
-    merge window (1.8 µs) early, and E adds advance pulses both ways."""
+    M900 K0.05; against the same program with K 0, X/Y/Z make the same pulses, each on time or (handled in a
+    call an advance pulse started) less than the margin plus one pulse hold (1.8 µs) early, and E adds advance
+    pulses both ways."""
     g = tmp_path / "la.gcode"
     g.write_text(PROGRAM)
     machine = gp.load_machine("marlin-2.1.2")
@@ -235,7 +266,7 @@ def test_toolhead_line_by_line_gives_gp_steps_pulses_under_advance(tmp_path):
         t0, d0 = plain[k]
         assert len(t) == len(t0) > 0 and np.array_equal(d, d0), k
         early = np.round((t0 - t) * HZ)
-        assert early.min() >= 0 and early.max() < merge_ticks(HZ), k
+        assert early.min() >= 0 and early.max() < sum(isr_ticks(HZ)), k
     e, ed = ref["e"]
     e0, ed0 = plain["e"]
     assert len(e) > len(e0) and np.any(ed < 0)

@@ -413,7 +413,7 @@ def block_pulses(oi: np.ndarray, timer_hz: int, s_curve: bool, la: np.ndarray | 
             col(mk.OI_DEC_TIME_INV), bool(s_curve), int(timer_hz))
     hz = float(timer_hz)
     if la is not None and la_state is not None and len(b) and np.any(la[sel, 0] != 0):
-        from ..stepper.marlin_la import la_blocks_pulses_kernel, merge_ticks
+        from ..stepper.marlin_la import isr_ticks, la_blocks_pulses_kernel
 
         lb = la[sel]
         lcol = lambda k: np.ascontiguousarray(lb[:, k])    # noqa: E731
@@ -424,7 +424,7 @@ def block_pulses(oi: np.ndarray, timer_hz: int, s_curve: bool, la: np.ndarray | 
             out_d = np.empty((4, room), np.int8)
             n_out = np.zeros(4, np.int64)
             st = la_state.copy()
-            la_blocks_pulses_kernel(*args, lcol(0), lcol(1), lcol(2), lcol(3), merge_ticks(timer_hz), st, out_t, out_d,
+            la_blocks_pulses_kernel(*args, lcol(0), lcol(1), lcol(2), lcol(3), *isr_ticks(timer_hz), st, out_t, out_d,
                                     n_out)
             if n_out.max() <= room:
                 break

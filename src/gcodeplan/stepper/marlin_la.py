@@ -16,8 +16,9 @@ over the block's ``2·step_event_count``), each pulse adding ±1 to ``la_advance
 
 The interrupt (``Stepper::isr``) runs, in one call, the pulse phase if the leading axis is due, then the
 advance phase if it is due (or arms it with the current ``la_interval`` when it was idle), then the block
-phase; it loops as long as the next event is within its margin of the call's start (:data:`ISR_MERGE_S`), so
-every pulse of those events, X/Y/Z's included, is issued at the call's start. Finishing a block stops the
+phase; it loops as long as the next event is due before the timer's count plus a 1 µs margin, the count
+having run on by each STEP pulse's high time (:data:`ISR_PULSE_HOLD_S`), so every pulse of those events,
+X/Y/Z's included, is issued at the call's start. Finishing a block stops the
 advance phase (``discard_current_block``: ``la_interval`` and the next advance event become "never");
 the next block's ``la_interval`` is set at its pick-up and armed at its first event.
 
@@ -34,28 +35,33 @@ from .._jit import njit
 from .marlin_isr import (ISR_NOMINAL_RATE, ISR_PHASE, ISR_STEP_RATE, N_ISR, PHASE_ACCEL, PHASE_CRUISE_FIRST,
                          PHASE_DECEL, block_phase_isr, block_pickup)
 
-#: s: the interrupt handles in the call in progress every event less than this after the call's start
-#: (``Stepper::isr`` loops while the next event is before ``HAL_timer_get_count() + STEPPER_TIMER_TICKS_PER_US``).
-#: Marlin's code says 1 µs past the timer's count at that point; the reference build's count is not 0 there: its
-#: pulses put the limit between 43 and 47 ticks of 25 MHz (events 42 ticks after a call's start are in it, 47
-#: after are not, over its first 200,000 extruder pulses), so the model takes the middle, 45 ticks.
-ISR_MERGE_S = 1.8e-6
+#: s: Marlin's margin (``STEPPER_TIMER_TICKS_PER_US`` ticks, 1 µs on an ARM board): ``Stepper::isr`` keeps
+#: looping while the next event is due before the timer's count plus this margin, and issues that event in the
+#: same call, at the call's start
+ISR_MARGIN_S = 1e-6
+#: s: the timer's count inside a call is not 0 at that test: every STEP pulse the call issued held it for the
+#: pulse's high time (``AWAIT_HIGH_PULSE``, once per step event and once per advance pulse). The reference
+#: build's hold is not stated; its pulses pin it between 18 and 22 ticks of 25 MHz (all 200,000 stored
+#: extruder pulses and all 59,536 per-line end times of both programs agree for any value there, none
+#: outside), so the model takes the middle, 20 ticks
+ISR_PULSE_HOLD_S = 0.8e-6
 #: Marlin's LA_ADV_NEVER (0xFFFFFFFF): the advance phase is idle
 LA_ADV_NEVER = 0xFFFFFFFF
 _U32 = 0xFFFFFFFF
 _E_BIT = 8                       # direction_bits: bit 3 is E (set = negative)
 
 # The state that lives across blocks (one int64 array): la_advance_steps, last_direction_bits (the direction
-# pins as the interrupt last set them), la_dividend, and the tick at which the interrupt call in progress
-# started (pulses of the events it handles are issued at that tick)
-LA_ADVANCE_STEPS, LA_DIR_BITS, LA_DIVIDEND, LA_CALL_START = range(4)
+# pins as the interrupt last set them), la_dividend, the tick at which the interrupt call in progress started
+# (pulses of the events it handles are issued at that tick) and how long after it an event still joins it
+# (the margin plus the pulse holds so far)
+LA_ADVANCE_STEPS, LA_DIR_BITS, LA_DIVIDEND, LA_CALL_START, LA_CALL_REACH = range(5)
 #: length of the state array
-N_LA_STATE = 4
+N_LA_STATE = 5
 
 
-def merge_ticks(timer_hz: int) -> int:
-    """Ticks of ``timer_hz`` within which the interrupt handles later events in the same call (:data:`ISR_MERGE_S`)."""
-    return int(round(ISR_MERGE_S * timer_hz))
+def isr_ticks(timer_hz: int) -> tuple[int, int]:
+    """(margin, pulse hold) in ticks of ``timer_hz``: :data:`ISR_MARGIN_S`, :data:`ISR_PULSE_HOLD_S`."""
+    return int(round(ISR_MARGIN_S * timer_hz)), int(round(ISR_PULSE_HOLD_S * timer_hz))
 
 
 def new_state() -> np.ndarray:
@@ -118,12 +124,14 @@ def _emit(out_t, out_d, n_out, axis, t, d):
 def la_blocks_pulses_kernel(t_pick, n_steps, axis_steps, dir_bits, initial_rate, nominal_rate, final_rate,
                             accelerate_until, decelerate_after, acc_rate, cruise_rate, acceleration_time,
                             deceleration_time, acceleration_time_inverse, deceleration_time_inverse, s_curve,
-                            timer_hz, la_advance_rate, la_scaling, max_adv_steps, final_adv_steps, merge_ticks, st,
-                            out_t, out_d, n_out):
+                            timer_hz, la_advance_rate, la_scaling, max_adv_steps, final_adv_steps, margin_ticks,
+                            pulse_ticks, st, out_t, out_d, n_out):
     """Every step pulse of a run of blocks as Marlin's interrupt issues them with linear advance: the block
     events as :func:`gcodeplan.stepper.marlin_isr.blocks_pulses_kernel` times them, X/Y/Z (and E of a block
     without advance) by Bresenham on them, E of an advance block from the advance phase (module
-    docstring), each pulse at the start of the interrupt call that issued it.
+    docstring), each pulse at the start of the interrupt call that issued it: a call goes on to the next
+    event while it is due less than ``margin_ticks`` plus ``pulse_ticks`` per STEP pulse issued so far after
+    the call's start (:func:`isr_ticks`).
 
     ``st`` (:func:`new_state`) carries the interrupt across calls. Appends tick and direction per axis to
     ``out_t`` / ``out_d`` (4 × capacity) and counts in ``n_out``; pulses beyond the capacity are counted but
@@ -162,13 +170,16 @@ def la_blocks_pulses_kernel(t_pick, n_steps, axis_steps, dir_bits, initial_rate,
             cur = main_due
             if adv_due != never and adv_due < cur:
                 cur = adv_due
-            if cur - st[LA_CALL_START] >= merge_ticks:
+            if cur - st[LA_CALL_START] >= st[LA_CALL_REACH]:
+                # a new interrupt call
                 st[LA_CALL_START] = cur
+                st[LA_CALL_REACH] = margin_ticks
             stamp = st[LA_CALL_START]
             main = cur == main_due
             if main:
                 # pulse_phase_isr: one event of the leading axis, every axis by Bresenham
                 n += 1
+                st[LA_CALL_REACH] += pulse_ticks        # the leading axis steps at every event
                 for a in range(4):
                     delta_error[a] += dividend[a]
                     if delta_error[a] >= 0:
@@ -185,6 +196,7 @@ def la_blocks_pulses_kernel(t_pick, n_steps, axis_steps, dir_bits, initial_rate,
                     d = -1 if st[LA_DIR_BITS] & _E_BIT else 1
                     st[LA_ADVANCE_STEPS] += d
                     la_delta_error -= divisor
+                    st[LA_CALL_REACH] += pulse_ticks
                     _emit(out_t, out_d, n_out, 3, stamp, d)
                 adv_due = never if la_interval == never else cur + la_interval
             elif adv_due == never and la_interval != never:
