@@ -233,23 +233,6 @@ def test_a_non_cartesian_stepper_is_an_error_not_missing_pulses(tmp_path):
         gp.steps(str(g), m)
 
 
-def test_linear_advance_pulses_are_an_error_naming_the_line(tmp_path):
-    """LIN_ADVANCE's extruder interrupt (advance pulses both ways) is not modelled: asking for the pulses of a
-    program under a K factor is an error naming the file and the first line under it, never extruder pulses
-    silently without the advance; with K 0 the same program steps."""
-    from gcodeplan.errors import GcodeError
-
-    g = tmp_path / "la.gcode"
-    g.write_text("G21\nG90\nM83\nG1 X10 F3000\nM900 K0.05\nG1 X20 E1 F1200\n")
-    machine = gp.load_machine("marlin-2.1.2")
-    with pytest.raises(GcodeError, match="linear advance") as err:
-        gp.steps(str(g), machine)
-    assert err.value.line == 6 and "la.gcode" in str(err.value)
-    g.write_text("G21\nG90\nM83\nG1 X10 F3000\nM900 K0\nG1 X20 E1 F1200\n")
-    out = gp.steps(str(g), machine)
-    assert len(out["x"][0]) == 2000 and len(out["e"][0]) == 280
-
-
 def test_toolhead_line_by_line_gives_the_pulses_of_gp_steps(tmp_path):
     """gp.Toolhead(steps=True), fed one line at a time, hands out the firmware's pulses as rows become final:
     their concatenation is gp.steps' bit for bit."""

@@ -12,6 +12,7 @@ share within 1 µs over the steps the reference stores).
     python tools/compare_marlin.py --files cura413_ender3_cylinder30
     python tools/compare_marlin.py --reference variants/jd --policy junction-deviation
     python tools/compare_marlin.py --machine marlin-bugfix --reference bugfix-2.1.x   # the bugfix-2.1.x model
+    python tools/compare_marlin.py --reference variants/la      # the marlin-2.1.2 machine with K 0.05
 
 The estimate runs through the same pipeline as ``gcodeplan estimate`` (per-line end times from its
 PLAN rows); the block check runs the model itself (planner.marlin.run_marlin) on the parsed rows.
@@ -24,6 +25,7 @@ import gzip
 import json
 import os
 import sys
+import tempfile
 import time
 
 import numpy as np
@@ -34,6 +36,10 @@ sys.path.insert(0, os.path.join(HERE, "..", "src"))
 REF = os.path.join(HERE, "..", "..", "shared", "reference", "marlin")
 GCODE = os.path.join(HERE, "..", "..", "shared", "gcode")
 FILES = ("prusaslicer25_cube20_marlin2", "cura413_ender3_cylinder30")
+#: Hz, the reference build's stepper timer
+MARLIN_HZ = 25_000_000
+#: the linear-advance build's K factor (variants/la: ADVANCE_K), used when --machine is left at its default
+LA_K = 0.05
 #: (reference column, model output column) of the block check
 BLOCK_COLUMNS = (("step_event_count", "OI_SEC"), ("nominal_rate", "OI_NOMINAL_RATE"),
                  ("acceleration_steps_per_s2", "OI_ACCEL_STEPS"), ("initial_rate", "OI_INITIAL_RATE"),
@@ -127,26 +133,34 @@ def run_entry(entry: dict, key: str) -> dict:
 
 def steps_check(name: str, machine_spec: str, ref_dir: str, policy: str | None, run: dict) -> list[str]:
     """Per stepper: pulses issued against the firmware's count, and over the steps the reference stores (its
-    first 200,000 per axis) the largest time error and the share within 1 µs, directions compared too."""
+    first 200,000 per axis) the largest time error and the shares within 1 µs and at the tick, directions
+    compared too. A linear-advance run also compares the extruder's forward and backward pulses, and its
+    counts even where no step file is stored."""
     from gcodeplan import pipeline
     from gcodeplan.config import load_machine
     from gcodeplan.stepper.source import StepSink, rails_from
 
     path = os.path.join(ref_dir, "steps", name + "_steps.npz")
-    if not os.path.exists(path):
+    la = run.get("linear_advance")
+    if not os.path.exists(path) and not la:
         return ["(the reference has no step file)"]
-    ref = np.load(path)
-    keep = {a: max((len(ref[k]) for k, b in STEPPERS if b == a and k in ref.files), default=0) for _, a in STEPPERS}
+    ref = np.load(path) if os.path.exists(path) else None
+    stored = set(ref.files) if ref is not None else set()
+    keep = {a: max((len(ref[k]) for k, b in STEPPERS if b == a and k in stored), default=0) for _, a in STEPPERS}
     machine = load_machine(machine_spec)
     rails = rails_from(machine)
     names = [r.name for r in rails]
     got = {n: [] for n in names}
     held = dict.fromkeys(names, 0)
     count = dict.fromkeys(names, 0)
+    fwd = dict.fromkeys(names, 0)
+    back = dict.fromkeys(names, 0)
 
     def sink(si, t, d):
         n = names[si]
         count[n] += len(t)
+        fwd[n] += int(np.count_nonzero(d > 0))
+        back[n] += int(np.count_nonzero(d < 0))
         room = keep.get(n, 0) - held[n]
         if room > 0:
             got[n].append((t[:room].copy(), d[:room].copy()))
@@ -162,19 +176,31 @@ def steps_check(name: str, machine_spec: str, ref_dir: str, policy: str | None, 
     totals = run.get("steps", {})
     out = []
     for key, a in STEPPERS:
-        if key not in ref.files or a not in got:
+        if a not in got or (key not in stored and not (la and key == "extruder")):
             continue
-        rt, rd = ref[key], ref[key + "_dir"]
-        mt = np.concatenate([c[0] for c in got[a]]) if got[a] else np.zeros(0)
-        md = np.concatenate([c[1] for c in got[a]]) if got[a] else np.zeros(0, np.int8)
-        n = min(len(rt), len(mt))
-        err = np.abs(mt[:n] - rt[:n])
         total = totals.get(key, {}).get("steps_total")
-        same = len(mt) == len(rt) if total is None else count[a] == total
-        out.append(f"{key:10s} {count[a]:>9d} steps (firmware {total if total is not None else '?'}: "
-                   f"{'equal' if same else 'DIFFERENT'}); first {n}: max |dt| {err.max() * 1e6 if n else 0:.3f} us, "
-                   f"{100 * np.mean(err <= 1e-6) if n else 100:.4f} % within 1 us, "
-                   f"directions {'equal' if np.array_equal(md[:n], rd[:n]) else 'DIFFERENT'}")
+        if key not in stored:
+            out.append(f"{key:10s} {count[a]:>9d} steps (firmware {total}: "
+                       f"{'equal' if count[a] == total else 'DIFFERENT'}); no stored pulses")
+        else:
+            rt, rd = ref[key], ref[key + "_dir"]
+            mt = np.concatenate([c[0] for c in got[a]]) if got[a] else np.zeros(0)
+            md = np.concatenate([c[1] for c in got[a]]) if got[a] else np.zeros(0, np.int8)
+            n = min(len(rt), len(mt))
+            err = np.abs(mt[:n] - rt[:n])
+            tick = np.round(mt[:n] * MARLIN_HZ) == np.round(rt[:n] * MARLIN_HZ)
+            same = len(mt) == len(rt) if total is None else count[a] == total
+            out.append(f"{key:10s} {count[a]:>9d} steps (firmware {total if total is not None else '?'}: "
+                       f"{'equal' if same else 'DIFFERENT'}); first {n}: max |dt| {err.max() * 1e6 if n else 0:.3f} "
+                       f"us, {100 * np.mean(err <= 1e-6) if n else 100:.4f} % within 1 us, "
+                       f"{100 * np.mean(tick) if n else 100:.4f} % at the tick, "
+                       f"directions {'equal' if np.array_equal(md[:n], rd[:n]) else 'DIFFERENT'}")
+        if la and key == "extruder":
+            # linear advance: the advance pulses go both ways (a stored prefix holds only the first pulses)
+            want = (la["extruder_pulses_forward"], la["extruder_pulses_backward"])
+            out.append(f"{'':10s} linear advance: {fwd[a]} forward / {back[a]} back, net {fwd[a] - back[a]} "
+                       f"(firmware {want[0]} / {want[1]}, net {la['extruder_pulses_net']}: "
+                       f"{'equal' if (fwd[a], back[a]) == want else 'DIFFERENT'})")
     return out
 
 
@@ -189,13 +215,20 @@ def main(argv=None) -> int:
     ap.add_argument("--no-steps", action="store_true", help="skip the step-pulse check")
     args = ap.parse_args(argv)
     ref_dir = os.path.join(REF, args.reference) if args.reference else REF
+    shown = args.machine
+    if args.reference.strip("/") == "variants/la" and args.machine == "marlin-2.1.2":
+        # the LIN_ADVANCE build: the reference machine with its ADVANCE_K
+        args.machine = os.path.join(tempfile.mkdtemp(), "marlin_la.toml")
+        with open(args.machine, "w") as fh:
+            fh.write(f'base = "marlin-2.1.2"\n[extruder]\npressure_advance = {LA_K}\n')
+        shown = f"marlin-2.1.2 with pressure_advance {LA_K}"
     with open(os.path.join(REF, "times.json")) as fh:
         times = json.load(fh)
     if os.path.exists(os.path.join(ref_dir, "times.json")) and ref_dir != REF:
         with open(os.path.join(ref_dir, "times.json")) as fh:
             times = json.load(fh)
     key = "bugfix-2.1.x" if "bugfix" in args.reference else "marlin-2.1.2.4"
-    print(f"machine {args.machine}, policy {args.policy or 'default'}, reference {args.reference or key}")
+    print(f"machine {shown}, policy {args.policy or 'default'}, reference {args.reference or key}")
     print(f"{'file':34s} {'gcodeplan s':>13s} {'reference s':>13s} {'total err':>10s} {'max line err':>13s}"
           f" {'% of total':>10s}  time")
     for name in args.files:

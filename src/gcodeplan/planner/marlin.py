@@ -15,7 +15,9 @@ row's distance is covered in its time.
 Rows that make no block (under 6 steps: Marlin carries them into the next move) last 0 s at the end of
 the block before them; their steps are issued with the block they merge into. With ``want_steps`` the model
 also hands on each settled stretch's step pulses as the interrupt issues them (:func:`block_pulses`): the
-leading axis at every interrupt tick, X/Y/Z/E on those ticks by Bresenham. Waits (M400, G4, G28, heater waits) drain the buffer; the next block is picked up
+leading axis at every interrupt tick, X/Y/Z/E on those ticks by Bresenham; under a linear-advance K factor
+the extruder's pulses come from Marlin's advance interrupt instead (:mod:`gcodeplan.stepper.marlin_la`, fed
+the blocks' :func:`advance_fields`). Waits (M400, G4, G28, heater waits) drain the buffer; the next block is picked up
 at the stepper's next 1 ms idle poll after the wait (the dwell rounded up to whole ms).
 
 Reference: ``shared/reference/marlin`` (Marlin 2.1.2.4's planner.cpp / stepper.cpp on a simulated clock);
@@ -23,7 +25,6 @@ Reference: ``shared/reference/marlin`` (Marlin 2.1.2.4's planner.cpp / stepper.c
 """
 from __future__ import annotations
 
-import math
 
 import numpy as np
 
@@ -116,6 +117,10 @@ class MarlinModel:
         # the stepper's own pulses of the settled rows ({axis 0..3: (times s, dirs)}), when want_steps
         self.want_steps = False
         self.last_steps = None
+        # linear advance (K > 0 on some row): the interrupt's state across stretches, and the planner's
+        # position_float after the last settled row (its use_advance_lead test needs it)
+        self._la_state = None
+        self._la_pos = np.zeros(4, np.float32)
 
     # ------------------------------------------------------------------ inputs
     def _row_arrays(self, moves: np.ndarray, limits: np.ndarray) -> dict:
@@ -290,27 +295,24 @@ class MarlinModel:
         if self.keep_blocks:
             self.blocks.append((oi.copy(), of.copy(), moves_out["line"].copy()))
         if self.want_steps:
-            self._check_no_advance(moves_out, a["advance_k"][:n_done])
-            self.last_steps = block_pulses(oi, self.timer_hz, self.s_curve, self.version == mk.VERSION_BUGFIX)
+            la = None
+            k = a["advance_k"][:n_done]
+            lead = advance_lead(oi, a["tgt"][:n_done], a["reset_bits"][:n_done], a["reset_pos"][:n_done], k,
+                                self._la_pos)
+            if lead.any() or self._la_state is not None:
+                from ..stepper.marlin_la import new_state
+
+                if self._la_state is None:
+                    self._la_state = new_state()
+                la = advance_fields(oi, lead, k)
+            self.last_steps = block_pulses(oi, self.timer_hz, self.s_curve, la, self._la_state,
+                                           bugfix=self.version == mk.VERSION_BUGFIX)
         self._moves = self._moves[n_done:].copy()
         self._arrays = {k: v[n_done:].copy() for k, v in a.items()}
         self._out_i = self._out_i[n_done:].copy()
         self._out_f = self._out_f[n_done:].copy()
         self.row_base += n_done
         return [(moves_out, plan)]
-
-    @staticmethod
-    def _check_no_advance(moves: np.ndarray, advance_k: np.ndarray) -> None:
-        """LIN_ADVANCE's own extruder interrupt (its advance pulses, both ways) is not modelled for step
-        pulses: an error naming the first line under a K factor, not extruder pulses without the advance."""
-        on = np.flatnonzero(advance_k > 0)
-        if on.size:
-            from ..errors import GcodeError
-
-            raise GcodeError(f"{FIRMWARES[0]}: step pulses with linear advance (K {float(advance_k[on[0]]):g}) are not "
-                             "modelled: Marlin's extruder interrupt adds advance pulses the model does not issue "
-                             "(times and X/Y/Z are Marlin's; set the K factor to 0 for the other pulses)",
-                             line=int(moves["line"][on[0]]))
 
     def _plan_rows(self, moves: np.ndarray, oi: np.ndarray, of: np.ndarray) -> np.ndarray:
         """PLAN rows: blocks as executed; rows without a block last 0 s where the previous one ended."""
@@ -360,31 +362,126 @@ class MarlinModel:
         return plan
 
 
-def block_pulses(oi: np.ndarray, timer_hz: int, s_curve: bool, bugfix: bool = False) -> dict:
+def advance_lead(oi: np.ndarray, tgt: np.ndarray, reset_bits: np.ndarray, reset_pos: np.ndarray,
+                 advance_k: np.ndarray, pos_float: np.ndarray) -> np.ndarray:
+    """Which rows' blocks run with linear advance (planner.cpp ``use_advance_lead``): K > 0, E steps
+    forward, some X/Y/Z steps (an E-only move is a retract or recover), and ``e_D_ratio`` (E mm per X/Y/Z mm
+    from the float target and ``position_float``, float32) not above 3 (a retract merged into a print
+    move). ``pos_float`` (4 float32, in/out) is ``position_float`` before the first row; rows are the model's
+    settled rows in order (``tgt``/``reset_*``: the kernel's row arrays)."""
+    n = len(oi)
+    has = oi[:, mk.OI_HAS_BLOCK] == 1
+    # position_float before each row's block: a G92 on the row sets its axes first, a block sets all four
+    before = np.empty((n, 4), np.float32)
+    after = np.empty((n, 4), np.float32)
+    for a in range(4):
+        reset = (reset_bits >> a) & 1 == 1
+        val = np.where(has, tgt[:, a], reset_pos[:, a]).astype(np.float32)
+        ev = has | reset
+        idx = np.arange(n)
+        last = np.maximum.accumulate(np.where(ev, idx, -1)) if n else idx
+        after[:, a] = np.where(last >= 0, val[np.maximum(last, 0)], pos_float[a])
+        prev = np.concatenate([[pos_float[a]], after[:-1, a]]).astype(np.float32)
+        before[:, a] = np.where(reset, reset_pos[:, a], prev)
+    if n:
+        pos_float[:] = after[-1]
+    d = (tgt - before).astype(np.float32)
+    dxyz = np.sqrt(((d[:, 0] * d[:, 0]).astype(np.float32) + (d[:, 1] * d[:, 1]).astype(np.float32)).astype(
+        np.float32) + (d[:, 2] * d[:, 2]).astype(np.float32)).astype(np.float32)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        e_d_ratio = (d[:, 3] / dxyz).astype(np.float32)
+    steps = oi[:, mk.OI_SX:mk.OI_SE + 1]
+    forward_e = (oi[:, mk.OI_DIR_BITS] & 8) == 0
+    return (has & (advance_k > 0) & (steps[:, 3] > 0) & forward_e & (steps[:, :3].sum(axis=1) > 0)
+            & ~(e_d_ratio > np.float32(3)))
+
+
+def advance_fields(oi: np.ndarray, lead: np.ndarray, advance_k: np.ndarray) -> np.ndarray:
+    """The block's linear-advance fields (planner.cpp ``_populate_block`` and
+    ``calculate_trapezoid_for_block``), an int64 array of rows × 4: ``la_advance_rate`` = K · acceleration
+    (steps/s², float32, truncated; 0 without advance), ``la_scaling`` (doublings of ``2·e_steps`` while it is
+    at most a quarter of the events: at most about four E steps per advance event), ``max_adv_steps`` =
+    cruise rate · K · e_steps / events and ``final_adv_steps`` the same from the final rate (uint16)."""
+    n = len(oi)
+    out = np.zeros((n, 4), np.int64)
+    k = advance_k.astype(np.float32)
+    rate = (k * oi[:, mk.OI_ACCEL_STEPS].astype(np.float32)).astype(np.float32)
+    out[:, 0] = np.where(lead, np.trunc(rate).astype(np.int64), 0)
+    e2 = 2 * oi[:, mk.OI_SE]
+    quarter = oi[:, mk.OI_SEC] >> 2
+    scaling = np.zeros(n, np.int64)
+    grow = lead & (e2 > 0) & (e2 <= quarter)
+    while grow.any():
+        scaling += grow
+        e2 = np.where(grow, e2 << 1, e2)
+        grow = grow & (e2 <= quarter)
+    out[:, 1] = scaling
+    with np.errstate(divide="ignore", invalid="ignore"):
+        comp = ((k * oi[:, mk.OI_SE].astype(np.float32)).astype(np.float32)
+                / np.maximum(oi[:, mk.OI_SEC], 1).astype(np.float32)).astype(np.float32)
+    mx = (oi[:, mk.OI_CRUISE_RATE].astype(np.float32) * comp).astype(np.float32)
+    fin = (oi[:, mk.OI_FINAL_RATE].astype(np.float32) * comp).astype(np.float32)
+    out[:, 2] = np.where(lead, np.trunc(mx).astype(np.int64) & 0xFFFF, 0)
+    out[:, 3] = np.where(lead, np.trunc(fin).astype(np.int64) & 0xFFFF, 0)
+    return out
+
+
+def block_pulses(oi: np.ndarray, timer_hz: int, s_curve: bool, la: np.ndarray | None = None,
+                 la_state: np.ndarray | None = None, bugfix: bool = False) -> dict:
     """The step pulses of the blocks in per-row outputs ``oi`` (rows without a block are skipped), as
-    Marlin's stepper interrupt issues them (:func:`gcodeplan.stepper.marlin_isr.blocks_pulses_kernel`;
-    ``bugfix``: bugfix-2.1.x's interrupt timing):
-    {axis 0..3 (X, Y, Z, E): (times s from the first pick-up, int8 directions)}."""
+    Marlin's stepper interrupt issues them (:func:`gcodeplan.stepper.marlin_isr.blocks_pulses_kernel`):
+    {axis 0..3 (X, Y, Z, E): (times s from the first pick-up, int8 directions)}.
+
+    ``la`` (rows × 4, :func:`advance_fields`) with any advance block: the linear-advance interrupt
+    (:func:`gcodeplan.stepper.marlin_la.la_blocks_pulses_kernel`) issues E, carrying ``la_state``
+    (:func:`gcodeplan.stepper.marlin_la.new_state`) from one call to the next. ``bugfix``: bugfix-2.1.x's
+    interrupt timing (its linear advance is not modelled: an error)."""
     from ..stepper.marlin_isr import acceleration_rate, blocks_pulses_kernel
 
-    b = oi[oi[:, mk.OI_HAS_BLOCK] == 1]
+    sel = oi[:, mk.OI_HAS_BLOCK] == 1
+    b = oi[sel]
     axis_steps = np.ascontiguousarray(b[:, mk.OI_SX:mk.OI_SE + 1])
     n_axis = axis_steps.sum(axis=0)
     cap = int(n_axis.max()) if len(b) else 0
+    col = lambda k: np.ascontiguousarray(b[:, k])        # noqa: E731
+    args = (col(mk.OI_T_PICK), col(mk.OI_SEC), axis_steps, col(mk.OI_DIR_BITS), col(mk.OI_INITIAL_RATE),
+            col(mk.OI_NOMINAL_RATE), col(mk.OI_FINAL_RATE), col(mk.OI_ACCEL_UNTIL), col(mk.OI_DECEL_AFTER),
+            acceleration_rate(col(mk.OI_ACCEL_STEPS), timer_hz), col(mk.OI_CRUISE_RATE),
+            col(mk.OI_ACCELERATION_TIME), col(mk.OI_DECELERATION_TIME), col(mk.OI_ACC_TIME_INV),
+            col(mk.OI_DEC_TIME_INV), bool(s_curve), int(timer_hz))
+    hz = float(timer_hz)
+    if la is not None and la_state is not None and len(b) and np.any(la[sel, 0] != 0):
+        if bugfix:
+            raise ConfigError("firmware marlin-bugfix: step pulses with linear advance are not modelled (its "
+                              "advance interrupt changed after 2.1.2; times are bugfix's, set the K factor to 0 "
+                              "for the other pulses or use marlin-2.1.2)")
+        from ..stepper.marlin_la import isr_ticks, la_blocks_pulses_kernel
+
+        lb = la[sel]
+        lcol = lambda k: np.ascontiguousarray(lb[:, k])    # noqa: E731
+        # E: the blocks' steps plus the advance pulses, both ways (unknown ahead: retried with more room)
+        room = cap + int(n_axis[3]) + 64
+        while True:
+            out_t = np.empty((4, room), np.int64)
+            out_d = np.empty((4, room), np.int8)
+            n_out = np.zeros(4, np.int64)
+            st = la_state.copy()
+            la_blocks_pulses_kernel(*args, lcol(0), lcol(1), lcol(2), lcol(3), *isr_ticks(timer_hz), st, out_t, out_d,
+                                    n_out)
+            if n_out.max() <= room:
+                break
+            room = int(n_out.max())
+        la_state[:] = st
+        if not np.array_equal(n_out[:3], n_axis[:3]):
+            raise RuntimeError("marlin model: pulses issued differ from the blocks' step counts (a model bug)")
+        return {a: (out_t[a, :n_out[a]] / hz, out_d[a, :n_out[a]].copy()) for a in range(4)}
     out_t = np.empty((4, cap), np.int64)
     out_d = np.empty((4, cap), np.int8)
     n_out = np.zeros(4, np.int64)
     if len(b):
-        col = lambda k: np.ascontiguousarray(b[:, k])        # noqa: E731
-        blocks_pulses_kernel(col(mk.OI_T_PICK), col(mk.OI_SEC), axis_steps, col(mk.OI_DIR_BITS),
-                             col(mk.OI_INITIAL_RATE), col(mk.OI_NOMINAL_RATE), col(mk.OI_FINAL_RATE),
-                             col(mk.OI_ACCEL_UNTIL), col(mk.OI_DECEL_AFTER),
-                             acceleration_rate(col(mk.OI_ACCEL_STEPS), timer_hz), col(mk.OI_CRUISE_RATE),
-                             col(mk.OI_ACCELERATION_TIME), col(mk.OI_DECELERATION_TIME), col(mk.OI_ACC_TIME_INV),
-                             col(mk.OI_DEC_TIME_INV), bool(s_curve), int(timer_hz), out_t, out_d, n_out, bool(bugfix))
+        blocks_pulses_kernel(*args, out_t, out_d, n_out, bool(bugfix))
     if not np.array_equal(n_out, n_axis):
         raise RuntimeError("marlin model: pulses issued differ from the blocks' step counts (a model bug)")
-    hz = float(timer_hz)
     return {a: (out_t[a, :n_out[a]] / hz, out_d[a, :n_out[a]].copy()) for a in range(4)}
 
 

@@ -46,9 +46,13 @@ _HALF_24 = 0x800000
 (ISR_SEC, ISR_INITIAL_RATE, ISR_NOMINAL_RATE, ISR_FINAL_RATE, ISR_ACCEL_UNTIL, ISR_DECEL_AFTER, ISR_ACC_RATE,
  ISR_CRUISE_RATE, ISR_ACCELERATION_TIME, ISR_DECELERATION_TIME, ISR_DEC_TIME_INV, ISR_S_CURVE,
  ISR_ACC_TIME, ISR_DEC_TIME, ISR_ACC_STEP_RATE, ISR_TICKS_NOMINAL,
- ISR_BEZ_A, ISR_BEZ_B, ISR_BEZ_C, ISR_BEZ_F, ISR_BEZ_AV, ISR_BEZ_2ND) = range(22)
+ ISR_BEZ_A, ISR_BEZ_B, ISR_BEZ_C, ISR_BEZ_F, ISR_BEZ_AV, ISR_BEZ_2ND, ISR_STEP_RATE, ISR_PHASE) = range(24)
 #: length of the ``isr`` state array
-N_ISR = 22
+N_ISR = 24
+#: ``isr[ISR_PHASE]`` after :func:`block_phase_isr`: the phase the event was in (linear advance reads it, with
+#: ``isr[ISR_STEP_RATE]``, the step rate that phase computed): accelerating, the first cruising event (its
+#: interval computed), a later cruising event, decelerating
+PHASE_ACCEL, PHASE_CRUISE_FIRST, PHASE_CRUISE, PHASE_DECEL = 0, 1, 2, 3
 
 
 def acceleration_rate(accel_steps_s2, timer_hz: int = MARLIN_TIMER_HZ):
@@ -141,6 +145,8 @@ def block_phase_isr(isr, n, timer_hz):
             if r > isr[ISR_NOMINAL_RATE]:
                 r = isr[ISR_NOMINAL_RATE]
             isr[ISR_ACC_STEP_RATE] = r
+        isr[ISR_STEP_RATE] = r
+        isr[ISR_PHASE] = PHASE_ACCEL
         interval = np.int64(timer_hz) // r
         isr[ISR_ACC_TIME] += interval
         return interval
@@ -164,15 +170,20 @@ def block_phase_isr(isr, n, timer_hz):
                     s = isr[ISR_FINAL_RATE]
             else:
                 s = isr[ISR_FINAL_RATE]
+        isr[ISR_STEP_RATE] = s
+        isr[ISR_PHASE] = PHASE_DECEL
         interval = np.int64(timer_hz) // s
         isr[ISR_DEC_TIME] += interval
         return interval
+    isr[ISR_STEP_RATE] = isr[ISR_NOMINAL_RATE]
+    isr[ISR_PHASE] = PHASE_CRUISE
     if isr[ISR_TICKS_NOMINAL] < 0:
         # the first cruising step: its interval once for the whole cruise; the ramp down starts from nominal
         isr[ISR_TICKS_NOMINAL] = np.int64(timer_hz) // isr[ISR_NOMINAL_RATE]
         if isr[ISR_S_CURVE] == 0:
             isr[ISR_ACC_STEP_RATE] = isr[ISR_NOMINAL_RATE]
         isr[ISR_DEC_TIME] = 0
+        isr[ISR_PHASE] = PHASE_CRUISE_FIRST
     return isr[ISR_TICKS_NOMINAL]
 
 

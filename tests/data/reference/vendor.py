@@ -72,9 +72,10 @@ COPY = [
     f"grbl/steps/{n}_steps.npz" for n in ("synth_square", "synth_polycircle30", "synth_arcs")] + [
     f"grbl/per_line/{n}.per_line_end_time.csv.gz" for n in (
         "synth_square", "synth_polycircle30", "synth_arcs", "linuxcnc_plasmatest", "linuxcnc_arcspiral")] + [
-    # Marlin 2.1.2.4: the figures (step counts of the whole runs) of the reference and its S-curve build;
-    # Marlin bugfix-2.1.x: the cube's every block and per-line ends (times.json has both versions' totals)
-    "marlin/times.json", "marlin/variants/scurve/times.json",
+    # Marlin 2.1.2.4: the figures (step counts of the whole runs) of the reference and its S-curve and linear
+    # advance builds; Marlin bugfix-2.1.x: the cube's every block and per-line ends (times.json has both
+    # versions' totals)
+    "marlin/times.json", "marlin/variants/scurve/times.json", "marlin/variants/la/times.json",
     "marlin/bugfix-2.1.x/blocks/prusaslicer25_cube20_marlin2.blocks.csv.gz",
     "marlin/bugfix-2.1.x/per_line/prusaslicer25_cube20_marlin2.per_line_end_time.csv.gz"]
 
@@ -98,6 +99,8 @@ PREFIX = {
     # Marlin 2.1.2.4's pulses of the cube (its stepper interrupt), and of its S_CURVE_ACCELERATION build
     "marlin/steps/prusaslicer25_cube20_marlin2_steps.npz": 8.0,
     "marlin/variants/scurve/steps/prusaslicer25_cube20_marlin2_steps.npz": 3.0,
+    # its LIN_ADVANCE build's extruder pulses (advance pulses both ways): 45 s, about 24,500 pulses
+    "marlin/variants/la/steps/prusaslicer25_cube20_marlin2_steps.npz": 45.0,
 }
 
 # Klipper's queue_step commands (klipper/compression/) -> the step file they compress: the commands are cut where
