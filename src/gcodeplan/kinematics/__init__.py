@@ -31,6 +31,14 @@ KINEMATICS_MODULES = {
     "corexy": "corexy",
     "corexz": "corexz",
     "delta": "delta",
+    # Klipper's other kinematics, each a plug-in (:mod:`.plugin`) through the one step engine
+    "polar": "polar",
+    "rotary_delta": "rotary_delta",
+    "winch": "winch",
+    "deltesian": "deltesian",
+    "hybrid_corexy": "hybrid",
+    "hybrid_corexz": "hybrid",
+    "generic_cartesian": "generic_cartesian",
 }
 
 AXIS_FIELDS = ("x", "y", "z", "e")
@@ -44,12 +52,18 @@ class Rail:
     Σ weights[i]·axis[i] over (x, y, z, e); ``None`` for non-linear kinematics.
     ``tower``: a delta tower's (arm length² mm², tower x mm, tower y mm): the position is the carriage
     height z + √(arm² − (x − tower x)² − (y − tower y)²) (:mod:`.delta`); None otherwise.
+    ``ik``: a plug-in's compiled inverse kinematics ``ik(x, y, z, params)`` → motor position (mm or rad),
+    stepped by the generic engine with ``ik_params`` (:mod:`.plugin`); ``period``: the period of a cyclic
+    motor position (2π for a turntable), 0 for none. ``steps_per_mm`` is then steps per unit of that position.
     """
 
     name: str
     steps_per_mm: float
     weights: tuple[float, float, float, float] | None
     tower: tuple[float, float, float] | None = None
+    ik: object = None
+    ik_params: tuple = ()
+    period: float = 0.0
 
     @property
     def step_dist(self) -> float:
@@ -57,12 +71,18 @@ class Rail:
         return 1.0 / self.steps_per_mm
 
 
+# the kinematics stepped by their own modules (linear weights, the delta kernel); every other name is a plug-in
+_LEGACY = ("cartesian", "corexy", "corexz", "delta")
+
+
 def kinematics_module(name: str):
     """The module implementing kinematics ``name`` (ConfigError when unknown)."""
     mod = KINEMATICS_MODULES.get(name)
     if mod is None:
+        from .plugin import names
+
         raise ConfigError(f"kinematics: unknown value {name!r} "
-                          f"(known: {', '.join(sorted(KINEMATICS_MODULES))})")
+                          f"(known: {', '.join(sorted(names()))})")
     return importlib.import_module(f"{__name__}.{mod}")
 
 
@@ -75,7 +95,13 @@ def rails_for(machine, klipper_names: bool = False, kinematics=None) -> list[Rai
     if kinematics is None:
         kinematics = machine.kinematics
     if isinstance(kinematics, str):
-        rails = kinematics_module(kinematics).rails(machine, klipper_names)
+        from .plugin import registered
+
+        plugin = registered(kinematics) if kinematics not in _LEGACY else None
+        if plugin is not None:
+            rails = list(plugin.rails(machine, klipper_names))
+        else:
+            rails = kinematics_module(kinematics).rails(machine, klipper_names)
     elif callable(getattr(kinematics, "rails", None)):
         rails = list(kinematics.rails(machine, klipper_names))
     else:
@@ -119,5 +145,7 @@ def stepper_pieces(segments: np.ndarray, rail: Rail) -> tuple[np.ndarray, ...]:
 
 
 from .linear import Linear  # noqa: E402  (public: gcodeplan.kinematics.Linear; needs Rail above)
+from .plugin import Plugin, names, register, registered, unregister  # noqa: E402  (needs Rail above)
 
-__all__ = ["Rail", "Linear", "rails_for", "stepper_pieces", "kinematics_module", "KINEMATICS_MODULES"]
+__all__ = ["Rail", "Linear", "Plugin", "register", "unregister", "registered", "names", "rails_for",
+           "stepper_pieces", "kinematics_module", "KINEMATICS_MODULES"]
