@@ -69,14 +69,17 @@ class Plugin:
     machine returning it. ``check_move``: the limits hook (None: none). ``periods``: motor name → period of a
     cyclic motor position (2π for a turntable: followed continuously). ``klipper_names``: motor name →
     Klipper's section name. ``extruder``: the name of the automatic extruder motor (E, the machine's steps/mm),
-    None for none. ``errors``: error code → message of the limits hook's refusals. ``from_klipper``: a
+    None for none. ``motor_params``: motor name → that motor's own ik parameters (array or function of the
+    machine; Klipper gives each stepper its own, e.g. a rotary delta arm's angle), instead of ``params``.
+    ``errors``: error code → message of the limits hook's refusals. ``from_klipper``: a
     function ``(cfg, machine)`` that reads this kinematics' printer.cfg sections (config/klipper.py calls it).
     """
 
     def __init__(self, motors: Mapping[str, object], steps_per_unit: Mapping[str, object] | None = None, *,
                  params: object = (), check_move=None, periods: Mapping[str, float] | None = None,
                  klipper_names: Mapping[str, str] | None = None, extruder: str | None = "extruder",
-                 errors: Mapping[int, str] | None = None, from_klipper: Callable | None = None):
+                 errors: Mapping[int, str] | None = None, from_klipper: Callable | None = None,
+                 motor_params: Mapping[str, object] | None = None):
         if not isinstance(motors, Mapping) or not motors:
             raise ConfigError("kinematics plug-in: motors must be a non-empty {name: ik function or weights} dict")
         self.motors: dict[str, object] = {}
@@ -106,12 +109,16 @@ class Plugin:
         self.extruder = extruder
         self.errors = {ERR_OUT_OF_RANGE: "Move out of range", **dict(errors or {})}
         self.from_klipper = from_klipper
+        self.motor_params = dict(motor_params or {})
         self.name = "plugin"
 
     # ---------------------------------------------------------------- what the stages ask
     def param_array(self, machine) -> np.ndarray:
         """The float64 parameter array of ``machine`` (ConfigError when it cannot be made)."""
-        p = self.params(machine) if callable(self.params) else self.params
+        return self._array(self.params, machine)
+
+    def _array(self, spec, machine) -> np.ndarray:
+        p = spec(machine) if callable(spec) else spec
         try:
             arr = np.ascontiguousarray(np.asarray(p, dtype=np.float64).reshape(-1))
         except (TypeError, ValueError):
@@ -140,9 +147,14 @@ class Plugin:
             if spu is None:
                 raise ConfigError(f"kinematics {self.name!r}: motor {name}: steps_per_unit is required for a "
                                   f"motor given by an ik function")
-            if params is None:
-                params = tuple(float(v) for v in self.param_array(machine))
-            out.append(Rail(shown, float(spu), None, ik=pos, ik_params=params,
+            own = self.motor_params.get(name)
+            if own is not None:
+                mp = tuple(float(v) for v in self._array(own, machine))
+            else:
+                if params is None:
+                    params = tuple(float(v) for v in self.param_array(machine))
+                mp = params
+            out.append(Rail(shown, float(spu), None, ik=pos, ik_params=mp,
                             period=float(self.periods.get(name, 0.0))))
         if self.extruder is not None and not any(isinstance(p, tuple) and p[3] for p in self.motors.values()):
             spm = float(machine.axes["e"].steps_per_mm) if machine is not None else 0.0
@@ -159,11 +171,63 @@ class Plugin:
 
 
 def _compiled(fn):
-    """``fn`` as a numba function (compiled now when it is a plain Python function)."""
-    if _jit.is_kernel(fn):
-        return fn
-    numba = _jit.numba_module()
-    return numba.njit(fn)
+    """``fn`` as given: a Python function, a gcodeplan kernel or a numba function (it is made a cfunc, compiled,
+    when a stage first needs it: :func:`ik_cfunc`, :func:`hook_cfunc`)."""
+    if not callable(fn):
+        raise ConfigError(f"kinematics plug-in: expected a function, got {fn!r}")
+    return fn
+
+
+_CFUNCS: dict = {}
+
+
+def _cfunc(key, make):
+    fn = _CFUNCS.get(key)
+    if fn is None:
+        fn = _CFUNCS[key] = make()
+    return fn
+
+
+def _py(fn):
+    """The Python source function of a numba dispatcher or gcodeplan kernel (the function itself otherwise)."""
+    return getattr(fn, "py_func", fn)
+
+
+def ik_cfunc(fn):
+    """An inverse-kinematics function ``(x, y, z, params) -> float`` as a numba cfunc of that one signature
+    (float64 × 3, float64[::1] → float64): the generic step engine takes it as a function pointer, so the
+    engine is compiled and cached once for every plug-in. Cached on disk when numba can (a function from a
+    file), per process otherwise."""
+    def make():
+        numba = _jit.numba_module()
+        t = numba.types
+        sig = t.float64(t.float64, t.float64, t.float64, t.Array(t.float64, 1, "C"))
+        try:
+            return numba.cfunc(sig, cache=True)(_py(fn))
+        except Exception:          # no cache locator (a function typed into a REPL or exec'd): compile only
+            return numba.cfunc(sig)(_py(fn))
+
+    return _cfunc(("ik", fn), make)
+
+
+def hook_cfunc(fn):
+    """A limits hook ``check_move(move, params) -> (speed cap, accel cap, error)`` as a cfunc
+    ``(move, params, caps) -> error`` writing the caps into ``caps[0:2]`` (what the planner's kernel calls)."""
+    def make():
+        numba = _jit.numba_module()
+        t = numba.types
+        arr = t.Array(t.float64, 1, "C")
+        inner = fn if _jit.is_kernel(fn) and not isinstance(fn, _jit.Kernel) else numba.njit(_py(fn))
+
+        def check_move_caps(move, params, caps):
+            v_cap, a_cap, err = inner(move, params)
+            caps[0] = v_cap
+            caps[1] = a_cap
+            return err
+
+        return numba.cfunc(t.int64(arr, arr, arr))(check_move_caps)
+
+    return _cfunc(("hook", fn), make)
 
 
 # ---------------------------------------------------------------- registry
@@ -226,4 +290,4 @@ def limits_hook(machine):
     fn = getattr(plugin, "check_move", None) if plugin is not None else None
     if fn is None:
         return None
-    return fn, plugin.param_array(machine), plugin
+    return hook_cfunc(fn), plugin.param_array(machine), plugin

@@ -272,13 +272,14 @@ def _move_limits_kernel(moves, lim, policy, prep, d):
 
 
 # --------------------------------------------------------------------------- a plug-in kinematics' limits
-@njit
-def _kinematics_limits_kernel(moves, prep, check_move, params, mv):
+@njit(cache=True)
+def _kinematics_limits_kernel(moves, prep, check_move, params, mv, caps):
     """A kinematics plug-in's check_move on every kinematic move of ``prep`` (gcodeplan.kinematics.plugin):
     its speed / accel caps go through Klipper's limit_speed onto the move's (the caps are minima, so taking
     them after the extruder's rule gives Klipper's result; the hook sees the move as Klipper's check_move
-    does, ``kin_cruise_v2``/``kin_accel``). ``mv``: scratch float array of 9. Returns (row, error code) of
-    the first refused move, (-1, 0) if none."""
+    does, ``kin_cruise_v2``/``kin_accel``). ``check_move`` is the hook as a cfunc
+    (:func:`gcodeplan.kinematics.plugin.hook_cfunc`); ``mv``: scratch float array of 9, ``caps`` of 2.
+    Returns (row, error code) of the first refused move, (-1, 0) if none."""
     for i in range(moves.shape[0]):
         out = prep[i]
         if not (out.is_move and out.kinematic):
@@ -293,7 +294,11 @@ def _kinematics_limits_kernel(moves, prep, check_move, params, mv):
         mv[6] = out.move_d
         mv[7] = out.kin_cruise_v2
         mv[8] = out.kin_accel
-        v_cap, a_cap, err = check_move(mv, params)
+        caps[0] = math.inf
+        caps[1] = math.inf
+        err = check_move(mv, params, caps)
+        v_cap = caps[0]
+        a_cap = caps[1]
         if err != 0:
             return i, err
         if v_cap < math.inf or a_cap < math.inf:
@@ -309,7 +314,7 @@ def apply_kinematics_limits(moves: np.ndarray, prep: np.ndarray, hook) -> None:
     :func:`gcodeplan.kinematics.plugin.limits_hook`) to the PREP rows of ``moves``, in place; a refused move
     is a GcodeError at its line with the plug-in's text (Klipper's "Move out of range: x y z [e]")."""
     fn, params, plugin = hook
-    row, err = _kinematics_limits_kernel(moves, prep, fn, params, np.empty(9))
+    row, err = _kinematics_limits_kernel(moves, prep, fn, params, np.empty(9), np.empty(2))
     if row >= 0:
         mv = moves[row]
         text = plugin.move_error(err)

@@ -84,6 +84,7 @@ class StepGenerator:
         # a plug-in motor's compiled inverse kinematics and its parameters (kernel.gen_steps_ik)
         self._ik_params = [None if r.ik is None else np.ascontiguousarray(r.ik_params or (0.0,), np.float64)
                            for r in self.rails]
+        self._ik_fn = [None] * n      # the cfunc of each, made on first use (kinematics.plugin.ik_cfunc)
         self._e_rails = [i for i, r in enumerate(self.rails) if r.weights is not None
                          and r.weights[3] and not any(r.weights[:3])]
         self._mixed_e = [r.name for r in self.rails if r.weights is not None and r.weights[3] and any(r.weights[:3])]
@@ -444,8 +445,12 @@ class StepGenerator:
         start = 0
         n_pieces = len(t0)
         rail = self.rails[si]
+        if self._ik_fn[si] is None:
+            from ..kinematics.plugin import ik_cfunc
+
+            self._ik_fn[si] = ik_cfunc(rail.ik)
         while start < n_pieces:
-            nxt, fill, need = kernel.gen_steps_ik(t0, dt, p, v, a, j, reset, rail.ik, self._ik_params[si],
+            nxt, fill, need = kernel.gen_steps_ik(t0, dt, p, v, a, j, reset, self._ik_fn[si], self._ik_params[si],
                                                   rail.period, rail.step_dist, self.states[si], start,
                                                   self._buf_t[si], self._buf_d[si], self._fill[si])
             if need == -2:

@@ -1486,7 +1486,7 @@ def _axis_at(p, v, a, j, s):
     return p + s * (v + s * (0.5 * a + s * j / 6.0))
 
 
-@njit(inline="always")
+@njit(cache=True, inline="always")
 def _motor_at(ik, params, period, ref, pc, vc, ac, jc, i, s):
     """Motor position at τ = s of piece i through ``ik``; a periodic motor (``period`` > 0, e.g. 2π rad for a
     turntable) is taken on the branch nearest ``ref`` (Klipper's polar bed keeps its angle continuous)."""
@@ -1499,7 +1499,7 @@ def _motor_at(ik, params, period, ref, pc, vc, ac, jc, i, s):
     return m
 
 
-@njit
+@njit(cache=True)
 def _ik_extremum(ik, params, period, ref, pc, vc, ac, jc, i, lo, hi, is_max):
     """τ in [lo, hi] where the motor position has its extremum (golden-section search to IK_TOL_S)."""
     g = 0.6180339887498949
@@ -1527,7 +1527,7 @@ def _ik_extremum(ik, params, period, ref, pc, vc, ac, jc, i, lo, hi, is_max):
     return 0.5 * (a + b)
 
 
-@njit
+@njit(cache=True)
 def _ik_crossing(ik, params, period, ref, pc, vc, ac, jc, i, target, lo, hi, f_lo, f_hi, guess):
     """τ in [lo, hi] where the motor position equals ``target`` (monotone on the bracket, f_lo and f_hi of
     opposite signs): the Illinois variant of regula falsi, first probing ``guess`` when it is inside."""
@@ -1566,11 +1566,11 @@ def _ik_crossing(ik, params, period, ref, pc, vc, ac, jc, i, target, lo, hi, f_l
     return lo + (hi - lo) * f_lo / (f_lo - f_hi)
 
 
-@njit
+@njit(cache=True)
 def gen_steps_ik(t0, dt, pc, vc, ac, jc, reset, ik, params, period, step_dist, state, start, out_t, out_dir,
                  out_n):
-    """:func:`gen_steps` for a motor whose position is ``ik(x, y, z, params)`` (a compiled function; the
-    kernel is compiled once per function) of the pieces' x, y, z (columns 0, 1, 2 of the (n, ≥3) arrays
+    """:func:`gen_steps` for a motor whose position is ``ik(x, y, z, params)`` (a numba cfunc,
+    :func:`gcodeplan.kinematics.plugin.ik_cfunc`) of the pieces' x, y, z (columns 0, 1, 2 of the (n, ≥3) arrays
     ``pc vc ac jc``, SEGMENT convention). ``period`` > 0: a periodic motor position (rad per turn), followed
     continuously. Returns (next piece index, new out_n, need); need = −1 for a non-finite coefficient,
     −2 for a position the function cannot give (NaN: out of the machine's reach)."""
