@@ -1530,40 +1530,38 @@ def _ik_extremum(ik, params, period, ref, pc, vc, ac, jc, i, lo, hi, is_max):
 @njit(cache=True)
 def _ik_crossing(ik, params, period, ref, pc, vc, ac, jc, i, target, lo, hi, f_lo, f_hi, guess):
     """τ in [lo, hi] where the motor position equals ``target`` (monotone on the bracket, f_lo and f_hi of
-    opposite signs): the Illinois variant of regula falsi, first probing ``guess`` when it is inside."""
-    if lo < guess < hi:
-        f = _motor_at(ik, params, period, ref, pc, vc, ac, jc, i, guess) - target
-        if f == 0.0:
-            return guess
-        if (f > 0.0) == (f_lo > 0.0):
-            lo = guess
-            f_lo = f
+    opposite signs): the secant method from ``guess`` (or the bracket's secant) and the nearer bracket end,
+    kept inside a bracket that shrinks with every evaluation (bisection when a secant step leaves it). A step
+    below IK_TOL_S ends it: the secant converges superlinearly, so the error is far below that then."""
+    x = guess
+    if not (lo < x < hi):
+        x = lo - f_lo * (hi - lo) / (f_hi - f_lo)
+        if not (lo < x < hi):
+            x = 0.5 * (lo + hi)
+    if abs(f_lo) <= abs(f_hi):
+        x_prev = lo
+        f_prev = f_lo
+    else:
+        x_prev = hi
+        f_prev = f_hi
+    lo_pos = f_lo > 0.0
+    for _ in range(100):
+        fx = _motor_at(ik, params, period, ref, pc, vc, ac, jc, i, x) - target
+        if fx == 0.0:
+            return x
+        if (fx > 0.0) == lo_pos:
+            lo = x
         else:
-            hi = guess
-            f_hi = f
-    side = 0
-    for _ in range(200):
-        if hi - lo <= IK_TOL_S:
-            break
-        tau = (lo * f_hi - hi * f_lo) / (f_hi - f_lo)
-        if not (lo < tau < hi):
-            tau = 0.5 * (lo + hi)
-        f = _motor_at(ik, params, period, ref, pc, vc, ac, jc, i, tau) - target
-        if f == 0.0:
-            return tau
-        if (f > 0.0) == (f_lo > 0.0):
-            lo = tau
-            f_lo = f
-            if side == -1:
-                f_hi *= 0.5
-            side = -1
-        else:
-            hi = tau
-            f_hi = f
-            if side == 1:
-                f_lo *= 0.5
-            side = 1
-    return lo + (hi - lo) * f_lo / (f_lo - f_hi)
+            hi = x
+        nxt = x - fx * (x - x_prev) / (fx - f_prev) if fx != f_prev else 0.5 * (lo + hi)
+        if not (lo < nxt < hi):
+            nxt = 0.5 * (lo + hi)
+        if abs(nxt - x) <= IK_TOL_S or hi - lo <= IK_TOL_S:
+            return nxt
+        x_prev = x
+        f_prev = fx
+        x = nxt
+    return x
 
 
 @njit(cache=True)
@@ -1673,6 +1671,7 @@ def gen_steps_ik(t0, dt, pc, vc, ac, jc, reset, ik, params, period, step_dist, s
             dirv = np.int8(1) if sigma > 0.0 else np.int8(-1)
             t_prev = -1.0
             t_prev2 = -1.0
+            q = 1
             for m in range(c):
                 target = anchor + (n + 0.5 * sigma) * step_dist
                 f_lo = f_left - target
@@ -1683,9 +1682,23 @@ def gen_steps_ik(t0, dt, pc, vc, ac, jc, reset, ik, params, period, step_dist, s
                     # rounding at the stretch's end: the crossing is at the nearer end
                     tau = hi if abs(f_hi) <= abs(f_lo) else left
                 else:
+                    # a tight bracket from the samples: the first one past the target (the stretch is monotone)
+                    top = hi
+                    f_top = f_hi
+                    while q < IK_SAMPLES and samp_t[q] <= left:
+                        q += 1
+                    qq = q
+                    while qq < IK_SAMPLES and samp_t[qq] < hi:
+                        fq = samp_f[qq] - target
+                        if (fq > 0.0) != (f_lo > 0.0):
+                            if fq != 0.0:
+                                top = samp_t[qq]
+                                f_top = fq
+                            break
+                        qq += 1
                     # the next crossing one step on: extrapolate the last two
                     guess = 2.0 * t_prev - t_prev2 if t_prev2 >= 0.0 else -1.0
-                    tau = _ik_crossing(ik, params, period, f_left, pc, vc, ac, jc, i, target, left, hi, f_lo, f_hi,
+                    tau = _ik_crossing(ik, params, period, f_left, pc, vc, ac, jc, i, target, left, top, f_lo, f_top,
                                        guess)
                 out_t[out_n] = base_t + tau
                 out_dir[out_n] = dirv
