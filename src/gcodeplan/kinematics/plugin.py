@@ -202,10 +202,12 @@ def ik_cfunc(fn):
         numba = _jit.numba_module()
         t = numba.types
         sig = t.float64(t.float64, t.float64, t.float64, t.Array(t.float64, 1, "C"))
+        # error_model "numpy": a division by zero gives inf / NaN (reported as unreachable), as in C; an
+        # exception cannot leave a cfunc
         try:
-            return numba.cfunc(sig, cache=True)(_py(fn))
+            return numba.cfunc(sig, cache=True, error_model="numpy")(_py(fn))
         except Exception:          # no cache locator (a function typed into a REPL or exec'd): compile only
-            return numba.cfunc(sig)(_py(fn))
+            return numba.cfunc(sig, error_model="numpy")(_py(fn))
 
     return _cfunc(("ik", fn), make)
 
@@ -217,7 +219,8 @@ def hook_cfunc(fn):
         numba = _jit.numba_module()
         t = numba.types
         arr = t.Array(t.float64, 1, "C")
-        inner = fn if _jit.is_kernel(fn) and not isinstance(fn, _jit.Kernel) else numba.njit(_py(fn))
+        # error_model "numpy": an exception cannot leave the cfunc (a division by zero gives inf / NaN)
+        inner = numba.njit(error_model="numpy")(_py(fn))
 
         def check_move_caps(move, params, caps):
             v_cap, a_cap, err = inner(move, params)
@@ -225,7 +228,7 @@ def hook_cfunc(fn):
             caps[1] = a_cap
             return err
 
-        return numba.cfunc(t.int64(arr, arr, arr))(check_move_caps)
+        return numba.cfunc(t.int64(arr, arr, arr), error_model="numpy")(check_move_caps)
 
     return _cfunc(("hook", fn), make)
 

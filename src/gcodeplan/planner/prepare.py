@@ -272,6 +272,9 @@ def _move_limits_kernel(moves, lim, policy, prep, d):
 
 
 # --------------------------------------------------------------------------- a plug-in kinematics' limits
+KIN_BAD_CAP = -1     # _kinematics_limits_kernel: the hook returned a cap that is no speed / accel
+
+
 @njit(cache=True)
 def _kinematics_limits_kernel(moves, prep, check_move, params, mv, caps):
     """A kinematics plug-in's check_move on every kinematic move of ``prep`` (gcodeplan.kinematics.plugin):
@@ -301,6 +304,8 @@ def _kinematics_limits_kernel(moves, prep, check_move, params, mv, caps):
         a_cap = caps[1]
         if err != 0:
             return i, err
+        if not (v_cap > 0.0 and a_cap > 0.0):
+            return i, KIN_BAD_CAP        # NaN or <= 0: a bug in the hook, not a speed
         if v_cap < math.inf or a_cap < math.inf:
             if not a_cap < math.inf:
                 a_cap = out.accel
@@ -315,6 +320,9 @@ def apply_kinematics_limits(moves: np.ndarray, prep: np.ndarray, hook) -> None:
     is a GcodeError at its line with the plug-in's text (Klipper's "Move out of range: x y z [e]")."""
     fn, params, plugin = hook
     row, err = _kinematics_limits_kernel(moves, prep, fn, params, np.empty(9), np.empty(2))
+    if row >= 0 and err == KIN_BAD_CAP:
+        raise _line_error(moves, row, f"kinematics {plugin.name!r}: its check_move returned a speed or accel cap "
+                                      f"that is NaN or <= 0 (return inf for no cap)")
     if row >= 0:
         mv = moves[row]
         text = plugin.move_error(err)
