@@ -1499,7 +1499,7 @@ def _motor_at(ik, params, period, ref, pc, vc, ac, jc, i, s):
     return m
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _ik_extremum(ik, params, period, ref, pc, vc, ac, jc, i, lo, hi, is_max):
     """τ in [lo, hi] where the motor position has its extremum (golden-section search to IK_TOL_S)."""
     g = 0.6180339887498949
@@ -1527,7 +1527,7 @@ def _ik_extremum(ik, params, period, ref, pc, vc, ac, jc, i, lo, hi, is_max):
     return 0.5 * (a + b)
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _ik_crossing(ik, params, period, ref, pc, vc, ac, jc, i, target, lo, hi, f_lo, f_hi, guess):
     """τ in [lo, hi] where the motor position equals ``target`` (monotone on the bracket, f_lo and f_hi of
     opposite signs): the secant method from ``guess`` (or the bracket's secant) and the nearer bracket end,
@@ -1538,7 +1538,7 @@ def _ik_crossing(ik, params, period, ref, pc, vc, ac, jc, i, target, lo, hi, f_l
         x = lo - f_lo * (hi - lo) / (f_hi - f_lo)
         if not (lo < x < hi):
             x = 0.5 * (lo + hi)
-    if abs(f_lo) <= abs(f_hi):
+    if guess == x or abs(f_lo) <= abs(f_hi):
         x_prev = lo
         f_prev = f_lo
     else:
@@ -1671,6 +1671,7 @@ def gen_steps_ik(t0, dt, pc, vc, ac, jc, reset, ik, params, period, step_dist, s
             dirv = np.int8(1) if sigma > 0.0 else np.int8(-1)
             t_prev = -1.0
             t_prev2 = -1.0
+            t_prev3 = -1.0
             q = 1
             for m in range(c):
                 target = anchor + (n + 0.5 * sigma) * step_dist
@@ -1696,14 +1697,21 @@ def gen_steps_ik(t0, dt, pc, vc, ac, jc, reset, ik, params, period, step_dist, s
                                 f_top = fq
                             break
                         qq += 1
-                    # the next crossing one step on: extrapolate the last two
-                    guess = 2.0 * t_prev - t_prev2 if t_prev2 >= 0.0 else -1.0
+                    # the next crossing one step on: extrapolate the last crossings (quadratic in the step index:
+                    # a guess within IK_TOL_S often ends the search after one evaluation)
+                    if t_prev3 >= 0.0:
+                        guess = 3.0 * (t_prev - t_prev2) + t_prev3
+                    elif t_prev2 >= 0.0:
+                        guess = 2.0 * t_prev - t_prev2
+                    else:
+                        guess = -1.0
                     tau = _ik_crossing(ik, params, period, f_left, pc, vc, ac, jc, i, target, left, top, f_lo, f_top,
                                        guess)
                 out_t[out_n] = base_t + tau
                 out_dir[out_n] = dirv
                 out_n += 1
                 n += sigma
+                t_prev3 = t_prev2
                 t_prev2 = t_prev
                 t_prev = tau
                 left = tau
