@@ -1476,7 +1476,7 @@ def itersolve_flush_pending(state: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 # output protocol as :func:`gen_steps`.
 
 IK_SAMPLES = 16          # samples per piece that guard against turning points between two of them
-IK_TOL_S = 1e-10         # s: a crossing is located to this (Klipper's search stops at 1 ns)
+IK_TOL_S = 1e-9          # s: a secant step below this ends a search (Klipper's stops at 1 ns); the error is far smaller then
 IK_MAX_CUTS = IK_SAMPLES  # at most one turning point per sample interval
 
 
