@@ -15,64 +15,22 @@ the kinematics. Delta (:mod:`.delta`, ``s = z + √(L² − (x−x_t)² − (y�
 rails have ``weights = None`` and carry their ``tower``; the step generator runs
 the delta kernel on the x, y, z pieces; the step convention and the output
 layout stay the same.
+
+Every other kinematics is a plug-in (:mod:`.plugin`, ``gcodeplan.kinematics.register``): motors given by a
+compiled inverse-kinematics function ``ik(x, y, z, params)`` (rails with ``ik`` set, stepped by the one
+generic engine :func:`gcodeplan.stepper.kernel.gen_steps_ik`) or by linear weights, plus an optional limits
+hook the planner applies to every move. Klipper's polar, rotary_delta, winch, deltesian, hybrid_corexy,
+hybrid_corexz and generic_cartesian are built in that way. :mod:`.rail` holds :class:`Rail` and the table of
+built-in modules (imported by the modules without importing this package: no import cycle).
 """
 from __future__ import annotations
 
 import importlib
-from dataclasses import dataclass
 
 import numpy as np
 
 from ..errors import ConfigError
-
-# name -> module inside this package
-KINEMATICS_MODULES = {
-    "cartesian": "cartesian",
-    "corexy": "corexy",
-    "corexz": "corexz",
-    "delta": "delta",
-    # Klipper's other kinematics, each a plug-in (:mod:`.plugin`) through the one step engine
-    "polar": "polar",
-    "rotary_delta": "rotary_delta",
-    "winch": "winch",
-    "deltesian": "deltesian",
-    "hybrid_corexy": "hybrid",
-    "hybrid_corexz": "hybrid",
-    "generic_cartesian": "generic_cartesian",
-}
-
-AXIS_FIELDS = ("x", "y", "z", "e")
-
-
-@dataclass(frozen=True)
-class Rail:
-    """One stepper motor.
-
-    ``weights``: stepper position (mm of the stepper's own travel) as
-    Σ weights[i]·axis[i] over (x, y, z, e); ``None`` for non-linear kinematics.
-    ``tower``: a delta tower's (arm length² mm², tower x mm, tower y mm): the position is the carriage
-    height z + √(arm² − (x − tower x)² − (y − tower y)²) (:mod:`.delta`); None otherwise.
-    ``ik``: a plug-in's compiled inverse kinematics ``ik(x, y, z, params)`` → motor position (mm or rad),
-    stepped by the generic engine with ``ik_params`` (:mod:`.plugin`); ``period``: the period of a cyclic
-    motor position (2π for a turntable), 0 for none. ``steps_per_mm`` is then steps per unit of that position.
-    """
-
-    name: str
-    steps_per_mm: float
-    weights: tuple[float, float, float, float] | None
-    tower: tuple[float, float, float] | None = None
-    ik: object = None
-    ik_params: tuple = ()
-    period: float = 0.0
-
-    @property
-    def step_dist(self) -> float:
-        """mm of stepper travel per step (Klipper's ``step_dist``)."""
-        return 1.0 / self.steps_per_mm
-
-
-# the kinematics stepped by their own modules (linear weights, the delta kernel); every other name is a plug-in
-_LEGACY = ("cartesian", "corexy", "corexz", "delta")
+from .rail import AXIS_FIELDS, KINEMATICS_MODULES, LEGACY as _LEGACY, Rail
 
 
 def kinematics_module(name: str):
@@ -144,8 +102,8 @@ def stepper_pieces(segments: np.ndarray, rail: Rail) -> tuple[np.ndarray, ...]:
     return (t0, dt, *out)
 
 
-from .linear import Linear  # noqa: E402  (public: gcodeplan.kinematics.Linear; needs Rail above)
-from .plugin import Plugin, names, register, registered, unregister  # noqa: E402  (needs Rail above)
+from .linear import Linear  # noqa: E402  (public: gcodeplan.kinematics.Linear)
+from .plugin import Plugin, names, register, registered, unregister  # noqa: E402
 
-__all__ = ["Rail", "Linear", "Plugin", "register", "unregister", "registered", "names", "rails_for",
+__all__ = ["Rail", "AXIS_FIELDS", "Linear", "Plugin", "register", "unregister", "registered", "names", "rails_for",
            "stepper_pieces", "kinematics_module", "KINEMATICS_MODULES"]

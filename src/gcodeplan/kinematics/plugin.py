@@ -30,6 +30,7 @@ A registered name is a kinematics everywhere a built-in's is (``Machine.kinemati
 """
 from __future__ import annotations
 
+import importlib
 import math
 from collections.abc import Callable, Mapping
 
@@ -38,7 +39,7 @@ import numpy as np
 from .. import _jit
 from .._jit import njit
 from ..errors import ConfigError
-from . import AXIS_FIELDS, Rail
+from .rail import AXIS_FIELDS, KINEMATICS_MODULES, Rail
 
 # the move vector a check_move hook sees (float64, mm, mm/s, mm/s²)
 MV_X0, MV_Y0, MV_Z0, MV_X1, MV_Y1, MV_Z1 = 0, 1, 2, 3, 4, 5   # start and end of the move (mm)
@@ -242,8 +243,6 @@ def register(name: str, plugin, *, replace: bool = False):
     optionally, ``check_move``/``param_array(machine)``/``move_error(code)``/``from_klipper(cfg, machine)``).
     Usable as ``Machine.kinematics`` from then on. Built-in names cannot be replaced; a user's name can with
     ``replace=True``. Returns the plug-in."""
-    from . import KINEMATICS_MODULES
-
     if not isinstance(name, str) or not name.strip() or any(c.isspace() for c in name):
         raise ConfigError(f"kinematics.register: the name must be a non-empty word, got {name!r}")
     if not callable(getattr(plugin, "rails", None)):
@@ -262,8 +261,6 @@ def register(name: str, plugin, *, replace: bool = False):
 
 def unregister(name: str) -> None:
     """Remove a user's kinematics."""
-    from . import KINEMATICS_MODULES
-
     if name in KINEMATICS_MODULES or name not in _REGISTRY:
         raise ConfigError(f"kinematics.unregister: {name!r} is not a registered user kinematics")
     del _REGISTRY[name]
@@ -271,17 +268,13 @@ def unregister(name: str) -> None:
 
 def registered(name: str):
     """The plug-in registered as ``name``, None when there is none (built-ins register on first import)."""
-    from . import KINEMATICS_MODULES, kinematics_module
-
     if name not in _REGISTRY and name in KINEMATICS_MODULES:
-        kinematics_module(name)
+        importlib.import_module(f"{__package__}.{KINEMATICS_MODULES[name]}")
     return _REGISTRY.get(name)
 
 
 def names() -> list[str]:
     """Every kinematics name: the built-ins, then the user's."""
-    from . import KINEMATICS_MODULES
-
     return list(KINEMATICS_MODULES) + [n for n in _REGISTRY if n not in KINEMATICS_MODULES]
 
 
