@@ -376,3 +376,19 @@ def test_engine_resumes_when_its_output_is_full():
     assert grown >= 1
     assert np.array_equal(np.concatenate(got_t), big_t[:n_all])
     assert np.array_equal(np.concatenate(got_d), big_d[:n_all])
+
+
+@pytest.mark.parametrize("config", CONFIGS)
+def test_klipper_configs_have_a_toml_twin_with_the_same_steps(config, tmp_path):
+    """Each reference printer.cfg read, written as a machine TOML (kinematics + [kinematics_params]) and read
+    back: an equal machine, with the same motors."""
+    from gcodeplan.config import load_machine, machine_to_toml
+    from gcodeplan.kinematics import rails_for
+
+    kin_ref()
+    m = ck.machine(config)
+    p = tmp_path / f"{config}.toml"
+    p.write_text(machine_to_toml(m))
+    twin = load_machine(str(p))
+    assert twin.kinematics == config and twin.kinematics_params == m.kinematics_params
+    assert rails_for(twin, klipper_names=True) == rails_for(m, klipper_names=True)
