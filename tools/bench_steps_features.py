@@ -10,6 +10,12 @@ steps per second of step-stage time (best of --runs) and the cost ratios per ste
 cartesian. Target: ≥ 50 M steps/s shaped. Shaped and pressure-advanced motors run Klipper's own step search
 (kernel.itersolve_steps: closed-form crossings where its probes cannot leave a monotone run, its probe
 sequence near turning points); delta towers keep the exact kernel.
+
+Then the kinematics plug-ins (issue 22): the generic step engine (kernel.gen_steps_ik, the motor position from
+a compiled inverse-kinematics function, a guarded root search) against the exact linear kernel on the same
+cartesian plan — a plug-in whose three motors are ik functions x, y, z — (target: generic within 1.5× of
+linear per step), and steps/s per kinematics on Klipper's seven reference configs
+(../shared/reference/klipper/kinematics/*.cfg; polar on the input shifted by (+30, +30) mm as the reference is).
 """
 from __future__ import annotations
 
@@ -41,6 +47,73 @@ def _machine(feature: str):
     return m
 
 
+def _generic_cartesian_ik():
+    """A cartesian machine as a plug-in whose X, Y, Z motors are ik functions (the generic engine's path)."""
+    import numba
+
+    import gcodeplan as gp
+
+    @numba.njit
+    def ik_x(x, y, z, p):
+        return x
+
+    @numba.njit
+    def ik_y(x, y, z, p):
+        return y
+
+    @numba.njit
+    def ik_z(x, y, z, p):
+        return z
+
+    return gp.kinematics.register("bench_ik_cartesian", gp.kinematics.Plugin(
+        {"x": ik_x, "y": ik_y, "z": ik_z},
+        {"x": lambda m: m.axes["x"].steps_per_mm, "y": lambda m: m.axes["y"].steps_per_mm,
+         "z": lambda m: m.axes["z"].steps_per_mm}, extruder="e"), replace=True)
+
+
+def _rate(source, machine, runs: int, rails=None) -> tuple[int, float]:
+    pieces, limits = _pieces(source, machine)
+    _time(pieces[:2], limits, machine, rails)
+    best = None
+    for _ in range(runs):
+        steps, dt = _time(pieces, limits, machine, rails)
+        best = dt if best is None else min(best, dt)
+    return steps, best
+
+
+def bench_kinematics(path: str, runs: int) -> None:
+    """The generic engine against the linear kernel, then steps/s per plug-in kinematics."""
+    from gcodeplan.kinematics import rails_for
+
+    plain = _machine("plain")
+    plug = _generic_cartesian_ik()
+    lin_steps, lin_t = _rate(path, plain, runs)
+    gen_steps, gen_t = _rate(path, plain, runs, rails=plug.rails(plain))
+    xyz = [r for r in rails_for(plain)]
+    print(f"  generic engine vs linear kernel (same cartesian plan): linear {lin_steps / lin_t / 1e6:.1f} M steps/s, "
+          f"generic {gen_steps / gen_t / 1e6:.1f} M steps/s -> {gen_t / gen_steps / (lin_t / lin_steps):.2f}x per step "
+          f"(target <= 1.5x; {len(xyz)} motors, same {gen_steps == lin_steps and 'step count' or 'DIFFERENT count'})")
+    kin_dir = SHARED / "reference" / "klipper" / "kinematics"
+    if not kin_dir.is_dir():
+        print(f"  (no {kin_dir}: per-kinematics figures skipped)")
+        return
+    sys.path.insert(0, str(REPO / "tools"))
+    import compare_kinematics as ck
+    from gcodeplan.config import load_klipper_config
+
+    lines = Path(path).read_text().splitlines()
+    lines = ["SET_KINEMATIC_POSITION X=0 Y=0 Z=0" if ln.split(";")[0].strip() == "G28" else ln for ln in lines]
+    for config in ck.CONFIGS:
+        m = load_klipper_config(str(kin_dir / f"{config}.cfg"))
+        src = [ck._shift_line(ln) for ln in lines] if config == "polar" else lines
+        try:
+            steps, t = _rate(src, m, runs)
+        except Exception as err:      # a file this machine cannot reach: say so, go on
+            print(f"  {config:17s}: {type(err).__name__}: {err}")
+            continue
+        print(f"  {config:17s}: {steps:,} steps in {t:.3f} s -> {steps / t / 1e6:.1f} M steps/s")
+
+
 def _pieces(path: str, machine):
     """Every final piece with its segments, homing resets and the LIMITS table, in memory."""
     from gcodeplan.pipeline import Run
@@ -56,11 +129,11 @@ def _pieces(path: str, machine):
     return out, drive.reader.limits
 
 
-def _time(pieces, limits, machine) -> tuple[int, float]:
+def _time(pieces, limits, machine, rails=None) -> tuple[int, float]:
     from gcodeplan.kinematics import rails_for
     from gcodeplan.stepper.generate import StepGenerator
 
-    gen = StepGenerator(rails_for(machine), lambda si, t, d: None, settings=machine.limits_row())
+    gen = StepGenerator(rails or rails_for(machine), lambda si, t, d: None, settings=machine.limits_row())
     t0 = time.perf_counter()
     for segs, reset, moves, first in pieces:
         gen.feed(segs, reset, moves=moves, limits=limits, first_move=first)
@@ -72,10 +145,15 @@ def main(argv: list[str]) -> int:
     ap = argparse.ArgumentParser(prog="bench.py steps_features", description=__doc__.splitlines()[0])
     ap.add_argument("file", nargs="?", help="G-code file (default: the corpus cube)")
     ap.add_argument("--runs", type=int, default=3, help="best of N timings (default 3)")
+    ap.add_argument("--kinematics-only", action="store_true", help="only the plug-in kinematics figures")
     args = ap.parse_args(argv)
     path = args.file or str(SHARED / "gcode" / "prusaslicer25_cube20_marlin2.gcode")
     if not Path(path).is_file():
         sys.exit(f"no such file: {path}")
+    if args.kinematics_only:
+        print(f"step stage of the kinematics plug-ins: {path}")
+        bench_kinematics(path, args.runs)
+        return 0
     print(f"step stage with shaping / pressure advance: {path}")
     rates = {}
     for feature in ("plain", "shaped", "pressure advance", "delta", "delta shaped"):
@@ -90,6 +168,7 @@ def main(argv: list[str]) -> int:
         print(f"  {feature:17s}: {steps:,} steps in {best:.3f} s -> {steps / best / 1e6:.1f} M steps/s")
     print("  cost per step vs plain cartesian: " + ", ".join(f"{f} {rates['plain'] / rates[f]:.2f}x"
                                                          for f in rates if f != "plain"))
+    bench_kinematics(path, args.runs)
     return 0
 
 

@@ -17,7 +17,8 @@ from .schema import LIMITS_DTYPE
 
 INF = math.inf
 
-KINEMATICS = ("cartesian", "corexy", "corexz", "delta")
+KINEMATICS = ("cartesian", "corexy", "corexz", "delta", "polar", "rotary_delta", "winch", "deltesian",
+              "hybrid_corexy", "hybrid_corexz", "generic_cartesian")
 FLAVORS = ("marlin", "klipper", "reprap", "grbl", "linuxcnc")
 # Klipper's input shapers; the index is the code stored in LIMITS.shaper_type_x/_y (0 = none)
 SHAPER_TYPES = ("none", "zv", "mzv", "zvd", "ei", "2hump_ei", "3hump_ei")
@@ -127,6 +128,10 @@ class Machine:
     # mm, nozzle Z at X = Y = 0 with that tower's carriage at its endstop
     delta_position_endstop: tuple[float, float, float] = (0.0, 0.0, 0.0)
     delta_steps_per_mm: tuple[float, float, float] = (80.0, 80.0, 80.0)      # steps per mm of carriage travel
+
+    # a plug-in kinematics' own settings (gcodeplan.kinematics.plugin; e.g. polar's max_angular_velocity, a winch's
+    # anchors): Klipper's option names, mm / rad / mm/s; a machine file's [kinematics_params] table
+    kinematics_params: dict = field(default_factory=dict)
 
     # True for the default machine (no --machine / --flavor / --klipper-config / --linuxcnc-ini; machine=None in
     # the API): a file that is clearly a CNC program is then read with a CNC flavor (gcode/dialect.py). Not a

@@ -45,7 +45,8 @@ def add_plan_arguments(p: argparse.ArgumentParser) -> None:
                    help="plan jerk-limited S-curves with this path jerk limit (mm/s³) instead of trapezoids")
     p.add_argument("--plugin", action="append", default=[], metavar="MODULE|FILE.py",
                    help="import this Python module or file first (repeatable): it may register policies with "
-                        "gcodeplan.register_policy, which --policy can then name")
+                        "gcodeplan.register_policy, which --policy can then name, and kinematics with "
+                        "gcodeplan.kinematics.register, which a machine file's kinematics = \"…\" can then name")
 
 
 def load_plugins(specs) -> None:

@@ -16,12 +16,6 @@ from ..machine import ACCELERATION_PROFILES, AXES, FIRMWARES, FLAVORS, KINEMATIC
 
 # Kinematics Klipper and others offer that we know about but cannot plan yet.
 UNSUPPORTED_KINEMATICS = {
-    "deltesian": "deltesian is not supported yet",
-    "rotary_delta": "rotary_delta is not supported yet",
-    "polar": "polar is not supported yet",
-    "hybrid_corexy": "hybrid_corexy is not supported yet",
-    "hybrid_corexz": "hybrid_corexz is not supported yet",
-    "winch": "winch is not supported yet",
     "none": "'none' kinematics cannot move",
 }
 
@@ -176,6 +170,16 @@ def rule_choice(allowed: tuple[str, ...], unsupported: dict[str, str] | None = N
     return rule
 
 
+def _rule_kinematics(v: Any) -> str | None:
+    """A built-in kinematics or one registered with gcodeplan.kinematics.register (a --plugin file's)."""
+    if isinstance(v, str) and v not in KINEMATICS:
+        from ..kinematics.plugin import _REGISTRY
+
+        if v in _REGISTRY:
+            return None
+    return rule_choice(KINEMATICS, UNSUPPORTED_KINEMATICS)(v)
+
+
 def _rule_smooth_time(v: Any) -> str | None:
     # Klipper's extruder.py: pressure_advance_smooth_time above 0, at most 0.2 s
     if not is_number(v) or not (0.0 < v <= 0.2):
@@ -230,7 +234,7 @@ _JERK = _rule_at_least_or_inf(MIN_ACCEL, "mm/s³")
 
 FIELDS: tuple[Field, ...] = (
     Field("", "name", "name", _rule_string, "string", ""),
-    Field("", "kinematics", "kinematics", rule_choice(KINEMATICS, UNSUPPORTED_KINEMATICS), "string", ""),
+    Field("", "kinematics", "kinematics", lambda v: _rule_kinematics(v), "string", ""),
     Field("", "flavor", "flavor", rule_choice(FLAVORS), "string", ""),
     Field("", "firmware", "firmware", rule_choice(FIRMWARES), "string", ""),
     Field("", "grbl_idle_lock_ms", "grbl_idle_lock_ms", _rule_non_negative, "number", "ms"),

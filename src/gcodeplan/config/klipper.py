@@ -296,7 +296,8 @@ def load_klipper_config(path: str) -> Machine:
     if kin_value is None:
         raise ConfigError("[printer] kinematics is required", cfg.main)
     kinematics = kin_value.text.strip().lower()
-    if kinematics not in KINEMATICS:
+    plugin = _plugin(kinematics)
+    if kinematics not in KINEMATICS and plugin is None:
         reason = UNSUPPORTED_KINEMATICS.get(kinematics, f"kinematics {kinematics!r} is not supported")
         raise ConfigError(f"[printer] kinematics: {reason} (supported: {', '.join(KINEMATICS)})",
                           kin_value.file, kin_value.line)
@@ -315,7 +316,8 @@ def load_klipper_config(path: str) -> Machine:
 
     if kinematics == "delta":
         _klipper_delta(cfg, m)
-    for a in ("x", "y", "z") if kinematics != "delta" else ():
+    own_sections = kinematics == "delta" or getattr(plugin, "from_klipper", None) is not None
+    for a in ("x", "y", "z") if not own_sections else ():
         section = f"stepper_{a}"
         if not cfg.has(section):
             raise ConfigError(f"[{section}] section is required", cfg.main)
@@ -326,6 +328,9 @@ def load_klipper_config(path: str) -> Machine:
     m.axes["z"].max_velocity = cfg.get_float("printer", "max_z_velocity", m.max_velocity,
                                              above=0.0, maxval=m.max_velocity)
     m.axes["z"].max_accel = cfg.get_float("printer", "max_z_accel", m.max_accel, above=0.0, maxval=m.max_accel)
+    if getattr(plugin, "from_klipper", None) is not None:
+        # a plug-in kinematics reads its own sections (and may take the Z limits back: rotary_delta, winch)
+        plugin.from_klipper(cfg, m)
 
     if cfg.has("extruder"):
         _klipper_extruder(cfg, m)
@@ -341,6 +346,50 @@ def load_klipper_config(path: str) -> Machine:
         m.unretract_speed = cfg.get_float(s, "unretract_speed", 10.0, minval=1.0)
     validate(m, cfg.main)
     return m
+
+
+def _plugin(kinematics: str):
+    """The registered plug-in of ``kinematics`` (built-ins included), None for the legacy four and unknown names."""
+    from ..kinematics import plugin as kin_plugin
+
+    if kinematics in ("cartesian", "corexy", "corexz", "delta"):
+        return None
+    try:
+        return kin_plugin.registered(kinematics)
+    except ConfigError:
+        return None
+
+
+def klipper_rail(cfg: KlipperCfg, section: str, axis: Axis) -> float:
+    """stepper.py PrinterRail for a plug-in's linear rail: steps/mm (returned), position_endstop into
+    ``axis.home`` and position_min/max into ``axis`` (ConfigError when the section is missing)."""
+    if not cfg.has(section):
+        raise ConfigError(f"[{section}] section is required", cfg.main)
+    spm = _klipper_steps_per_mm(cfg, section)
+    axis.home = cfg.get_float(section, "position_endstop", 0.0)
+    _klipper_travel_limits(cfg, section, axis)
+    return spm
+
+
+def klipper_steps_per_rad(cfg: KlipperCfg, section: str) -> float:
+    """stepper.py parse_step_distance with units_in_radians: one turn (2π rad) is
+    full_steps · microsteps · gear_ratio steps (rotation_distance is not read)."""
+    if not cfg.has(section):
+        raise ConfigError(f"[{section}] section is required", cfg.main)
+    microsteps = cfg.get_int(section, "microsteps", required=True, minval=1)
+    full_steps = cfg.get_int(section, "full_steps_per_rotation", 200, minval=1)
+    if full_steps % 4:
+        v = cfg.raw(section, "full_steps_per_rotation")
+        raise ConfigError(f"[{section}] full_steps_per_rotation: must be a multiple of 4, got {full_steps}",
+                          v.file, v.line)
+    ratio = 1.0
+    v = cfg.raw(section, "gear_ratio")
+    if v is not None and v.text.strip():
+        try:
+            ratio = parse_gear_ratio(v.text)
+        except ValueError as err:
+            raise ConfigError(f"[{section}] gear_ratio: {err}", v.file, v.line) from None
+    return full_steps * microsteps * ratio / (2.0 * math.pi)
 
 
 def _klipper_delta(cfg: KlipperCfg, m: Machine) -> None:

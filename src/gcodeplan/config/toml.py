@@ -156,6 +156,12 @@ def _unknown(path: str, what: str, candidates: list[str]) -> str:
 def _apply_toml(doc: dict[str, Any], machine: Machine, source: str) -> None:
     top_keys = section_keys("")
     for key, value in doc.items():
+        if key == "kinematics_params":
+            # a plug-in kinematics' own settings (gcodeplan.kinematics.plugin): its names, numbers / arrays
+            if not isinstance(value, dict):
+                raise ConfigError(f"kinematics_params: must be a table, got {show_value(value)}", source)
+            machine.kinematics_params = dict(value)
+            continue
         if isinstance(value, dict):
             if key not in SECTIONS:
                 raise ConfigError(_unknown(key, "section", list(SECTIONS)), source)
@@ -320,6 +326,8 @@ def machine_to_toml(machine: Machine) -> str:
         table[f.key] = float(value) if f.kind == "number" else value
     doc["axis"] = {a: {f.key: float(getattr(machine.axes[a], f.attr)) for f in FIELDS if f.section == "axis"}
                    for a in AXES}
+    if machine.kinematics_params:
+        doc["kinematics_params"] = dict(machine.kinematics_params)
     return tomli_w.dumps(doc)
 
 

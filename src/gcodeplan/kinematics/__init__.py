@@ -15,54 +15,32 @@ the kinematics. Delta (:mod:`.delta`, ``s = z + √(L² − (x−x_t)² − (y�
 rails have ``weights = None`` and carry their ``tower``; the step generator runs
 the delta kernel on the x, y, z pieces; the step convention and the output
 layout stay the same.
+
+Every other kinematics is a plug-in (:mod:`.plugin`, ``gcodeplan.kinematics.register``): motors given by a
+compiled inverse-kinematics function ``ik(x, y, z, params)`` (rails with ``ik`` set, stepped by the one
+generic engine :func:`gcodeplan.stepper.kernel.gen_steps_ik`) or by linear weights, plus an optional limits
+hook the planner applies to every move. Klipper's polar, rotary_delta, winch, deltesian, hybrid_corexy,
+hybrid_corexz and generic_cartesian are built in that way. :mod:`.rail` holds :class:`Rail` and the table of
+built-in modules (imported by the modules without importing this package: no import cycle).
 """
 from __future__ import annotations
 
 import importlib
-from dataclasses import dataclass
 
 import numpy as np
 
 from ..errors import ConfigError
-
-# name -> module inside this package
-KINEMATICS_MODULES = {
-    "cartesian": "cartesian",
-    "corexy": "corexy",
-    "corexz": "corexz",
-    "delta": "delta",
-}
-
-AXIS_FIELDS = ("x", "y", "z", "e")
-
-
-@dataclass(frozen=True)
-class Rail:
-    """One stepper motor.
-
-    ``weights``: stepper position (mm of the stepper's own travel) as
-    Σ weights[i]·axis[i] over (x, y, z, e); ``None`` for non-linear kinematics.
-    ``tower``: a delta tower's (arm length² mm², tower x mm, tower y mm): the position is the carriage
-    height z + √(arm² − (x − tower x)² − (y − tower y)²) (:mod:`.delta`); None otherwise.
-    """
-
-    name: str
-    steps_per_mm: float
-    weights: tuple[float, float, float, float] | None
-    tower: tuple[float, float, float] | None = None
-
-    @property
-    def step_dist(self) -> float:
-        """mm of stepper travel per step (Klipper's ``step_dist``)."""
-        return 1.0 / self.steps_per_mm
+from .rail import AXIS_FIELDS, KINEMATICS_MODULES, LEGACY as _LEGACY, Rail
 
 
 def kinematics_module(name: str):
     """The module implementing kinematics ``name`` (ConfigError when unknown)."""
     mod = KINEMATICS_MODULES.get(name)
     if mod is None:
+        from .plugin import names
+
         raise ConfigError(f"kinematics: unknown value {name!r} "
-                          f"(known: {', '.join(sorted(KINEMATICS_MODULES))})")
+                          f"(known: {', '.join(sorted(names()))})")
     return importlib.import_module(f"{__name__}.{mod}")
 
 
@@ -75,7 +53,13 @@ def rails_for(machine, klipper_names: bool = False, kinematics=None) -> list[Rai
     if kinematics is None:
         kinematics = machine.kinematics
     if isinstance(kinematics, str):
-        rails = kinematics_module(kinematics).rails(machine, klipper_names)
+        from .plugin import registered
+
+        plugin = registered(kinematics) if kinematics not in _LEGACY else None
+        if plugin is not None:
+            rails = list(plugin.rails(machine, klipper_names))
+        else:
+            rails = kinematics_module(kinematics).rails(machine, klipper_names)
     elif callable(getattr(kinematics, "rails", None)):
         rails = list(kinematics.rails(machine, klipper_names))
     else:
@@ -118,6 +102,8 @@ def stepper_pieces(segments: np.ndarray, rail: Rail) -> tuple[np.ndarray, ...]:
     return (t0, dt, *out)
 
 
-from .linear import Linear  # noqa: E402  (public: gcodeplan.kinematics.Linear; needs Rail above)
+from .linear import Linear  # noqa: E402  (public: gcodeplan.kinematics.Linear)
+from .plugin import Plugin, names, register, registered, unregister  # noqa: E402
 
-__all__ = ["Rail", "Linear", "rails_for", "stepper_pieces", "kinematics_module", "KINEMATICS_MODULES"]
+__all__ = ["Rail", "AXIS_FIELDS", "Linear", "Plugin", "register", "unregister", "registered", "names", "rails_for",
+           "stepper_pieces", "kinematics_module", "KINEMATICS_MODULES"]

@@ -1,7 +1,7 @@
 """Cartesian kinematics: one stepper per axis (x, y, z) plus the extruder, a :class:`~.linear.Linear` instance."""
 from __future__ import annotations
 
-from . import Rail
+from .rail import Rail
 from .linear import builtin
 
 NAME = "cartesian"

@@ -5,7 +5,7 @@ each takes its steps per mm from its own section (A from the x axis, B from y).
 """
 from __future__ import annotations
 
-from . import Rail
+from .rail import Rail
 from .linear import builtin
 
 NAME = "corexy"

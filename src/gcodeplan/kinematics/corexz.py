@@ -6,7 +6,7 @@ names the motors are called a (X + Z), y, b (X − Z) and e.
 """
 from __future__ import annotations
 
-from . import Rail
+from .rail import Rail
 from .linear import builtin
 
 NAME = "corexz"

@@ -29,7 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import ConfigError
-from . import Rail
+from .rail import Rail
 
 NAME = "delta"
 TOWERS = ("a", "b", "c")

@@ -26,7 +26,7 @@ import math
 from collections.abc import Mapping
 
 from ..errors import ConfigError
-from . import AXIS_FIELDS, Rail
+from .rail import AXIS_FIELDS, Rail
 
 # built-in linear kinematics: (machine-file names, Klipper section names, weights over x, y, z, e)
 BUILTIN_WEIGHTS: dict[str, tuple[tuple[str, ...], tuple[str, ...], tuple[tuple[float, ...], ...]]] = {

@@ -69,6 +69,9 @@ PREP_DTYPE = np.dtype(
         ("kinematic", "?"),          # XYZ motion (False: extrude-only)
         ("junction_dev", "f8"),      # mm, δ used by this move (Klipper: from scv; JD: LIMITS.junction_dev)
         ("stop_v2", "f8"),           # speed² allowed next to a full stop (classic-jerk safe speed, else 0)
+        # mm²/s², mm/s²: the caps when Klipper calls the kinematics' check_move (before the extruder's rule),
+        # what a plug-in's limits hook sees (apply_kinematics_limits)
+        ("kin_cruise_v2", "f8"), ("kin_accel", "f8"),
     ],
     align=True,
 )
@@ -149,6 +152,8 @@ def _move_limits_kernel(moves, lim, policy, prep, d):
         out.max_mcr_start_v2 = 0.0
         out.junction_dev = 0.0
         out.stop_v2 = 0.0
+        out.kin_cruise_v2 = 0.0
+        out.kin_accel = 0.0
         k = mv.kind
         if k == KIND_DWELL or k == KIND_WAIT:
             if not mv.dwell_t >= 0.0:
@@ -223,6 +228,8 @@ def _move_limits_kernel(moves, lim, policy, prep, d):
                 max_cruise_v2, accel, delta_v2, mcr_delta_v2, limit = _limit_speed(
                     L[L_DELTA_V] * r, L[L_DELTA_A] * r, LIMIT_MAX_V, move_d, max_cruise_v2, accel, mcr_delta_v2,
                     limit)
+        out.kin_cruise_v2 = max_cruise_v2
+        out.kin_accel = accel
         axes_r_e = d[3] * inv_move_d
         # Klipper extruder.check_move: extrude-only (no X/Y motion) or retraction → extrude-only limits.
         if d[3] != 0.0 and ((d[0] == 0.0 and d[1] == 0.0) or axes_r_e < 0.0):
@@ -262,6 +269,65 @@ def _move_limits_kernel(moves, lim, policy, prep, d):
     if tiny_row >= 0:
         return ERR_TINY_ACCEL, tiny_row
     return ERR_NONE, -1
+
+
+# --------------------------------------------------------------------------- a plug-in kinematics' limits
+KIN_BAD_CAP = -1     # _kinematics_limits_kernel: the hook returned a cap that is no speed / accel
+
+
+@njit(cache=True)
+def _kinematics_limits_kernel(moves, prep, check_move, params, mv, caps):
+    """A kinematics plug-in's check_move on every kinematic move of ``prep`` (gcodeplan.kinematics.plugin):
+    its speed / accel caps go through Klipper's limit_speed onto the move's (the caps are minima, so taking
+    them after the extruder's rule gives Klipper's result; the hook sees the move as Klipper's check_move
+    does, ``kin_cruise_v2``/``kin_accel``). ``check_move`` is the hook as a cfunc
+    (:func:`gcodeplan.kinematics.plugin.hook_cfunc`); ``mv``: scratch float array of 9, ``caps`` of 2.
+    Returns (row, error code) of the first refused move, (-1, 0) if none."""
+    for i in range(moves.shape[0]):
+        out = prep[i]
+        if not (out.is_move and out.kinematic):
+            continue
+        m = moves[i]
+        mv[0] = m.x0
+        mv[1] = m.y0
+        mv[2] = m.z0
+        mv[3] = m.x1
+        mv[4] = m.y1
+        mv[5] = m.z1
+        mv[6] = out.move_d
+        mv[7] = out.kin_cruise_v2
+        mv[8] = out.kin_accel
+        caps[0] = math.inf
+        caps[1] = math.inf
+        err = check_move(mv, params, caps)
+        v_cap = caps[0]
+        a_cap = caps[1]
+        if err != 0:
+            return i, err
+        if not (v_cap > 0.0 and a_cap > 0.0):
+            return i, KIN_BAD_CAP        # NaN or <= 0: a bug in the hook, not a speed
+        if v_cap < math.inf or a_cap < math.inf:
+            if not a_cap < math.inf:
+                a_cap = out.accel
+            out.max_cruise_v2, out.accel, out.delta_v2, out.mcr_delta_v2, out.limit = _limit_speed(
+                v_cap, a_cap, LIMIT_MAX_V, out.move_d, out.max_cruise_v2, out.accel, out.mcr_delta_v2, out.limit)
+    return -1, 0
+
+
+def apply_kinematics_limits(moves: np.ndarray, prep: np.ndarray, hook) -> None:
+    """Apply a plug-in kinematics' limits hook (``hook`` = (check_move, params, plug-in) from
+    :func:`gcodeplan.kinematics.plugin.limits_hook`) to the PREP rows of ``moves``, in place; a refused move
+    is a GcodeError at its line with the plug-in's text (Klipper's "Move out of range: x y z [e]")."""
+    fn, params, plugin = hook
+    row, err = _kinematics_limits_kernel(moves, prep, fn, params, np.empty(9), np.empty(2))
+    if row >= 0 and err == KIN_BAD_CAP:
+        raise _line_error(moves, row, f"kinematics {plugin.name!r}: its check_move returned a speed or accel cap "
+                                      f"that is NaN or <= 0 (return inf for no cap)")
+    if row >= 0:
+        mv = moves[row]
+        text = plugin.move_error(err)
+        raise _line_error(moves, row, f"{text}: {mv['x1']:.3f} {mv['y1']:.3f} {mv['z1']:.3f} [{mv['e1']:.3f}] "
+                                      f"(kinematics {plugin.name!r} refuses this move)")
 
 
 # --------------------------------------------------------------------------- junction kernel
@@ -385,8 +451,8 @@ def validate(moves: np.ndarray, limits: np.ndarray, policy: int) -> None:
 
 def prepare_with_context(moves: np.ndarray, limits: np.ndarray, policy: int,
                          prev_moves: np.ndarray | None = None, prev_prep: np.ndarray | None = None,
-                         stop_pending: bool = True, cap_v2=None, out: np.ndarray | None = None
-                         ) -> tuple[np.ndarray, bool]:
+                         stop_pending: bool = True, cap_v2=None, out: np.ndarray | None = None,
+                         kinematics_hook=None) -> tuple[np.ndarray, bool]:
     """PREP rows for ``moves``, continuing from one previous move (the streaming case).
 
     ``prev_moves``/``prev_prep``: the last real move already prepared (one row each) or None;
@@ -394,7 +460,8 @@ def prepare_with_context(moves: np.ndarray, limits: np.ndarray, policy: int,
     (:mod:`gcodeplan.planner.policies`), None for the built-in kernel of ``policy``; ``out``: zeroed
     contiguous PREP rows, one per move, to fill (the tail of the streaming planner's window, so that the
     chunk is not copied there afterwards), None = new ones.
-    Returns (prep, stop_pending after the chunk).
+    ``kinematics_hook``: the machine's plug-in limits (:func:`gcodeplan.kinematics.plugin.limits_hook`), None
+    for none. Returns (prep, stop_pending after the chunk).
     """
     moves = np.ascontiguousarray(moves)
     lim = limits_table(limits)
@@ -404,6 +471,8 @@ def prepare_with_context(moves: np.ndarray, limits: np.ndarray, policy: int,
         raise _line_error(moves, row, f"acceleration {float(prep['accel'][row])!r} mm/s² is too small to plan with")
     if err != ERR_NONE:
         raise _line_error(moves, row, _ERR_TEXT[err])
+    if kinematics_hook is not None:
+        apply_kinematics_limits(moves, prep, kinematics_hook)
     if cap_v2 is None:
         before = np.zeros(0, PREP_DTYPE) if prev_prep is None else np.ascontiguousarray(prev_prep)
         _, stop_pending = _junction_kernel(moves, lim, policy, before, bool(stop_pending), prep)
@@ -439,5 +508,15 @@ def prepare(moves: np.ndarray, limits: np.ndarray, machine, policy: str | None =
     validate(moves, limits, pcode)
     if pcode == POLICY_BLEND:
         pcode = POLICY_JD
-    prep, _ = prepare_with_context(moves, limits, pcode, cap_v2=custom_cap(name))
+    prep, _ = prepare_with_context(moves, limits, pcode, cap_v2=custom_cap(name),
+                                   kinematics_hook=kinematics_limits(machine))
     return prep
+
+
+def kinematics_limits(machine):
+    """The machine's plug-in limits hook for :func:`prepare_with_context`, None when its kinematics has none."""
+    if machine is None or machine.kinematics in ("cartesian", "corexy", "corexz", "delta"):
+        return None
+    from ..kinematics.plugin import limits_hook
+
+    return limits_hook(machine)

@@ -28,8 +28,8 @@ import numpy as np
 from ..errors import ConfigError
 from ..schema import MOVE_DTYPE, PLAN_DTYPE, concat_rows, prepend_rows
 from .passes import klipper_flush, layout_rows, plan_runs, speed_buffers, standard_flush
-from .prepare import (POLICY_BLEND, POLICY_JD, POLICY_KLIPPER, POLICY_LINUXCNC, PREP_DTYPE, custom_cap, policy_code,
-                      prepare_with_context, validate)
+from .prepare import (POLICY_BLEND, POLICY_JD, POLICY_KLIPPER, POLICY_LINUXCNC, PREP_DTYPE, custom_cap,
+                      kinematics_limits, policy_code, prepare_with_context, validate)
 from .segments import to_segments
 
 MODE_TRAPEZOID, MODE_SCURVE, MODE_BLEND = "trapezoid", "scurve", "blend"
@@ -73,7 +73,8 @@ class _Mode:
             validate(moves_chunk, limits, pcode)
             sp._limits_checked = key
         prep, sp._stop_pending = prepare_with_context(moves_chunk, limits, pcode, sp._last_move, sp._last_prep,
-                                                      sp._stop_pending, cap_v2=sp._cap_v2, out=out)
+                                                      sp._stop_pending, cap_v2=sp._cap_v2, out=out,
+                                                      kinematics_hook=sp._kin_hook)
         real = np.nonzero(prep["is_move"])[0]      # not flatnonzero: that copies the strided field first
         if real.size:
             sp._last_move = moves_chunk[real[-1]:real[-1] + 1].copy()
@@ -206,6 +207,7 @@ class StreamPlanner:
         self.policy = policy or machine.junction_policy
         self._pcode = policy_code(self.policy)
         self._cap_v2 = custom_cap(self.policy)            # a registered policy's rule, None for built-ins
+        self._kin_hook = kinematics_limits(machine)       # a plug-in kinematics' check_move, None for none
         self._jerk = None if jerk is None else check_jerk(jerk)
         self._jerk_from_limits = False
         self._mode: _Mode | None = None                   # decided by the first chunk with rows

@@ -79,7 +79,12 @@ class StepGenerator:
         self.settings = None if settings is None else np.asarray(settings).reshape(-1)[:1]
         # which motors shaping and pressure advance act on (a delta tower moves with X and Y)
         self._xy_rails = [i for i, r in enumerate(self.rails)
-                          if r.tower is not None or (r.weights is not None and (r.weights[0] or r.weights[1]))]
+                          if r.tower is not None or r.ik is not None
+                          or (r.weights is not None and (r.weights[0] or r.weights[1]))]
+        # a plug-in motor's compiled inverse kinematics and its parameters (kernel.gen_steps_ik)
+        self._ik_params = [None if r.ik is None else np.ascontiguousarray(r.ik_params or (0.0,), np.float64)
+                           for r in self.rails]
+        self._ik_fn = [None] * n      # the cfunc of each, made on first use (kinematics.plugin.ik_cfunc)
         self._e_rails = [i for i, r in enumerate(self.rails) if r.weights is not None
                          and r.weights[3] and not any(r.weights[:3])]
         self._mixed_e = [r.name for r in self.rails if r.weights is not None and r.weights[3] and any(r.weights[:3])]
@@ -93,7 +98,8 @@ class StepGenerator:
         # Klipper's own search on the shaped / pressure-advanced motors (linear rails; delta towers keep the
         # exact kernel): one trapq per motion queue, one search state per motor
         self._trapq_xy = _Trapq(BIT_KIN, lambda bits: bits,
-                                sum(self.rails[i].tower is None for i in self._xy_rails))
+                                sum(self.rails[i].tower is None and self.rails[i].ik is None
+                                    for i in self._xy_rails))
         self._trapq_e = _Trapq(BIT_E, lambda bits: np.where(bits & BIT_E, BIT_E, 0), len(self._e_rails))
         self._its: dict[int, _Itersolve] = {}
         self._its_mode = [False] * n         # rail currently stepped by the search (else the exact kernels)
@@ -154,9 +160,9 @@ class StepGenerator:
         if st is None and self._plain:
             cols = None
             for si, rail in enumerate(self.rails):
-                if rail.tower is not None:
+                if rail.tower is not None or rail.ik is not None:
                     cols = cols or _xyz_columns(segments)
-                    self._run_delta(si, *cols, reset)
+                    (self._run_delta if rail.ik is None else self._run_ik)(si, *cols, reset)
                     continue
                 t0, dt, p, v, a, j = stepper_pieces(segments, rail)
                 self._run(si, t0, dt, p, v, a, j, reset)
@@ -246,12 +252,12 @@ class StepGenerator:
         cols = None
         for si in rails:
             rail = self.rails[si]
-            if rail.tower is not None:
-                # delta: the shaped x, y (and z) pieces through the tower's own (exact) kernel
+            if rail.tower is not None or rail.ik is not None:
+                # delta, plug-ins: the shaped x, y (and z) pieces through the motor's own kernel
                 if cols is None:
                     cols = _xyz_columns(out) if isinstance(out, np.ndarray) else (out.t0, out.dt, out.p, out.v,
                                                                                   out.a, out.j)
-                self._run_delta(si, *cols, rs)
+                (self._run_delta if rail.ik is None else self._run_ik)(si, *cols, rs)
                 continue
             reach = _reach(cur.stream, rail, si in self._e_rails)
             if reach != (0.0, 0.0) and not isinstance(out, np.ndarray):
@@ -431,6 +437,25 @@ class StepGenerator:
             if need == -2:
                 raise ConfigError(f"{self.rails[si].name}: the arm cannot reach the position at t = {t0[nxt]!r} s "
                                   f"(outside the delta's reach)")
+            start = self._after_kernel(si, t0, nxt, fill, need, n_pieces)
+
+    def _run_ik(self, si, t0, dt, p, v, a, j, reset):
+        """Steps of plug-in motor ``si`` (its compiled inverse kinematics) from pieces with (n, ≥3) x, y, z
+        coefficient columns: the generic engine, :func:`kernel.gen_steps_ik`."""
+        start = 0
+        n_pieces = len(t0)
+        rail = self.rails[si]
+        if self._ik_fn[si] is None:
+            from ..kinematics.plugin import ik_cfunc
+
+            self._ik_fn[si] = ik_cfunc(rail.ik)
+        while start < n_pieces:
+            nxt, fill, need = kernel.gen_steps_ik(t0, dt, p, v, a, j, reset, self._ik_fn[si], self._ik_params[si],
+                                                  rail.period, rail.step_dist, self.states[si], start,
+                                                  self._buf_t[si], self._buf_d[si], self._fill[si])
+            if need == -2:
+                raise ConfigError(f"{rail.name}: the kinematics cannot reach the position at t = {t0[nxt]!r} s "
+                                  f"(its inverse kinematics gives no motor position there)")
             start = self._after_kernel(si, t0, nxt, fill, need, n_pieces)
 
     def _run_poly(self, si, t0, dt, coef, reset):

@@ -1,0 +1,148 @@
+#!/usr/bin/env python3
+"""Compare gcodeplan's plug-in kinematics with real Klipper (../shared/reference/klipper/kinematics/).
+
+``python tools/compare_kinematics.py [--cube]`` prints a Markdown table: for each of Klipper's polar,
+rotary_delta, winch, deltesian, hybrid_corexy, hybrid_corexz and generic_cartesian and each reference file
+(b_square, c_circle200, d_slicer_like; with ``--cube`` also the PrusaSlicer cube's first 2032 lines), our total
+next to Klipper's, the relative difference, whether every motor has Klipper's step count and net steps, and the
+worst step-time difference. The inputs are prepared as the reference README says: the cube's G28 becomes
+``SET_KINEMATIC_POSITION X=0 Y=0 Z=0``; for polar every X/Y coordinate is shifted by (+30, +30) mm (decimal
+arithmetic) so that no move passes the polar centre. The tests (tests/test_kinematics_plugins.py) use the same
+functions.
+"""
+from __future__ import annotations
+
+import json
+import os
+import re
+import sys
+from decimal import Decimal
+from pathlib import Path
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[1]
+SHARED = Path(os.environ.get("GCODEPLAN_SHARED", REPO.parent / "shared"))
+KIN = SHARED / "reference" / "klipper" / "kinematics"
+CONFIGS = ("polar", "rotary_delta", "winch", "deltesian", "hybrid_corexy", "hybrid_corexz", "generic_cartesian")
+FILES = ("b_square", "c_circle200", "d_slicer_like")
+CUBE = "prusaslicer25_cube20_marlin2"
+CUBE_KEY = "prusaslicer25_cube20_marlin2_lines1-2032"
+CUBE_LINES = 2032
+POLAR_SHIFT = Decimal(30)
+KLIPPER_SDS_FILTER_T = 750e-6   # s, Klipper's step+dir+step filter (stepcompress.c)
+
+_MOVE = re.compile(r"^\s*G0*[0-3](?![0-9.])", re.I)
+_SKP = re.compile(r"^\s*SET_KINEMATIC_POSITION\b", re.I)
+_XY_WORD = re.compile(r"(?<![A-Za-z_])([XY])(\s*)([-+]?(?:\d+\.?\d*|\.\d+))", re.I)
+_XY_PARAM = re.compile(r"\b([XY])=([-+]?(?:\d+\.?\d*|\.\d+))", re.I)
+
+
+def _shift_line(line: str) -> str:
+    """One line with its X/Y coordinates moved by POLAR_SHIFT (comments untouched)."""
+    code, sep, comment = line.partition(";")
+    if code.split() == ["G28"]:
+        return "SET_KINEMATIC_POSITION X=30 Y=30 Z=0" + (sep + comment if sep else "")
+    if _MOVE.match(code):
+        head = re.match(r"^\s*G0*[0-3]", code, re.I).group(0)
+        rest = _XY_WORD.sub(lambda m: f"{m.group(1)}{m.group(2)}{Decimal(m.group(3)) + POLAR_SHIFT}", code[len(head):])
+        code = head + rest
+    elif _SKP.match(code):
+        code = _XY_PARAM.sub(lambda m: f"{m.group(1)}={Decimal(m.group(2)) + POLAR_SHIFT}", code)
+    return code + sep + comment
+
+
+def source_lines(name: str, config: str) -> list[str]:
+    """The G-code as Klipper ran it for ``config`` (module docstring), line numbers kept."""
+    if name in (CUBE, CUBE_KEY):
+        lines = (SHARED / "gcode" / f"{CUBE}.gcode").read_text().splitlines()[:CUBE_LINES]
+        lines = ["SET_KINEMATIC_POSITION X=0 Y=0 Z=0" if ln.split(";")[0].strip() == "G28" and config != "polar"
+                 else ln for ln in lines]
+    else:
+        lines = (SHARED / "reference" / "klipper" / "synthetic" / f"{name}.gcode").read_text().splitlines()
+    if config == "polar":
+        lines = [_shift_line(ln) for ln in lines]
+    return lines
+
+
+def machine(config: str):
+    """The reference config read as a Klipper printer.cfg."""
+    from gcodeplan.config import load_klipper_config
+
+    return load_klipper_config(str(KIN / f"{config}.cfg"))
+
+
+def klipper_steps(lines, m) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """{stepper: (times s, dirs)} through the pipeline and the step sink, Klipper's names and filter."""
+    from gcodeplan import pipeline
+    from gcodeplan.kinematics import rails_for
+    from gcodeplan.stepper.source import StepSink
+
+    rails = rails_for(m, klipper_names=True)
+    parts: dict[int, list] = {}
+
+    def sink(si, t, d):
+        parts.setdefault(si, []).append((t.copy(), d.copy()))
+
+    pipeline.run(lines, m, sinks=[StepSink(rails, sink, sds_filter_t=KLIPPER_SDS_FILTER_T, machine=m)])
+    return {r.name: (np.concatenate([c[0] for c in parts[i]]) if parts.get(i) else np.empty(0),
+                     np.concatenate([c[1] for c in parts[i]]) if parts.get(i) else np.empty(0, np.int8))
+            for i, r in enumerate(rails)}
+
+
+def total(lines, m) -> float:
+    import gcodeplan.api as gp
+
+    return gp.estimate(lines, m).total_time_s
+
+
+def reference(name: str, config: str):
+    """(times.json entry of the run, its npz)."""
+    key = CUBE_KEY if name in (CUBE, CUBE_KEY) else name
+    info = json.loads((KIN / "times.json").read_text())[key]["configs"][config]
+    return info, np.load(KIN / "steps" / f"{key}_{config}_exact_steps.npz")
+
+
+def compare_steps(ours, ref, figures):
+    """(counts equal, worst |Δt| s) per the README: full counts and net steps against times.json, the times
+    pairwise over the npz prefix (the cube's are the first n_steps_in_npz steps)."""
+    counts_ok = True
+    worst = 0.0
+    for name, (t, d) in ours.items():
+        full = figures[name]
+        if len(t) != full["n_steps"] or int(d.sum(dtype=np.int64)) != full["net_steps"]:
+            counts_ok = False
+            continue
+        rt, rd = ref[name], ref[name + "_dir"]
+        k = len(rt)
+        if not np.array_equal(d[:k], rd):
+            counts_ok = False
+            continue
+        if k:
+            worst = max(worst, float(np.max(np.abs(t[:k] - rt))))
+    return counts_ok, worst
+
+
+def main() -> int:
+    if not KIN.exists():
+        print(f"no reference at {KIN}", file=sys.stderr)
+        return 2
+    files = FILES + ((CUBE,) if "--cube" in sys.argv else ())
+    print("| file | kinematics | Klipper total s | gcodeplan total s | rel. diff | counts | worst step ns |")
+    print("|---|---|---:|---:|---:|---|---:|")
+    for name in files:
+        for config in CONFIGS:
+            info, ref = reference(name, config)
+            m = machine(config)
+            lines = source_lines(name, config)
+            ours = total(lines, m)
+            ok, worst = compare_steps(klipper_steps(lines, m), ref, info["steps"]["steppers"])
+            rel = (ours - info["total_time_s"]) / info["total_time_s"]
+            print(f"| {name} | {config} | {info['total_time_s']:.9f} | {ours:.9f} | {rel:.1e} | "
+                  f"{'equal' if ok else 'DIFFER'} | {worst * 1e9:.1f} |", flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.path.insert(0, str(REPO / "src"))
+    raise SystemExit(main())
