@@ -298,3 +298,17 @@ def compare_with_klipper_steps(ours, ref, figures, tol_s, truncated_at=None) -> 
             assert err < tol_s, f"{name}: worst step {err * 1e9:.1f} ns off"
             worst = max(worst, err)
     return worst
+
+
+@pytest.fixture(autouse=True)
+def _user_kinematics_unregistered():
+    """A test that registers a kinematics of its own (docs/api.md's SCARA arm, a user plug-in) leaves the registry
+    as it found it: the next test's "unknown kinematics" errors must not depend on the order tests ran in. The
+    built-ins stay (they register once, on their module's import)."""
+    from gcodeplan.kinematics import plugin
+
+    before = set(plugin._REGISTRY)
+    yield
+    for name in set(plugin._REGISTRY) - before:
+        if name not in plugin.KINEMATICS_MODULES:
+            del plugin._REGISTRY[name]

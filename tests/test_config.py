@@ -223,7 +223,8 @@ TOML_ERRORS = [
     ("[delta]\nangle = [1, 2]\n", "delta.angle: must be a number or an array of three numbers (towers a, b, c), "
                                   "got an array"),
     ("kinematics = \"coreXY\"\n", "kinematics: unknown value 'coreXY': must be one of cartesian, corexy, "
-                                  "corexz, delta (did you mean 'corexy'?)"),
+                                  "corexz, delta, polar, rotary_delta, winch, deltesian, hybrid_corexy, "
+                                  "hybrid_corexz, generic_cartesian (did you mean 'corexy'?)"),
     ("kinematics = 3\n", "kinematics: must be a string, got 3"),
     ("flavor = \"marlinn\"\n", "flavor: unknown value 'marlinn'"),
     ("flavour = \"marlin\"\n", "flavour: unknown key (did you mean 'flavor'?)"),
