@@ -59,7 +59,7 @@ def is_grbl_settings(path: str) -> bool:
 
 def load_grbl_settings(path: str):
     """The :class:`~gcodeplan.machine.Machine` of a ``$$`` report (see the module docstring)."""
-    from .toml import load_machine, read_text
+    from .toml import load_preset, read_text
 
     text = read_text(path)
     values: dict[int, float] = {}
@@ -74,7 +74,7 @@ def load_grbl_settings(path: str):
         if not math.isfinite(value):
             raise ConfigError(f"line {no}: ${key} must be a finite number", path)
         values[key] = value
-    machine = load_machine("grbl")
+    machine = load_preset("grbl")
     axes = dict(machine.axes)
     top = {}
     for key, value in values.items():

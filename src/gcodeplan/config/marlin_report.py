@@ -96,10 +96,10 @@ def _number(path: str, no: int, code: str, letter: str, text: str) -> float:
 def load_marlin_report(path: str):
     """The :class:`~gcodeplan.machine.Machine` of an ``M503`` report (see the module docstring)."""
     from .fields import validate
-    from .toml import load_machine, read_text
+    from .toml import load_preset, read_text
 
     text = read_text(path)
-    machine = load_machine("marlin")
+    machine = load_preset("marlin")
     axes = dict(machine.axes)
     top: dict = {}
     jerk_seen = jd_seen = None

@@ -289,7 +289,7 @@ class StreamPlanner:
     # ------------------------------------------------------------------ internals
     def _choose_mode(self, moves: np.ndarray, limits: np.ndarray) -> _Mode:
         """plan_moves' dispatch: a jerk (argument, else the limits in force) selects S-curves, then 'blend'."""
-        from . import scurve_jerk
+        from .scurve import scurve_jerk
 
         if self.firmware != "generic":
             if self._jerk is not None:
@@ -319,7 +319,7 @@ class StreamPlanner:
         know later rows, so a jerk from the limits must not change along the program."""
         if not self._jerk_from_limits:
             return
-        from . import scurve_jerk
+        from .scurve import scurve_jerk
 
         j = scurve_jerk(moves, limits, None)
         if j is not None and j != self._jerk:
