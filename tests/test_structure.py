@@ -68,3 +68,77 @@ def test_the_checker_follows_a_package_reexport_and_skips_type_checking(tmp_path
     assert "pkg.m" not in graph["pkg.k"]
     assert graph["pkg.m"] == {"pkg.k.lin": 1}
     assert ic.cycles(graph) == [["pkg.k", "pkg.k.lin"]]
+
+
+# ----------------------------------------------------------------------------- units of the schema's fields
+def _schema_fields():
+    """(dtype name, field, line, comment) for every field of the dtypes in schema.py, from its source."""
+    import ast
+    import io
+    import tokenize
+
+    path = REPO / "src" / "gcodeplan" / "schema.py"
+    text = path.read_text(encoding="utf-8")
+    comments = {tok.start[0]: tok.string.lstrip("#").strip()
+                for tok in tokenize.generate_tokens(io.StringIO(text).readline) if tok.type == tokenize.COMMENT}
+    out = []
+    for node in ast.walk(ast.parse(text)):
+        if not (isinstance(node, ast.Assign) and isinstance(node.value, ast.Call)
+                and getattr(node.value.func, "attr", "") == "dtype"):
+            continue
+        for elt in node.value.args[0].elts:
+            name = elt.elts[0].value
+            out.append((node.targets[0].id, name, elt.lineno, comments.get(elt.lineno)))
+    return out
+
+
+def _leading_units(comment: str, words) -> list[str]:
+    """The units a comment starts with: ``"mm/s, mm/s²: ..."`` -> ["mm/s", "mm/s²"]; ``"s, start"`` -> ["s"]."""
+    out = []
+    for tok in comment.split():
+        word = tok.rstrip(",:")
+        if word not in words:
+            break
+        out.append(word)
+        if not tok.endswith(","):
+            break
+    return out
+
+
+def test_every_schema_field_declares_its_unit():
+    """By its name's suffix (schema.UNIT_SUFFIXES) or first in its comment; where both speak they agree."""
+    from gcodeplan import schema
+
+    fields = _schema_fields()
+    dtypes = {"MOVE_DTYPE": schema.MOVE_DTYPE, "LIMITS_DTYPE": schema.LIMITS_DTYPE,
+              "PLAN_DTYPE": schema.PLAN_DTYPE, "SEGMENT_DTYPE": schema.SEGMENT_DTYPE}
+    for dname, dtype in dtypes.items():     # the source walk saw every field of every dtype
+        assert [f[1] for f in fields if f[0] == dname] == list(dtype.names)
+    per_line: dict[int, list[str]] = {}
+    for _, name, line, _ in fields:
+        per_line.setdefault(line, []).append(name)
+    words = set(schema.UNITS) | set(schema.UNITLESS)
+    bad = []
+    for dname, name, line, comment in fields:
+        by_name = schema.unit_of_name(name)
+        said = _leading_units(comment or "", words)
+        same_line = per_line[line]
+        if len(said) == len(same_line) > 1:
+            said = [said[same_line.index(name)]]
+        if len(said) > 1:
+            bad.append(f"{dname}.{name} (line {line}): {len(said)} units for {len(same_line)} fields")
+        elif by_name is None and not said:
+            bad.append(f"{dname}.{name} (line {line}): no unit suffix and no unit first in its comment")
+        elif by_name is not None and said and said[0] in schema.UNITS and said[0] != by_name:
+            bad.append(f"{dname}.{name} (line {line}): the name says {by_name}, the comment {said[0]}")
+    assert bad == []
+
+
+def test_unit_of_name_reads_klipper_style_suffixes():
+    from gcodeplan.schema import unit_of_name
+
+    assert [unit_of_name(n) for n in ("move_d", "cruise_v", "junction_v2", "accel_t", "max_a", "delta_slow_xy2",
+                                      "accel", "decel", "max_jerk", "jerk_x", "axis_v_x", "t_start")] == [
+        "mm", "mm/s", "mm²/s²", "s", "mm/s²", "mm²", "mm/s²", "mm/s²", "mm/s³", None, None, None]
+    assert _leading_units("mm/s, mm/s²: Klipper's", {"mm/s", "mm/s²"}) == ["mm/s", "mm/s²"]
+    assert _leading_units("s, absolute start", {"s"}) == ["s"]
