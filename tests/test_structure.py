@@ -142,3 +142,55 @@ def test_unit_of_name_reads_klipper_style_suffixes():
         "mm", "mm/s", "mm²/s²", "s", "mm/s²", "mm²", "mm/s²", "mm/s²", "mm/s³", None, None, None]
     assert _leading_units("mm/s, mm/s²: Klipper's", {"mm/s", "mm/s²"}) == ["mm/s", "mm/s²"]
     assert _leading_units("s, absolute start", {"s"}) == ["s"]
+
+
+# ----------------------------------------------------------------------------- docs/design.md's code flow
+def _code_flow_section() -> str:
+    text = (REPO / "docs" / "design.md").read_text(encoding="utf-8")
+    start = text.index("## The code flow of one move")
+    return text[start:text.index("\n## ", start + 1)]
+
+
+def _resolve(dotted: str):
+    """``gcode.reader.GcodeReader.batches`` -> the object, importing the longest module prefix of gcodeplan."""
+    import importlib
+
+    parts = dotted.split(".")
+    for k in range(len(parts), 0, -1):
+        try:
+            obj = importlib.import_module("gcodeplan." + ".".join(parts[:k]))
+        except ModuleNotFoundError:
+            continue
+        for name in parts[k:]:
+            obj = getattr(obj, name)        # AttributeError: the doc names something that is not there
+        return obj
+    raise ModuleNotFoundError(dotted)
+
+
+def test_design_code_flow_names_only_real_functions():
+    import re
+
+    section = _code_flow_section()
+    assert section.startswith("## The code flow of one move") and "docs/Code_Overview.md" in section
+    names = sorted(set(re.findall(r"`([a-z_]+(?:\.[A-Za-z_][A-Za-z_0-9]*)+)`", section)))
+    names = [n for n in names if not n.endswith((".py", ".md"))]
+    assert len(names) > 40
+    missing = []
+    for n in names:
+        try:
+            _resolve(n)
+        except (ImportError, AttributeError):
+            missing.append(n)
+    assert missing == []
+    # in the order data flows: reader, scanner, planner, segments, sinks
+    at = [section.index(f"`{n}`") for n in ("gcode.reader.GcodeReader.batches", "gcode.scan.scan_chunk",
+                                             "planner.stream.StreamPlanner.feed", "planner.segments.to_segments",
+                                             "stepper.kernel.gen_steps")]
+    assert at == sorted(at)
+
+
+def test_resolve_refuses_a_name_that_is_not_there():
+    with pytest.raises(AttributeError):
+        _resolve("planner.stream.StreamPlanner.no_such_method")
+    with pytest.raises(ModuleNotFoundError):
+        _resolve("no_such_module.f")
