@@ -916,14 +916,14 @@ def make_stream_mode(base_cls):
 
         def plan(self, final: bool):
             sp = self.sp
-            n_rows = window_end(sp._moves, final)
+            n_rows = window_end(sp.pending_moves, final)
             if n_rows == 0:
-                return 0, None, sp._clock, None
-            window = sp._moves[:n_rows]
+                return 0, None, sp.clock, None
+            window = sp.pending_moves[:n_rows]
             run = run_linuxcnc(window, self.limits, sp.machine)
-            plan = plan_rows(run, sp._clock)
-            t_end = sp._clock + run.lead + run.n_cycles * run.cycle
-            return n_rows, plan, t_end, (run, sp._clock)
+            plan = plan_rows(run, sp.clock)
+            t_end = sp.clock + run.lead + run.n_cycles * run.cycle
+            return n_rows, plan, t_end, (run, sp.clock)
 
         def segments(self, moves, plan, prep, ctx, first_index):
             run, clock = ctx
