@@ -188,6 +188,46 @@ def arc_limits(r0, dr, angle, p0, p1, i, j, vmax, amax):
 
 
 @njit(cache=True)
+def _chords_circumcircle(pts, m, i, j):
+    """The circle through the first, middle and last of the ``m + 1`` chord points ``pts`` in the (i, j) plane
+    (another point for the last when the chords close a full circle). Returns (ok, centre i, centre j,
+    radius), mm."""
+    A = pts[0]
+    B = pts[(m + 1) // 2]
+    C = pts[m]
+    if (m + 1) // 2 == m or (m + 1) // 2 == 0:
+        B = pts[1]
+    ax_, ay_ = A[i], A[j]
+    bx_, by_ = B[i], B[j]
+    cx_, cy_ = C[i], C[j]
+    if abs(ax_ - cx_) + abs(ay_ - cy_) < 1e-12:
+        C = pts[m - 1]   # a full circle: use another point
+        cx_, cy_ = C[i], C[j]
+    den = 2.0 * (ax_ * (by_ - cy_) + bx_ * (cy_ - ay_) + cx_ * (ay_ - by_))
+    if den == 0.0:
+        return False, 0.0, 0.0, 0.0
+    a2 = ax_ * ax_ + ay_ * ay_
+    b2 = bx_ * bx_ + by_ * by_
+    c2_ = cx_ * cx_ + cy_ * cy_
+    ux = (a2 * (by_ - cy_) + b2 * (cy_ - ay_) + c2_ * (ay_ - by_)) / den
+    uy = (a2 * (cx_ - bx_) + b2 * (ax_ - cx_) + c2_ * (bx_ - ax_)) / den
+    return True, ux, uy, math.hypot(ax_ - ux, ay_ - uy)
+
+
+@njit(cache=True)
+def _chords_sweep(pts, m, i, j, ux, uy):
+    """The signed angle (rad) the ``m`` chords sweep around the centre (ux, uy) of the (i, j) plane."""
+    sweep = 0.0
+    for k in range(m):
+        p = pts[k]
+        q = pts[k + 1]
+        vx0, vy0 = p[i] - ux, p[j] - uy
+        vx1, vy1 = q[i] - ux, q[j] - uy
+        sweep += math.atan2(vx0 * vy1 - vy0 * vx1, vx0 * vx1 + vy0 * vy1)
+    return sweep
+
+
+@njit(cache=True)
 def _emit_arc(out, n, moves, r0, r1, term, tol, feed, vmax, amax, amax_tool, cycle):
     """The chords r0..r1 of one arc as one circular segment; returns (n, ok)."""
     m = r1 - r0 + 1
@@ -210,35 +250,10 @@ def _emit_arc(out, n, moves, r0, r1, term, tol, feed, vmax, amax, amax_tool, cyc
         return n, False
     i = (ax + 1) % 3
     j = (ax + 2) % 3
-    # circumcircle of first, middle and last point in the (i, j) plane
-    A = pts[0]
-    B = pts[(m + 1) // 2]
-    C = pts[m]
-    if (m + 1) // 2 == m or (m + 1) // 2 == 0:
-        B = pts[1]
-    ax_, ay_ = A[i], A[j]
-    bx_, by_ = B[i], B[j]
-    cx_, cy_ = C[i], C[j]
-    if abs(ax_ - cx_) + abs(ay_ - cy_) < 1e-12:
-        C = pts[m - 1]   # a full circle: use another point
-        cx_, cy_ = C[i], C[j]
-    den = 2.0 * (ax_ * (by_ - cy_) + bx_ * (cy_ - ay_) + cx_ * (ay_ - by_))
-    if den == 0.0:
+    ok, ux, uy, R = _chords_circumcircle(pts, m, i, j)
+    if not ok:
         return n, False
-    a2 = ax_ * ax_ + ay_ * ay_
-    b2 = bx_ * bx_ + by_ * by_
-    c2_ = cx_ * cx_ + cy_ * cy_
-    ux = (a2 * (by_ - cy_) + b2 * (cy_ - ay_) + c2_ * (ay_ - by_)) / den
-    uy = (a2 * (cx_ - bx_) + b2 * (ax_ - cx_) + c2_ * (bx_ - ax_)) / den
-    R = math.hypot(ax_ - ux, ay_ - uy)
-    # signed sweep
-    sweep = 0.0
-    for k in range(m):
-        p = pts[k]
-        q = pts[k + 1]
-        vx0, vy0 = p[i] - ux, p[j] - uy
-        vx1, vy1 = q[i] - ux, q[j] - uy
-        sweep += math.atan2(vx0 * vy1 - vy0 * vx1, vx0 * vx1 + vy0 * vy1)
+    sweep = _chords_sweep(pts, m, i, j, ux, uy)
     # The parser places the chord ends as LinuxCNC's arc does: equal angle steps, the radius changing
     # linearly from start to end (a "spiral" when the G-code's end point is slightly off the circle of its
     # I/J centre). Fit that exactly (Gauss-Newton from the circle through three points) so that the
