@@ -590,55 +590,12 @@ class Interpreter(StateCommands, MotionCommands, Rs274Commands):
         return w.value
 
     # ------------------------------------------------------------------ execution of one classic line
-    def _execute(self, gs: list[float], ms: list[int], params: dict[str, Word], tool: Word | None) -> None:
-        if self.dialect == S.DIALECT_CNC:
-            self._execute_cnc(gs, ms, params)      # RS274NGC's order of execution (gcode/rs274.py)
-            return
+    def _settings_g(self, gset: set, params: dict[str, Word], used: set[str], scale: float) -> tuple[bool, bool]:
+        """The G codes of a line that set modes and offsets rather than move (G4 dwell, planes, tool length,
+        work offsets, G61/G64 path control, G90/G91, G98/G99, G10/G11, G28, G92…), before its motion. Returns
+        (the axis words were taken by one of them, G53 machine coordinates)."""
         st, ist = self.st, self.ist
-        used: set[str] = set()
         axis_consumed = False       # axis words taken by G10/G28/G43.1/G92 (no motion)
-        motion_codes = [g for g in gs if g in (0, 1, 2, 3, 80) or g in (73, 81, 82, 83, 85, 86, 89)]
-        if len(motion_codes) > 1:
-            self.error("two motion commands on one line: " + " ".join(f"G{g:g}" for g in motion_codes))
-        gset = set(gs)
-        for g in gs:
-            if g in QUIET_G:
-                continue
-            if not self._known("G", int(g)) or (g != int(g) and g not in (43.1, 59.1, 59.2, 59.3, 61.1, 90.1,
-                                                                           91.1, 92.1, 92.2, 92.3)):
-                self._unknown_or_macro(f"G{g:g}")
-                gset.discard(g)
-        if 93 in gset:
-            self.error("G93 inverse-time feed is not supported")
-        # units first, so that F and coordinates on the line use them
-        if 20 in gset:
-            st[S.S_UNIT] = 25.4
-        if 21 in gset:
-            st[S.S_UNIT] = 1.0
-        scale = float(st[S.S_UNIT])
-        # Marlin and Klipper read F only on moves: on an M-code line it is that command's parameter (as X Y Z E
-        # are, below). CNC controls take F as a modal word on any line.
-        f = None
-        if ms and not motion_codes and not self.machine.is_cnc:
-            used.add("F")
-        else:
-            f = self._value(params, "F")
-        if f is not None:
-            used.add("F")
-            if not f > 0.0:
-                self.error(f"feed rate F must be > 0, got {params['F'].text}")
-        # M commands
-        for mc in ms:
-            self._m_command(mc, params, used)
-        if tool is not None and not ms:
-            used.add("T")
-            if tool.value is None or tool.value != int(tool.value) or tool.value < 0:
-                self.error("T needs a tool number")
-            if not self.machine.is_cnc:
-                self._tool_change(int(tool.value))
-        if "S" in params and not ms and 4 not in gset:
-            used.add("S")   # laser power / spindle speed (grbl: on a motion line): no motion effect
-            self.spindle_commands += 1
         if 4 in gset:
             self._dwell(params, used)
         for g in (17, 18, 19):
@@ -716,6 +673,57 @@ class Interpreter(StateCommands, MotionCommands, Rs274Commands):
         if 92.3 in gset:
             self.g92 = self.g92_saved.copy()
             self._update_offsets()
+        return axis_consumed, machine_coords
+
+    def _execute(self, gs: list[float], ms: list[int], params: dict[str, Word], tool: Word | None) -> None:
+        if self.dialect == S.DIALECT_CNC:
+            self._execute_cnc(gs, ms, params)      # RS274NGC's order of execution (gcode/rs274.py)
+            return
+        st, ist = self.st, self.ist
+        used: set[str] = set()
+        motion_codes = [g for g in gs if g in (0, 1, 2, 3, 80) or g in (73, 81, 82, 83, 85, 86, 89)]
+        if len(motion_codes) > 1:
+            self.error("two motion commands on one line: " + " ".join(f"G{g:g}" for g in motion_codes))
+        gset = set(gs)
+        for g in gs:
+            if g in QUIET_G:
+                continue
+            if not self._known("G", int(g)) or (g != int(g) and g not in (43.1, 59.1, 59.2, 59.3, 61.1, 90.1,
+                                                                           91.1, 92.1, 92.2, 92.3)):
+                self._unknown_or_macro(f"G{g:g}")
+                gset.discard(g)
+        if 93 in gset:
+            self.error("G93 inverse-time feed is not supported")
+        # units first, so that F and coordinates on the line use them
+        if 20 in gset:
+            st[S.S_UNIT] = 25.4
+        if 21 in gset:
+            st[S.S_UNIT] = 1.0
+        scale = float(st[S.S_UNIT])
+        # Marlin and Klipper read F only on moves: on an M-code line it is that command's parameter (as X Y Z E
+        # are, below). CNC controls take F as a modal word on any line.
+        f = None
+        if ms and not motion_codes and not self.machine.is_cnc:
+            used.add("F")
+        else:
+            f = self._value(params, "F")
+        if f is not None:
+            used.add("F")
+            if not f > 0.0:
+                self.error(f"feed rate F must be > 0, got {params['F'].text}")
+        # M commands
+        for mc in ms:
+            self._m_command(mc, params, used)
+        if tool is not None and not ms:
+            used.add("T")
+            if tool.value is None or tool.value != int(tool.value) or tool.value < 0:
+                self.error("T needs a tool number")
+            if not self.machine.is_cnc:
+                self._tool_change(int(tool.value))
+        if "S" in params and not ms and 4 not in gset:
+            used.add("S")   # laser power / spindle speed (grbl: on a motion line): no motion effect
+            self.spindle_commands += 1
+        axis_consumed, machine_coords = self._settings_g(gset, params, used, scale)
 
         # motion
         for g in motion_codes:
