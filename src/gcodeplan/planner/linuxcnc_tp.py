@@ -1186,6 +1186,88 @@ def _next_of(q, i, n):
 
 
 @njit(cache=True)
+def activate_segment(q, tc, st, flags, vlimit, ramp_freq):
+    """tp.c tpActivateSegment: a segment starts executing; a short tangent segment ramps its velocity
+    (ARC_BLEND_RAMP_FREQ) instead of running a trapezoid."""
+    flags[tc, 5] = 1
+    length = q[tc].target - st[tc, 0]
+    denom = st[tc, 1] + min(q[tc].finalvel, _real_target(q, tc, vlimit))
+    seg_time = 2.0 * length / denom if denom > 0.0 else math.inf
+    if (seg_time < 1.0 / max(ramp_freq, TP_TIME_EPSILON) and q[tc].traverse == 0
+            and q[tc].term == TERM_TANGENT):
+        flags[tc, 3] = 1
+    flags[tc, 2] = 0
+    flags[tc, 4] = 0
+
+
+@njit(cache=True)
+def handle_split_cycle(q, tc, nx, nx2, st, flags, vlimit, cycle, pos, p_a, p_b):
+    """tp.c tpHandleSplitCycle: the cycle in which segment ``tc`` ends; the rest of the cycle runs the next
+    segment ``nx`` (tangent or parabolic join). Moves ``pos``; returns (path distance mm, the segment shown
+    executing)."""
+    execd = tc
+    moved = 0.0
+    seg_point(q[tc], st[tc, 0], p_a)
+    moved += q[tc].target - st[tc, 0]
+    st[tc, 0] = q[tc].target
+    seg_point(q[tc], st[tc, 0], p_b)
+    for a in range(3):
+        pos[a] += p_b[a] - p_a[a]
+    flags[tc, 1] = 1
+    if nx >= 0:
+        term = q[tc].term
+        if term == TERM_TANGENT or term == TERM_PARABOLIC:
+            if term == TERM_TANGENT:
+                st[nx, 2] = cycle - st[tc, 2]
+                st[nx, 1] = st[tc, 3]
+            seg_point(q[nx], st[nx, 0], p_a)
+            moved += _update_cycle(q, nx, nx2, st, flags, vlimit, cycle)
+            seg_point(q[nx], st[nx, 0], p_b)
+            for a in range(3):
+                pos[a] += p_b[a] - p_a[a]
+        if not (term == TERM_STOP or term == TERM_EXACT or (st[tc, 2] > st[nx, 2] and term == TERM_TANGENT)):
+            execd = nx
+    return moved, execd
+
+
+@njit(cache=True)
+def handle_regular_cycle(q, tc, nx, st, flags, vlimit, cycle, pos, p_a, p_b):
+    """tp.c tpHandleRegularCycle: one whole cycle of segment ``tc``, and of the next one too while a parabolic
+    blend runs both (tcIsBlending). Moves ``pos``; returns (path distance mm, the segment shown executing)."""
+    execd = tc
+    moved = 0.0
+    st[tc, 2] = cycle
+    seg_point(q[tc], st[tc, 0], p_a)
+    moved += _update_cycle(q, tc, nx, st, flags, vlimit, cycle)
+    seg_point(q[tc], st[tc, 0], p_b)
+    for a in range(3):
+        pos[a] += p_b[a] - p_a[a]
+    if q[tc].term == TERM_PARABOLIC:
+        if nx >= 0:
+            seg_tangent(q[tc], True, p_a)
+            seg_tangent(q[nx], False, p_b)
+            v_this, v_next, _ = blend_velocity(q, tc, nx, _real_target(q, tc, vlimit),
+                                               _real_target(q, nx, vlimit), p_a, p_b)
+            st[tc, 5] = v_this
+            st[nx, 5] = v_next
+        else:
+            st[tc, 5] = 0.0
+    if nx >= 0:
+        # tcIsBlending: latched once the decelerating segment drops below its blend speed
+        if (q[tc].term == TERM_PARABOLIC and flags[tc, 4] != 0 and st[tc, 1] < st[tc, 5]):
+            flags[tc, 2] = 1
+        if flags[tc, 2] != 0:
+            seg_point(q[nx], st[nx, 0], p_a)
+            moved += _update_cycle(q, nx, -1, st, flags, vlimit, cycle)
+            seg_point(q[nx], st[nx, 0], p_b)
+            for a in range(3):
+                pos[a] += p_b[a] - p_a[a]
+            if not (st[tc, 1] > st[nx, 1]):
+                execd = nx
+    return moved, execd
+
+
+@njit(cache=True)
 def execute_kernel(q, n, vlimit, cycle, ramp_freq, max_cycles, out_seg, out_pos, out_dist):
     """Run the queue servo cycle by servo cycle. Per cycle k: ``out_seg[k]`` the executing segment,
     ``out_pos[k]`` the commanded position at its end, ``out_dist[k]`` the path distance covered.
@@ -1212,71 +1294,12 @@ def execute_kernel(q, n, vlimit, cycle, ramp_freq, max_cycles, out_seg, out_pos,
         tc = i
         nx = _next_of(q, tc, n)
         nx2 = _next_of(q, nx, n) if nx >= 0 else -1
-        execd = tc
-        moved = 0.0
-        # activation (tpActivateSegment)
         if flags[tc, 5] == 0:
-            flags[tc, 5] = 1
-            length = q[tc].target - st[tc, 0]
-            denom = st[tc, 1] + min(q[tc].finalvel, _real_target(q, tc, vlimit))
-            seg_time = 2.0 * length / denom if denom > 0.0 else math.inf
-            if (seg_time < 1.0 / max(ramp_freq, TP_TIME_EPSILON) and q[tc].traverse == 0
-                    and q[tc].term == TERM_TANGENT):
-                flags[tc, 3] = 1
-            flags[tc, 2] = 0
-            flags[tc, 4] = 0
+            activate_segment(q, tc, st, flags, vlimit, ramp_freq)
         if flags[tc, 0] != 0:
-            # tpHandleSplitCycle
-            seg_point(q[tc], st[tc, 0], p_a)
-            moved += q[tc].target - st[tc, 0]
-            st[tc, 0] = q[tc].target
-            seg_point(q[tc], st[tc, 0], p_b)
-            for a in range(3):
-                pos[a] += p_b[a] - p_a[a]
-            flags[tc, 1] = 1
-            if nx >= 0:
-                term = q[tc].term
-                if term == TERM_TANGENT or term == TERM_PARABOLIC:
-                    if term == TERM_TANGENT:
-                        st[nx, 2] = cycle - st[tc, 2]
-                        st[nx, 1] = st[tc, 3]
-                    seg_point(q[nx], st[nx, 0], p_a)
-                    moved += _update_cycle(q, nx, nx2, st, flags, vlimit, cycle)
-                    seg_point(q[nx], st[nx, 0], p_b)
-                    for a in range(3):
-                        pos[a] += p_b[a] - p_a[a]
-                if not (term == TERM_STOP or term == TERM_EXACT or (st[tc, 2] > st[nx, 2] and term == TERM_TANGENT)):
-                    execd = nx
+            moved, execd = handle_split_cycle(q, tc, nx, nx2, st, flags, vlimit, cycle, pos, p_a, p_b)
         else:
-            # tpHandleRegularCycle
-            st[tc, 2] = cycle
-            seg_point(q[tc], st[tc, 0], p_a)
-            moved += _update_cycle(q, tc, nx, st, flags, vlimit, cycle)
-            seg_point(q[tc], st[tc, 0], p_b)
-            for a in range(3):
-                pos[a] += p_b[a] - p_a[a]
-            if q[tc].term == TERM_PARABOLIC:
-                if nx >= 0:
-                    seg_tangent(q[tc], True, p_a)
-                    seg_tangent(q[nx], False, p_b)
-                    v_this, v_next, _ = blend_velocity(q, tc, nx, _real_target(q, tc, vlimit),
-                                                       _real_target(q, nx, vlimit), p_a, p_b)
-                    st[tc, 5] = v_this
-                    st[nx, 5] = v_next
-                else:
-                    st[tc, 5] = 0.0
-            if nx >= 0:
-                # tcIsBlending: latched once the decelerating segment drops below its blend speed
-                if (q[tc].term == TERM_PARABOLIC and flags[tc, 4] != 0 and st[tc, 1] < st[tc, 5]):
-                    flags[tc, 2] = 1
-                if flags[tc, 2] != 0:
-                    seg_point(q[nx], st[nx, 0], p_a)
-                    moved += _update_cycle(q, nx, -1, st, flags, vlimit, cycle)
-                    seg_point(q[nx], st[nx, 0], p_b)
-                    for a in range(3):
-                        pos[a] += p_b[a] - p_a[a]
-                    if not (st[tc, 1] > st[nx, 1]):
-                        execd = nx
+            moved, execd = handle_regular_cycle(q, tc, nx, st, flags, vlimit, cycle, pos, p_a, p_b)
         out_seg[k] = execd
         out_dist[k] = moved
         for a in range(3):
