@@ -18,6 +18,36 @@ import weakref
 
 import numpy as np
 
+# --------------------------------------------------------------------------- units
+# Names carry their units, as in Klipper's toolhead.py. The unit of a field (and of a variable in the
+# code) is its name's suffix:
+#   _d     mm        a distance                 move_d
+#   _v     mm/s      a speed                    feed_v, cruise_v
+#   _v2    mm²/s²    a speed squared            the junction caps of planner/prepare.py
+#   _t     s         a time                     dwell_t, accel_t
+#   _a     mm/s²     an acceleration            max_a, extrude_only_a
+#   _xy2   mm²       a squared distance in XY   delta_slow_xy2
+#   accel, decel: mm/s²; jerk: mm/s³ (the whole name or its last ``_`` part)
+# A field whose name has none of them starts its comment with its unit (one of UNITS; on a line of several
+# fields, one per field, comma-separated), or with what it is when it has none (UNITLESS: a code of the
+# module's constants, a bit set, an index, a ratio). tests/test_structure.py checks every field here.
+UNIT_SUFFIXES = {"_d": "mm", "_v": "mm/s", "_v2": "mm²/s²", "_t": "s", "_a": "mm/s²", "_xy2": "mm²",
+                 "accel": "mm/s²", "decel": "mm/s²", "jerk": "mm/s³"}
+UNITS = ("mm", "s", "mm/s", "mm/s²", "mm/s³", "mm²", "mm²/s²", "Hz")
+UNITLESS = ("code", "bits", "index", "ratio")
+
+
+def unit_of_name(name: str) -> str | None:
+    """The unit a field's name declares by its suffix (:data:`UNIT_SUFFIXES`), or None."""
+    last = name.rsplit("_", 1)[-1]
+    if last in UNIT_SUFFIXES:
+        return UNIT_SUFFIXES[last]
+    for suffix in sorted((k for k in UNIT_SUFFIXES if k.startswith("_")), key=len, reverse=True):
+        if name.endswith(suffix):
+            return UNIT_SUFFIXES[suffix]
+    return None
+
+
 # --------------------------------------------------------------------------- moves
 # MOVE.kind
 KIND_TRAVEL = 0        # XYZ motion, no extrusion (or E not increasing with XYZ: see PRINT)
@@ -38,20 +68,20 @@ FLAG_FIRMWARE_RETRACT = 32  # made by G10/G11
 
 MOVE_DTYPE = np.dtype(
     [
-        ("line", "i8"),        # 1-based source line number
-        ("kind", "u1"),        # KIND_*
-        ("flags", "u1"),       # FLAG_*
+        ("line", "i8"),        # index: the 1-based source line number
+        ("kind", "u1"),        # code: KIND_*
+        ("flags", "u1"),       # bits: FLAG_*
         ("feature", "i2"),     # index into the feature-name list, -1 = none yet
-        ("layer", "i4"),       # layer index, -1 = before the first layer change
-        ("limits", "i4"),      # row of the LIMITS table in force for this move
-        ("x0", "f8"), ("y0", "f8"), ("z0", "f8"), ("e0", "f8"),   # start (mm, machine coordinates)
-        ("x1", "f8"), ("y1", "f8"), ("z1", "f8"), ("e1", "f8"),   # end
+        ("layer", "i4"),       # index of the layer, -1 = before the first layer change
+        ("limits", "i4"),      # index: the row of the LIMITS table in force for this move
+        ("x0", "f8"), ("y0", "f8"), ("z0", "f8"), ("e0", "f8"),   # mm: start, machine coordinates
+        ("x1", "f8"), ("y1", "f8"), ("z1", "f8"), ("e1", "f8"),   # mm: end
         ("move_d", "f8"),      # mm: XYZ length; |dE| for extrude-only; 0 for dwell/wait
         ("feed_v", "f8"),      # mm/s requested (F/60 × M220 factor); inf = as fast as allowed (rapids)
         ("accel", "f8"),       # mm/s² acceleration in force (M204 resolved for this move's kind and dialect)
         ("dwell_t", "f8"),     # s, for KIND_DWELL / KIND_WAIT rows
         ("blend_p", "f8"),     # mm, path tolerance in force (G64 P); 0 = exact path; nan = machine default
-        ("exact_stop", "u1"),  # 1 when G61.1 (or G61 outside LinuxCNC) is in force: this move ends at rest;
+        ("exact_stop", "u1"),  # code: 1 when G61.1 (or G61 outside LinuxCNC) is in force: this move ends at rest;
                                # 2 = LinuxCNC's G61 exact path (tangent joins pass, corners stop)
         ("blend_q", "f8"),     # mm, G64 Q naive-CAM tolerance (LinuxCNC; Q = P when only P is given); 0 = off
         ("object", "i2"),      # index into the object-name list (EXCLUDE_OBJECT, M486, slicer labels), -1 = none
@@ -68,7 +98,7 @@ LIMITS_DTYPE = np.dtype(
         ("max_v", "f8"),        # mm/s toolhead velocity limit (Klipper max_velocity)
         ("max_a", "f8"),        # mm/s² toolhead accel limit (the default accel when M204 has not spoken)
         ("scv", "f8"),          # mm/s square corner velocity (Klipper)
-        ("mcr", "f8"),          # minimum cruise ratio (Klipper), 0..1
+        ("mcr", "f8"),          # ratio 0..1: minimum cruise ratio (Klipper)
         ("junction_dev", "f8"), # mm junction deviation (grbl $11 / Marlin M205 J)
         ("jerk_x", "f8"), ("jerk_y", "f8"), ("jerk_z", "f8"), ("jerk_e", "f8"),   # mm/s classic jerk (M205 XYZE)
         ("axis_v_x", "f8"), ("axis_v_y", "f8"), ("axis_v_z", "f8"), ("axis_v_e", "f8"),  # mm/s per-axis (M203)
@@ -84,7 +114,7 @@ LIMITS_DTYPE = np.dtype(
         ("pa_smooth_t", "f8"),  # s, pressure_advance_smooth_time
         ("shaper_type_x", "f8"), ("shaper_type_y", "f8"),    # code: index in stepper.shaping.SHAPER_TYPES
         ("shaper_freq_x", "f8"), ("shaper_freq_y", "f8"),    # Hz, 0 = no shaping on that axis
-        ("damping_x", "f8"), ("damping_y", "f8"),            # shaper damping ratio
+        ("damping_x", "f8"), ("damping_y", "f8"),            # ratio: the shaper's damping
         # delta slow zones (Klipper's delta.py check_move): a move reaching beyond √delta_slow_xy2 from the
         # centre gets speed / accel ≤ ½·(delta_slow_v, delta_slow_a), beyond √delta_very_slow_xy2 ≤ ¼ of them;
         # delta_slow_v = 0: not a delta (no rule)
@@ -119,7 +149,7 @@ PLAN_DTYPE = np.dtype(
         ("cruise_t", "f8"),    # s
         ("decel_t", "f8"),     # s
         ("duration", "f8"),    # s (incl. dwell_t for dwell/wait rows)
-        ("limit", "u1"),       # LIMIT_*
+        ("limit", "u1"),       # code: LIMIT_*
     ],
     align=True,
 )
@@ -137,13 +167,13 @@ PHASE_NAMES = ("accel", "cruise", "decel", "blend", "dwell")
 
 SEGMENT_DTYPE = np.dtype(
     [
-        ("t0", "f8"), ("dt", "f8"),
-        ("px", "f8"), ("py", "f8"), ("pz", "f8"), ("pe", "f8"),
-        ("vx", "f8"), ("vy", "f8"), ("vz", "f8"), ("ve", "f8"),
-        ("ax", "f8"), ("ay", "f8"), ("az", "f8"), ("ae", "f8"),
-        ("jx", "f8"), ("jy", "f8"), ("jz", "f8"), ("je", "f8"),
-        ("move", "i8"),        # row index of the MOVE this piece belongs to (global, 0-based)
-        ("phase", "u1"),       # PHASE_*
+        ("t0", "f8"), ("dt", "f8"),                                # s: start, duration
+        ("px", "f8"), ("py", "f8"), ("pz", "f8"), ("pe", "f8"),    # mm: position at t0
+        ("vx", "f8"), ("vy", "f8"), ("vz", "f8"), ("ve", "f8"),    # mm/s: velocity at t0
+        ("ax", "f8"), ("ay", "f8"), ("az", "f8"), ("ae", "f8"),    # mm/s²: acceleration at t0
+        ("jx", "f8"), ("jy", "f8"), ("jz", "f8"), ("je", "f8"),    # mm/s³: jerk (constant over the piece)
+        ("move", "i8"),        # index: the row of the MOVE this piece belongs to (global, 0-based)
+        ("phase", "u1"),       # code: PHASE_*
     ],
     align=True,
 )

@@ -51,6 +51,7 @@ _inherited: dict[int, object] = {}   # signal -> disposition found at the first 
 _owner: list[int] = []      # pid of the process that installed the handlers
 _caught = threading.Event()  # set once cli.main has the exception in hand (no more raising)
 RERAISE_S = 1.0             # s: a Terminated swallowed on its way (see _watch) is raised again this late
+_sweeps: list = []          # clean-ups run when the handlers are restored (at_restore)
 
 
 def _watch(signum: int) -> None:
@@ -145,10 +146,9 @@ def install():
         sys.unraisablehook = _unraisable(old_hook)
 
     def restore() -> None:
-        from .report.output import discard_temporaries
-
         _caught.set()              # stops the re-raising thread; later signals are ignored until reset
-        discard_temporaries()      # the last safety net: nothing registered survives the command
+        for sweep in list(_sweeps):
+            sweep()                # the last safety net (report/output.py: no registered temporary survives)
         for sig, old in previous.items():
             try:
                 signal.signal(sig, old if old is not None else signal.SIG_DFL)
@@ -175,10 +175,18 @@ def held():
         signal.pthread_sigmask(signal.SIG_SETMASK, old)
 
 
+def at_restore(sweep) -> None:
+    """Run ``sweep()`` (no arguments) each time the function returned by :func:`install` restores the
+    handlers, after later signals are ignored: a module that keeps something to clean up on the way out
+    registers its sweep here (``report/output.py`` its temporary files), so this module needs none of them."""
+    if sweep not in _sweeps:
+        _sweeps.append(sweep)
+
+
 def exit_status(err: BaseException) -> int:
     """128 + the signal number for a :class:`Terminated` (or 130 for a plain KeyboardInterrupt)."""
     return 128 + getattr(err, "signum", signal.SIGINT)
 
 
-__all__ = ["Terminated", "install", "held", "caught", "taken", "child_defaults", "inherited_ignored",
+__all__ = ["Terminated", "install", "held", "caught", "taken", "child_defaults", "inherited_ignored", "at_restore",
            "exit_status", "HANDLED"]

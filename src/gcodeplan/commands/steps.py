@@ -78,12 +78,62 @@ def summary_line(name: str, st: np.ndarray) -> str:
             f"shortest interval {shortest}, {int(st[1])} direction changes")
 
 
+def _declare_step_arrays(writer, names: list[str], args):
+    """Declare the .npz arrays every stepper's steps are appended to (``--format``, ``--compress``); returns
+    (per-stepper compact encoders or None, per-stepper compressors or None)."""
+    from ..stepper import compress as cmp
+    from ..stepper.export import CompactEncoder
+
+    encoders = None
+    if args.format == "compact":
+        encoders = [CompactEncoder() for _ in names]
+        for name in names:
+            writer.declare(name + "_times_z", np.uint8)
+            writer.declare(name + "_dir_z", np.uint8)
+    else:
+        for name in names:
+            writer.declare(name, np.float64)
+            writer.declare(name + "_dir", np.int8)
+    compressors = None
+    if args.compress:
+        compressors = [cmp.Compressor(args.clock_hz, args.max_error, hold_back=True) for _ in names]
+        for name in names:
+            writer.declare(name + "_runs", cmp.RUN_DTYPE)
+    return encoders, compressors
+
+
+def _finish_step_arrays(writer, rails, machine, args, encoders, compressors) -> None:
+    """After the last step: what the encoders and compressors held back, then the file's description arrays
+    (steppers, steps/mm, kinematics, filter, clock)."""
+    from ..stepper.export import COMPACT_FORMAT
+
+    names = [r.name for r in rails]
+    if compressors is not None:             # the runs held back until the last step (compress.Compressor)
+        for name, comp in zip(names, compressors):
+            writer.append(name + "_runs", comp.finish())
+
+    if encoders is not None:
+        for name, enc in zip(names, encoders):
+            tz, dz = enc.finish()
+            writer.append(name + "_times_z", np.frombuffer(tz, np.uint8))
+            writer.append(name + "_dir_z", np.frombuffer(dz, np.uint8))
+            writer.put(name + "_blocks", np.array(enc.blocks, np.int64))
+            writer.put(name + "_widths", np.array(enc.widths, np.uint8))
+        writer.put("format", np.array(COMPACT_FORMAT))
+    writer.put("steppers", np.array(names))
+    writer.put("steps_per_mm", np.array([r.steps_per_mm for r in rails], np.float64))
+    writer.put("kinematics", np.array(machine.kinematics))
+    writer.put("sds_filter_s", np.array(args.sds_filter if args.sds_filter is not None else 0.0))
+    if args.compress:
+        writer.put("clock_hz", np.array(args.clock_hz))
+        writer.put("max_error_s", np.array(args.max_error))
+
+
 def run(args) -> int:
     from .. import pipeline
-    from ..stepper import compress as cmp
     from ..report.output import keep_made_dirs, make_dirs, refuse_terminal, remove_made_dirs
     from ..signals import held
-    from ..stepper.export import COMPACT_FORMAT, CompactEncoder, CsvStepWriter, NpzStreamWriter
+    from ..stepper.export import CsvStepWriter, NpzStreamWriter
     from ..stepper.source import StepSink, rails_from
 
     _check_args(args)
@@ -107,21 +157,7 @@ def run(args) -> int:
             except OSError as err:
                 raise GcodeplanError(f"cannot write {args.csv}: {err.strerror or err}") from None
             csv = CsvStepWriter(args.csv, names)
-        encoders = None
-        if args.format == "compact":
-            encoders = [CompactEncoder() for _ in rails]
-            for name in names:
-                writer.declare(name + "_times_z", np.uint8)
-                writer.declare(name + "_dir_z", np.uint8)
-        else:
-            for name in names:
-                writer.declare(name, np.float64)
-                writer.declare(name + "_dir", np.int8)
-        compressors = None
-        if args.compress:
-            compressors = [cmp.Compressor(args.clock_hz, args.max_error, hold_back=True) for _ in rails]
-            for name in names:
-                writer.declare(name + "_runs", cmp.RUN_DTYPE)
+        encoders, compressors = _declare_step_arrays(writer, names, args)
 
         def sink(si: int, times: np.ndarray, dirs: np.ndarray) -> None:
             name = names[si]
@@ -141,25 +177,7 @@ def run(args) -> int:
         bar, progress = progress_bar(args.file, args.quiet)
         pipeline.run(args.file, machine, policy=args.policy, jerk=args.jerk, strict=args.strict, sinks=[gen],
                      progress=progress)
-        if compressors is not None:             # the runs held back until the last step (compress.Compressor)
-            for name, comp in zip(names, compressors):
-                writer.append(name + "_runs", comp.finish())
-
-        if encoders is not None:
-            for name, enc in zip(names, encoders):
-                tz, dz = enc.finish()
-                writer.append(name + "_times_z", np.frombuffer(tz, np.uint8))
-                writer.append(name + "_dir_z", np.frombuffer(dz, np.uint8))
-                writer.put(name + "_blocks", np.array(enc.blocks, np.int64))
-                writer.put(name + "_widths", np.array(enc.widths, np.uint8))
-            writer.put("format", np.array(COMPACT_FORMAT))
-        writer.put("steppers", np.array(names))
-        writer.put("steps_per_mm", np.array([r.steps_per_mm for r in rails], np.float64))
-        writer.put("kinematics", np.array(machine.kinematics))
-        writer.put("sds_filter_s", np.array(args.sds_filter if args.sds_filter is not None else 0.0))
-        if args.compress:
-            writer.put("clock_hz", np.array(args.clock_hz))
-            writer.put("max_error_s", np.array(args.max_error))
+        _finish_step_arrays(writer, rails, machine, args, encoders, compressors)
         writer.commit()
         if csv is not None:
             csv.commit()

@@ -19,7 +19,7 @@ from .fields import (klipper_extrude_ratio, parse_gear_ratio, rule_choice, steps
                      validate)
 from .toml import load_machine_toml, machine_to_toml, preset_names, preset_path  # noqa: F401
 from .klipper import KlipperCfg, load_klipper_config  # noqa: F401
-from .toml import load_machine
+from .load import load_machine
 from ..machine import FLAVORS, Machine
 
 

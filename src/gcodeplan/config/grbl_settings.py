@@ -59,7 +59,7 @@ def is_grbl_settings(path: str) -> bool:
 
 def load_grbl_settings(path: str):
     """The :class:`~gcodeplan.machine.Machine` of a ``$$`` report (see the module docstring)."""
-    from .toml import load_machine, read_text
+    from .toml import load_preset, read_text
 
     text = read_text(path)
     values: dict[int, float] = {}
@@ -77,7 +77,7 @@ def load_grbl_settings(path: str):
             raise ConfigError(f"line {no}: ${key}={m.group(2)[:20]} is beyond grbl's float range (3.4e38)", path)
         values[key] = value
         where[key] = no
-    machine = load_machine("grbl")
+    machine = load_preset("grbl")
     axes = dict(machine.axes)
     top = {}
     for key, value in values.items():

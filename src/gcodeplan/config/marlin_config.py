@@ -308,7 +308,7 @@ def load_marlin_config(path: str, adv_path: str | None = None):
     names it."""
     from ..gcode.arcs_marlin import MarlinArcSettings
     from .fields import validate
-    from .toml import load_machine, read_text
+    from .toml import load_preset, read_text
 
     text = read_text(path)
     is_adv = _defines_name(text, _ADV_KEY) and not any(_defines_name(text, k) for k in _MAIN_KEYS)
@@ -354,7 +354,7 @@ def load_marlin_config(path: str, adv_path: str | None = None):
             f, no = pre.where[k]
             raise ConfigError(f"{k}: gcodeplan's Marlin model runs cartesian machines only", f, no)
 
-    machine = load_machine("marlin")
+    machine = load_preset("marlin")
     axes = dict(machine.axes)
     top: dict = {"firmware": "marlin-2.1.2"}
 

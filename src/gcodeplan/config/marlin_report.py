@@ -93,13 +93,60 @@ def _number(path: str, no: int, code: str, letter: str, text: str) -> float:
     return v
 
 
+def _m204_accelerations(path: str, no: int, words: dict, top: dict) -> None:
+    """``M204 P R T`` (print, retract, travel acceleration mm/s²; ``S`` before Marlin 1.1: print and travel) into
+    the machine's top-level settings ``top``."""
+    names = {"P": "accel_print", "R": "accel_retract", "T": "accel_travel"}
+    for letter, text_v in words.items():
+        v = _number(path, no, "M204", letter, text_v)
+        if not v > 0:
+            raise ConfigError(f"M204 {letter} must be > 0, got {v:g}", path, no)
+        if letter == "S":          # before 1.1: S = printing and travel
+            top.setdefault("accel_print", v)
+            top.setdefault("accel_travel", v)
+        elif letter in names:
+            top[names[letter]] = v
+        else:
+            raise ConfigError(f"M204 {letter}: not a Marlin acceleration (P R T)", path, no)
+
+
+def _m205_advanced(path: str, no: int, words: dict, axes: dict, top: dict, warn):
+    """``M205`` (Marlin's advanced settings): X Y Z E jerks (mm/s) into ``axes``, J junction deviation (mm) into
+    ``top``; B, S, T warn when they differ from what the model runs. Returns (line if an X/Y/Z jerk was set,
+    line if J was set), None for each not set."""
+    jerk_seen = jd_seen = None
+    for letter, text_v in words.items():
+        v = _number(path, no, "M205", letter, text_v)
+        if v < 0:
+            raise ConfigError(f"M205 {letter} must be >= 0, got {v:g}", path, no)
+        if letter in "XYZE":
+            axes[letter.lower()] = replace(axes[letter.lower()], jerk=v)
+            if letter != "E":
+                jerk_seen = no
+        elif letter == "J":
+            top["junction_deviation"] = v
+            jd_seen = no
+        elif letter == "B":
+            if v != 20000:
+                warn(no, f"M205 B{v:g} (minimum segment time µs): the marlin-2.1.2 model runs "
+                         "Marlin's default 20000 µs")
+        elif letter in "ST":
+            if v > 0:
+                what = "minimum print feedrate" if letter == "S" else "minimum travel feedrate"
+                warn(no, f"M205 {letter}{v:g} ({what}) is not a machine setting in gcodeplan: put "
+                         f"'M205 {letter}{v:g}' at the top of the program for it to count")
+        else:
+            raise ConfigError(f"M205 {letter}: not a Marlin M205 setting (B S T J X Y Z E)", path, no)
+    return jerk_seen, jd_seen
+
+
 def load_marlin_report(path: str):
     """The :class:`~gcodeplan.machine.Machine` of an ``M503`` report (see the module docstring)."""
     from .fields import validate
-    from .toml import load_machine, read_text
+    from .toml import load_preset, read_text
 
     text = read_text(path)
-    machine = load_machine("marlin")
+    machine = load_preset("marlin")
     axes = dict(machine.axes)
     top: dict = {}
     jerk_seen = jd_seen = None
@@ -130,41 +177,11 @@ def load_marlin_report(path: str):
         elif code == "M201":
             set_axis(no, code, words, "max_accel", "max acceleration mm/s²")
         elif code == "M204":
-            names = {"P": "accel_print", "R": "accel_retract", "T": "accel_travel"}
-            for letter, text_v in words.items():
-                v = _number(path, no, code, letter, text_v)
-                if not v > 0:
-                    raise ConfigError(f"M204 {letter} must be > 0, got {v:g}", path, no)
-                if letter == "S":          # before 1.1: S = printing and travel
-                    top.setdefault("accel_print", v)
-                    top.setdefault("accel_travel", v)
-                elif letter in names:
-                    top[names[letter]] = v
-                else:
-                    raise ConfigError(f"M204 {letter}: not a Marlin acceleration (P R T)", path, no)
+            _m204_accelerations(path, no, words, top)
         elif code == "M205":
-            for letter, text_v in words.items():
-                v = _number(path, no, code, letter, text_v)
-                if v < 0:
-                    raise ConfigError(f"M205 {letter} must be >= 0, got {v:g}", path, no)
-                if letter in "XYZE":
-                    axes[letter.lower()] = replace(axes[letter.lower()], jerk=v)
-                    if letter != "E":
-                        jerk_seen = no
-                elif letter == "J":
-                    top["junction_deviation"] = v
-                    jd_seen = no
-                elif letter == "B":
-                    if v != 20000:
-                        warn(no, f"M205 B{v:g} (minimum segment time µs): the marlin-2.1.2 model runs "
-                                 "Marlin's default 20000 µs")
-                elif letter in "ST":
-                    if v > 0:
-                        what = "minimum print feedrate" if letter == "S" else "minimum travel feedrate"
-                        warn(no, f"M205 {letter}{v:g} ({what}) is not a machine setting in gcodeplan: put "
-                                 f"'M205 {letter}{v:g}' at the top of the program for it to count")
-                else:
-                    raise ConfigError(f"M205 {letter}: not a Marlin M205 setting (B S T J X Y Z E)", path, no)
+            jerk, jd = _m205_advanced(path, no, words, axes, top, warn)
+            jerk_seen = jerk if jerk is not None else jerk_seen
+            jd_seen = jd if jd is not None else jd_seen
         elif code == "M900":
             if words.get("T") is not None and _number(path, no, code, "T", words["T"]) != 0:
                 warn(no, "M900 T: a second extruder's linear advance ignored (gcodeplan models one extruder)")

@@ -17,7 +17,7 @@ from ..machine import AXES, Machine
 # ============================================================================ TOML
 
 def preset_names() -> list[str]:
-    """Names of the machines shipped in gcodeplan/presets (``load_machine(name)`` reads them)."""
+    """Names of the machines shipped in gcodeplan/presets (``load_preset(name)`` reads them)."""
     folder = resources.files("gcodeplan").joinpath("presets")
     return sorted(p.name[:-5] for p in folder.iterdir() if p.name.endswith(".toml"))
 
@@ -31,46 +31,9 @@ def _preset_text(name: str) -> str:
     return resources.files("gcodeplan").joinpath("presets", f"{name}.toml").read_text(encoding="utf-8")
 
 
-def load_machine(path_or_preset: str) -> Machine:
-    """A machine from a TOML file, or from a preset name (``klipper``, ``marlin``, ``grbl``), or from what the
-    machine's owner has: a Klipper ``printer.cfg`` (by its ``.cfg`` name), a LinuxCNC ``.ini``, grbl's ``$$``
-    report, Marlin's ``M503`` report or its ``Configuration.h`` (each recognised by its content).
-
-    An existing regular file wins over a preset of the same name; a directory never does.
-    """
-    spec = str(path_or_preset)
-    if spec.endswith(".cfg"):
-        if not os.path.exists(spec):
-            raise ConfigError("no such file", spec)
-        from .klipper import load_klipper_config
-
-        return load_klipper_config(spec)      # Klipper's printer.cfg, read as --klipper-config reads it
-    if os.path.isfile(spec):
-        from .linuxcnc import is_linuxcnc_ini, load_linuxcnc_ini
-
-        if is_linuxcnc_ini(spec):             # a LinuxCNC machine .ini, read as --linuxcnc-ini reads it
-            return load_linuxcnc_ini(spec)
-        from .grbl_settings import is_grbl_settings, load_grbl_settings
-
-        if is_grbl_settings(spec):            # grbl's $$ report
-            return load_grbl_settings(spec)
-        from .marlin_report import is_marlin_report, load_marlin_report
-
-        if is_marlin_report(spec):            # Marlin's M503 report
-            return load_marlin_report(spec)
-        from .marlin_config import is_marlin_config, load_marlin_config
-
-        if is_marlin_config(spec):            # Marlin's Configuration.h (+ Configuration_adv.h beside it)
-            return load_marlin_config(spec)
-        return load_machine_toml(spec)
-    presets = preset_names()
-    if spec in presets:
-        return _load_toml_text(_preset_text(spec), preset_path(spec), base_dir=None, seen=(spec,))
-    if os.sep in spec or "/" in spec or spec.endswith(".toml") or os.path.exists(spec):
-        return load_machine_toml(spec)
-    close = difflib.get_close_matches(spec, presets, n=1)
-    hint = f" (did you mean {close[0]!r}?)" if close else ""
-    raise ConfigError(f"machine {spec!r} is neither a file nor a preset; presets: {', '.join(presets)}{hint}")
+def load_preset(name: str) -> Machine:
+    """The machine of a preset shipped in gcodeplan/presets (``klipper``, ``marlin``, ``grbl``, …)."""
+    return _load_toml_text(_preset_text(name), preset_path(name), base_dir=None, seen=(name,))
 
 
 def load_machine_toml(path: str, _seen: tuple[str, ...] = ()) -> Machine:

@@ -139,7 +139,8 @@ _MP_CODES = np.frombuffer(MP_TABLE, dtype=np.uint8).copy()
 _MP_PARAMS = np.zeros(256, dtype=np.uint8)
 for _c in b"XYZEFIJRGPWHCA":
     _MP_PARAMS[_c] = 1
-_NL, _SP, _G = 10, 32, 71
+_NL, _SP, _TAB, _SEMICOLON, _G, _E = ord("\n"), ord(" "), ord("\t"), ord(";"), ord("G"), ord("E")
+MP_CODE_SPACE = MP_TABLE.index(b" ")   # 11, the code of ' ': 'E' while "no spaces" is on
 
 
 @njit(cache=True)
@@ -209,14 +210,14 @@ def meatpack_decode(src, out):
                     if hi == 0xF:
                         full_due += 1
                     else:
-                        held = 69 if (hi == 11 and no_spaces) else codes[hi]
+                        held = _E if (hi == MP_CODE_SPACE and no_spaces) else codes[hi]
                 else:
-                    c0 = 69 if (lo == 11 and no_spaces) else codes[lo]
+                    c0 = _E if (lo == MP_CODE_SPACE and no_spaces) else codes[lo]
                     if c0 != _NL:          # an odd line's last character is padded with '\n': ignored
                         if hi == 0xF:
                             full_due += 1
                         else:
-                            c1 = 69 if (hi == 11 and no_spaces) else codes[hi]
+                            c1 = _E if (hi == MP_CODE_SPACE and no_spaces) else codes[hi]
             for c in (c0, c1):
                 if c < 0:
                     continue
@@ -250,13 +251,13 @@ def drop_empty_lines(buf, n):
             e += 1
         a = s
         b = e
-        while a < b and (buf[a] == _SP or buf[a] == 9):
+        while a < b and (buf[a] == _SP or buf[a] == _TAB):
             a += 1
-        while b > a and (buf[b - 1] == _SP or buf[b - 1] == 9):
+        while b > a and (buf[b - 1] == _SP or buf[b - 1] == _TAB):
             b -= 1
-        if a < b and buf[a] == 59:    # ';'
+        if a < b and buf[a] == _SEMICOLON:
             a += 1
-            while a < b and (buf[a] == _SP or buf[a] == 9):
+            while a < b and (buf[a] == _SP or buf[a] == _TAB):
                 a += 1
         if a < b:
             for k in range(s, e):

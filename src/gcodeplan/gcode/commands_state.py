@@ -48,36 +48,7 @@ class StateCommands:
             return v
 
         if uname == "SET_VELOCITY_LIMIT":
-            changes = {}
-            v = num("VELOCITY")
-            if v is not None:
-                if not v > 0:
-                    self.error("SET_VELOCITY_LIMIT: VELOCITY must be > 0")
-                changes["max_v"] = v
-            a = num("ACCEL")
-            if a is not None:
-                if not a > 0:
-                    self.error("SET_VELOCITY_LIMIT: ACCEL must be > 0")
-                changes["max_a"] = a
-                self.st[S.S_ACC_P] = self.st[S.S_ACC_T] = self.st[S.S_ACC_R] = a
-            scv = num("SQUARE_CORNER_VELOCITY")
-            if scv is not None:
-                if scv < 0:
-                    self.error("SET_VELOCITY_LIMIT: SQUARE_CORNER_VELOCITY must be >= 0")
-                changes["scv"] = scv
-            mcr = num("MINIMUM_CRUISE_RATIO")
-            if mcr is not None:
-                if not 0 <= mcr < 1:
-                    self.error("SET_VELOCITY_LIMIT: MINIMUM_CRUISE_RATIO must be in [0, 1)")
-                changes["mcr"] = mcr
-            a2d = num("ACCEL_TO_DECEL")
-            if a2d is not None and mcr is None:   # Klipper: MINIMUM_CRUISE_RATIO wins when both are given
-                if not a2d > 0:
-                    self.error("SET_VELOCITY_LIMIT: ACCEL_TO_DECEL must be > 0")
-                # Klipper's legacy setting: max_accel_to_decel = accel·(1 − mcr)
-                accel = float(self.st[S.S_ACC_P])
-                changes["mcr"] = max(0.0, 1.0 - a2d / accel)
-            self._new_limits(**changes)
+            self._set_velocity_limit(num)
         elif uname == "SET_KINEMATIC_POSITION":
             st = self.st
             x0, y0, z0, e0 = (float(st[i]) for i in (S.S_X, S.S_Y, S.S_Z, S.S_E))
@@ -121,6 +92,41 @@ class StateCommands:
             pass
         else:
             self.unknown_command(uname)
+
+    def _set_velocity_limit(self, num) -> None:
+        """Klipper's SET_VELOCITY_LIMIT (toolhead.py cmd_SET_VELOCITY_LIMIT): VELOCITY mm/s, ACCEL mm/s² (also the
+        accel of the moves that follow), SQUARE_CORNER_VELOCITY mm/s, MINIMUM_CRUISE_RATIO, or the legacy
+        ACCEL_TO_DECEL mm/s²; a new LIMITS row. ``num(key)``: the parameter as a checked number, None if absent."""
+        changes = {}
+        v = num("VELOCITY")
+        if v is not None:
+            if not v > 0:
+                self.error("SET_VELOCITY_LIMIT: VELOCITY must be > 0")
+            changes["max_v"] = v
+        a = num("ACCEL")
+        if a is not None:
+            if not a > 0:
+                self.error("SET_VELOCITY_LIMIT: ACCEL must be > 0")
+            changes["max_a"] = a
+            self.st[S.S_ACC_P] = self.st[S.S_ACC_T] = self.st[S.S_ACC_R] = a
+        scv = num("SQUARE_CORNER_VELOCITY")
+        if scv is not None:
+            if scv < 0:
+                self.error("SET_VELOCITY_LIMIT: SQUARE_CORNER_VELOCITY must be >= 0")
+            changes["scv"] = scv
+        mcr = num("MINIMUM_CRUISE_RATIO")
+        if mcr is not None:
+            if not 0 <= mcr < 1:
+                self.error("SET_VELOCITY_LIMIT: MINIMUM_CRUISE_RATIO must be in [0, 1)")
+            changes["mcr"] = mcr
+        a2d = num("ACCEL_TO_DECEL")
+        if a2d is not None and mcr is None:   # Klipper: MINIMUM_CRUISE_RATIO wins when both are given
+            if not a2d > 0:
+                self.error("SET_VELOCITY_LIMIT: ACCEL_TO_DECEL must be > 0")
+            # Klipper's legacy setting: max_accel_to_decel = accel·(1 − mcr)
+            accel = float(self.st[S.S_ACC_P])
+            changes["mcr"] = max(0.0, 1.0 - a2d / accel)
+        self._new_limits(**changes)
 
     # ------------------------------------------------------------------ M commands
     def _grbl_syncs(self, ms, params: dict[str, Word]) -> None:

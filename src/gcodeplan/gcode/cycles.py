@@ -142,6 +142,19 @@ def _peck_depths(r_abs: float, bottom: float, q: float) -> int:
     return k
 
 
+def _check_cycle_modes(code: int, state: CycleState, peck_retract_mm: float, plane: int) -> None:
+    """The modes a canned cycle needs before its words are read: a supported code, the XY plane (G17), a
+    retract mode (G98 / G99) and a finite peck retract (mm >= 0); CycleError otherwise."""
+    if code not in CYCLE_CODES:
+        raise CycleError(f"G{code} is not a supported canned cycle (G73, G81, G82, G83, G85, G86, G89)")
+    if plane != 17:
+        raise CycleError(f"canned cycles only in G17 (XY plane); G{plane} is in force")
+    if state.retract_mode not in (98, 99):
+        raise CycleError(f"canned cycle retract mode must be G98 or G99, got {state.retract_mode}")
+    if not (math.isfinite(peck_retract_mm) and peck_retract_mm >= 0.0):
+        raise CycleError(f"peck retract must be a finite distance >= 0 mm, got {peck_retract_mm}")
+
+
 def expand_cycle(code: int, words: dict[str, float], state: CycleState, peck_retract_mm: float = 0.254,
                  *, plane: int = 17, unit: float = 1.0) -> tuple[np.ndarray, CycleState]:
     """Moves of one canned-cycle line, and the state after it.
@@ -151,14 +164,7 @@ def expand_cycle(code: int, words: dict[str, float], state: CycleState, peck_ret
     in order: motion 0 = rapid, 1 = feed, 2 = dwell (xyz unchanged, dwell_s seconds). Raises
     :class:`CycleError`. ``unit``: mm per program unit (25.4 under G20), for LinuxCNC's peck arithmetic.
     """
-    if code not in CYCLE_CODES:
-        raise CycleError(f"G{code} is not a supported canned cycle (G73, G81, G82, G83, G85, G86, G89)")
-    if plane != 17:
-        raise CycleError(f"canned cycles only in G17 (XY plane); G{plane} is in force")
-    if state.retract_mode not in (98, 99):
-        raise CycleError(f"canned cycle retract mode must be G98 or G99, got {state.retract_mode}")
-    if not (math.isfinite(peck_retract_mm) and peck_retract_mm >= 0.0):
-        raise CycleError(f"peck retract must be a finite distance >= 0 mm, got {peck_retract_mm}")
+    _check_cycle_modes(code, state, peck_retract_mm, plane)
     first = state.code != code
     x_word, y_word = _word(words, "X"), _word(words, "Y")
     r_word = _sticky(_word(words, "R"), state.r, "R", code, first, True)

@@ -591,13 +591,55 @@ class Interpreter(StateCommands, MotionCommands, Rs274Commands):
         return w.value
 
     # ------------------------------------------------------------------ execution of one classic line
+    def _settings_g(self, gset: set, params: dict[str, Word], used: set[str], scale: float) -> tuple[bool, bool]:
+        """The G codes of a line that set modes and offsets rather than move (G4 dwell, planes, tool length,
+        work offsets, G61/G64 path control, G90/G91, G98/G99, G10/G11, G28, G92…), before its motion. Returns
+        (the axis words were taken by one of them, G53 machine coordinates)."""
+        axis_consumed = False       # axis words taken by G10/G28/G43.1/G92 (no motion)
+        if 4 in gset:
+            self._dwell(params, used)
+        self._set_plane(gset)
+        if 49 in gset:
+            self.tool_z = 0.0
+            self._update_offsets()
+        if 43 in gset:
+            h = self._value(params, "H")
+            used.add("H")
+            self.warn(f"G43 H{h if h is not None else ''}: no tool table, tool length offset taken as 0")
+            self.tool_z = 0.0
+            self._update_offsets()
+            if self.machine.flavor == "linuxcnc":
+                self._wait("G43")      # LinuxCNC's task waits for the motion queue to empty
+        if 43.1 in gset:
+            z = self._value(params, "Z")
+            if z is None:
+                self.error("G43.1 needs Z (the tool length offset)")
+            used.add("Z")
+            axis_consumed = True
+            self.tool_z = z * scale
+            self._update_offsets()
+        # coordinate system, path control, distance modes, retract mode: shared with RS274 (gcode/rs274.py)
+        self._modal_modes(gset, params, used, self.machine.flavor == "linuxcnc")
+        machine_coords = 53 in gset
+        if 10 in gset:
+            axis_consumed = self._g10(params, used)
+        if 11 in gset:
+            self._g11()
+        if 28 in gset:
+            self._g28(params, used)
+            axis_consumed = True
+        if 92 in gset:
+            self._g92(params, used)
+            axis_consumed = True
+        self._g92_family(gset)
+        return axis_consumed, machine_coords
+
     def _execute(self, gs: list[float], ms: list[int], params: dict[str, Word], tool: Word | None) -> None:
         if self.dialect == S.DIALECT_CNC:
             self._execute_cnc(gs, ms, params)      # RS274NGC's order of execution (gcode/rs274.py)
             return
         st, ist = self.st, self.ist
         used: set[str] = set()
-        axis_consumed = False       # axis words taken by G10/G28/G43.1/G92 (no motion)
         motion_codes = [g for g in gs if g in (0, 1, 2, 3, 80) or g in (73, 81, 82, 83, 85, 86, 89)]
         if len(motion_codes) > 1:
             self.error("two motion commands on one line: " + " ".join(f"G{g:g}" for g in motion_codes))
@@ -640,42 +682,7 @@ class Interpreter(StateCommands, MotionCommands, Rs274Commands):
         if "S" in params and not ms and 4 not in gset:
             used.add("S")   # laser power / spindle speed (grbl: on a motion line): no motion effect
             self.spindle_commands += 1
-        if 4 in gset:
-            self._dwell(params, used)
-        self._set_plane(gset)
-        if 49 in gset:
-            self.tool_z = 0.0
-            self._update_offsets()
-        if 43 in gset:
-            h = self._value(params, "H")
-            used.add("H")
-            self.warn(f"G43 H{h if h is not None else ''}: no tool table, tool length offset taken as 0")
-            self.tool_z = 0.0
-            self._update_offsets()
-            if self.machine.flavor == "linuxcnc":
-                self._wait("G43")      # LinuxCNC's task waits for the motion queue to empty
-        if 43.1 in gset:
-            z = self._value(params, "Z")
-            if z is None:
-                self.error("G43.1 needs Z (the tool length offset)")
-            used.add("Z")
-            axis_consumed = True
-            self.tool_z = z * scale
-            self._update_offsets()
-        # coordinate system, path control, distance modes, retract mode: shared with RS274 (gcode/rs274.py)
-        self._modal_modes(gset, params, used, self.machine.flavor == "linuxcnc")
-        machine_coords = 53 in gset
-        if 10 in gset:
-            axis_consumed = self._g10(params, used)
-        if 11 in gset:
-            self._g11()
-        if 28 in gset:
-            self._g28(params, used)
-            axis_consumed = True
-        if 92 in gset:
-            self._g92(params, used)
-            axis_consumed = True
-        self._g92_family(gset)
+        axis_consumed, machine_coords = self._settings_g(gset, params, used, scale)
 
         # motion
         for g in motion_codes:

@@ -47,7 +47,7 @@ def _long_line(buf, lo: int, hi: int) -> tuple[int, int]:
         s = lo if s < 0 else s + 1
         e = buf.find(b"\n", p + w, hi)
         e = hi if e < 0 else e
-        n = e - s - (1 if e > s and buf[e - 1] == 13 else 0)     # a CRLF's CR is line end, not line
+        n = e - s - (1 if e > s and buf[e - 1] == S.BYTE_CR else 0)     # a CRLF's CR is line end, not line
         if n > MAX_LINE_BYTES:
             return s, n
         p = e + 1

@@ -22,7 +22,7 @@ import numpy as np
 
 from .._jit import njit
 
-from ..schema import KIND_DWELL, KIND_EXTRUDE_ONLY, KIND_PRINT, KIND_TRAVEL, FLAG_RAPID, FLAG_RETRACT
+from ..schema import KIND_DWELL, KIND_EXTRUDE_ONLY, KIND_PRINT, KIND_TRAVEL, FLAG_ARC, FLAG_RAPID, FLAG_RETRACT
 
 # ------------------------------------------------------------------ float state (st)
 S_X, S_Y, S_Z, S_E = 0, 1, 2, 3     # mm, machine position; S_E is the running machine E (G92 never resets it)
@@ -76,6 +76,23 @@ ST_FULL = 2      # the output array is full; the line at pos is not processed ye
 FEAT_MAX = 64        # ;TYPE: name table rows
 FEAT_NAME_MAX = 48   # bytes per name; longer names always go through Python
 
+# ------------------------------------------------------------------ byte codes
+# Module-level ints: numba compiles them in as constants, so naming them costs nothing in the kernels.
+BYTE_TAB, BYTE_LF, BYTE_CR, BYTE_SPACE = ord("\t"), ord("\n"), ord("\r"), ord(" ")
+BYTE_PLUS, BYTE_MINUS, BYTE_DOT, BYTE_SEMICOLON = ord("+"), ord("-"), ord("."), ord(";")
+BYTE_0, BYTE_9 = ord("0"), ord("9")
+BYTE_A, BYTE_Z, BYTE_LOWER_A, BYTE_LOWER_Z = ord("A"), ord("Z"), ord("a"), ord("z")
+CASE_OFFSET = BYTE_LOWER_A - BYTE_A          # ASCII: a lower-case letter = its capital + 32
+BYTE_L, BYTE_M, BYTE_T = ord("L"), ord("M"), ord("T")   # first letters of the comment markers (with BYTE_Z, ' ')
+# word letters, compared after _lower (a G-code word's letter is case-blind)
+LETTER_G, LETTER_M = ord("g"), ord("m")
+LETTER_X, LETTER_Y, LETTER_Z, LETTER_E, LETTER_F = ord("x"), ord("y"), ord("z"), ord("e"), ord("f")
+LETTER_S, LETTER_P, LETTER_T, LETTER_R = ord("s"), ord("p"), ord("t"), ord("r")
+
+# the words scan_chunk reads, as bits of its ``has`` mask (each word at most once per line)
+WORD_X, WORD_Y, WORD_Z, WORD_E, WORD_F = 1, 2, 4, 8, 16
+WORD_S, WORD_P, WORD_T, WORD_R = 32, 64, 128, 256
+
 # 10**k for k = 0..22 are exact doubles: mantissa (< 2**53) times or divided by one of them is
 # correctly rounded, i.e. the same double as Python's float() (Clinger's fast path).
 POW10 = np.array([10.0 ** k for k in range(23)])
@@ -84,8 +101,8 @@ POW10 = np.array([10.0 ** k for k in range(23)])
 @njit(cache=True, inline="always")
 def _is_sep(c):
     # what may follow a number: blank, end of line, comment, or the next word's letter
-    return (c == 32 or c == 9 or c == 13 or c == 10 or c == 59
-            or (65 <= c <= 90) or (97 <= c <= 122))
+    return (c == BYTE_SPACE or c == BYTE_TAB or c == BYTE_CR or c == BYTE_LF or c == BYTE_SEMICOLON
+            or (BYTE_A <= c <= BYTE_Z) or (BYTE_LOWER_A <= c <= BYTE_LOWER_Z))
 
 
 @njit(cache=True, error_model="numpy", inline="always")
@@ -98,23 +115,23 @@ def parse_decimal(buf, p, end):
     mantissa < 10**15 < 2**53 and 10**decimals exact, so one rounding: the same double as
     ``float(text)`` (Clinger's fast path).
     """
-    while p < end and (buf[p] == 32 or buf[p] == 9):
+    while p < end and (buf[p] == BYTE_SPACE or buf[p] == BYTE_TAB):
         p += 1
     neg = False
-    if p < end and (buf[p] == 45 or buf[p] == 43):
-        neg = buf[p] == 45
+    if p < end and (buf[p] == BYTE_MINUS or buf[p] == BYTE_PLUS):
+        neg = buf[p] == BYTE_MINUS
         p += 1
     mant = 0
     ndig = 0
     frac = 0
-    while p < end and 48 <= buf[p] <= 57:
-        mant = mant * 10 + (buf[p] - 48)
+    while p < end and BYTE_0 <= buf[p] <= BYTE_9:
+        mant = mant * 10 + (buf[p] - BYTE_0)
         ndig += 1
         p += 1
-    if p < end and buf[p] == 46:
+    if p < end and buf[p] == BYTE_DOT:
         p += 1
-        while p < end and 48 <= buf[p] <= 57:
-            mant = mant * 10 + (buf[p] - 48)
+        while p < end and BYTE_0 <= buf[p] <= BYTE_9:
+            mant = mant * 10 + (buf[p] - BYTE_0)
             ndig += 1
             frac += 1
             p += 1
@@ -133,21 +150,21 @@ def parse_decimal(buf, p, end):
 
 @njit(cache=True, inline="always")
 def _lower(c):
-    if 65 <= c <= 90:
-        return c + 32
+    if BYTE_A <= c <= BYTE_Z:
+        return c + CASE_OFFSET
     return c
 
 
 @njit(cache=True, inline="always")
 def _skip_blank(buf, p, end):
-    while p < end and (buf[p] == 32 or buf[p] == 9 or buf[p] == 13):
+    while p < end and (buf[p] == BYTE_SPACE or buf[p] == BYTE_TAB or buf[p] == BYTE_CR):
         p += 1
     return p
 
 
 @njit(cache=True, inline="always")
 def _to_eol(buf, p, end):
-    while p < end and buf[p] != 10:
+    while p < end and buf[p] != BYTE_LF:
         p += 1
     return p
 
@@ -188,12 +205,12 @@ def _comment_needs_python(buf, p, eol, ist, feat_raw, feat_len, feat_idx):
     if p >= eol:
         return False
     c = buf[p]
-    if c != 84 and c != 76 and c != 90 and c != 32 and c != 77:   # markers start with 'T', 'L', 'Z', ' ', 'M'
+    if c != BYTE_T and c != BYTE_L and c != BYTE_Z and c != BYTE_SPACE and c != BYTE_M:   # the markers' first bytes
         return False
     if _starts(buf, p, eol, PAT_TYPE):
         a = p + 5
         b = eol
-        while b > a and (buf[b - 1] == 13 or buf[b - 1] == 32 or buf[b - 1] == 9):
+        while b > a and (buf[b - 1] == BYTE_CR or buf[b - 1] == BYTE_SPACE or buf[b - 1] == BYTE_TAB):
             b -= 1
         n = b - a
         if n > FEAT_NAME_MAX:
@@ -333,15 +350,15 @@ def scan_chunk(buf, pos, end, st, ist, out, n_out, feat_raw, feat_len, feat_idx)
             ist[I_LINE] = line
             return ST_DONE, end, n_out
         c = buf[p]
-        if c == 10:
+        if c == BYTE_LF:
             ist[I_LINE] = line
             pos = p + 1
             continue
-        if c == 59:  # ';' whole-line comment
+        if c == BYTE_SEMICOLON:  # whole-line comment
             eol = _to_eol(buf, p, end)
             c1 = buf[p + 1] if p + 1 < eol else 0
             # every marker starts with 'T', 'L', 'Z', ' ' or 'M' (tested here: a call costs more than the test)
-            if (c1 == 84 or c1 == 76 or c1 == 90 or c1 == 32 or c1 == 77) and \
+            if (c1 == BYTE_T or c1 == BYTE_L or c1 == BYTE_Z or c1 == BYTE_SPACE or c1 == BYTE_M) and \
                     _comment_needs_python(buf, p + 1, eol, ist, feat_raw, feat_len, feat_idx):
                 return ST_PYTHON, line_start, n_out
             ist[I_LINE] = line
@@ -350,22 +367,22 @@ def scan_chunk(buf, pos, end, st, ist, out, n_out, feat_raw, feat_len, feat_idx)
         lc = _lower(c)
         code = -1
         letter = 0
-        if lc == 103 or lc == 109:  # 'g' / 'm'
+        if lc == LETTER_G or lc == LETTER_M:
             letter = lc
             p += 1
             code = 0
             nd = 0
-            while p < end and 48 <= buf[p] <= 57 and nd < 4:
-                code = code * 10 + (buf[p] - 48)
+            while p < end and BYTE_0 <= buf[p] <= BYTE_9 and nd < 4:
+                code = code * 10 + (buf[p] - BYTE_0)
                 nd += 1
                 p += 1
             if nd == 0 or nd >= 4 or p >= end or not _is_sep(buf[p]):
                 return ST_PYTHON, line_start, n_out
-        elif lc == 120 or lc == 121 or lc == 122 or lc == 101 or lc == 102:  # bare x y z e f
+        elif lc == LETTER_X or lc == LETTER_Y or lc == LETTER_Z or lc == LETTER_E or lc == LETTER_F:  # no G/M word
             motion = ist[I_MOTION]
             if motion != 0 and motion != 1:
                 return ST_PYTHON, line_start, n_out
-            letter = 103
+            letter = LETTER_G
             code = motion
         else:
             return ST_PYTHON, line_start, n_out
@@ -379,30 +396,30 @@ def scan_chunk(buf, pos, end, st, ist, out, n_out, feat_raw, feat_len, feat_idx)
             if q >= end:
                 break
             b = buf[q]
-            if b == 10:
+            if b == BYTE_LF:
                 break
-            if b == 59:
+            if b == BYTE_SEMICOLON:
                 q = _to_eol(buf, q, end)
                 break
             w = _lower(b)
-            if w == 120:
-                bit = 1
-            elif w == 121:
-                bit = 2
-            elif w == 122:
-                bit = 4
-            elif w == 101:
-                bit = 8
-            elif w == 102:
-                bit = 16
-            elif w == 115:
-                bit = 32
-            elif w == 112:
-                bit = 64
-            elif w == 116:
-                bit = 128
-            elif w == 114:
-                bit = 256
+            if w == LETTER_X:
+                bit = WORD_X
+            elif w == LETTER_Y:
+                bit = WORD_Y
+            elif w == LETTER_Z:
+                bit = WORD_Z
+            elif w == LETTER_E:
+                bit = WORD_E
+            elif w == LETTER_F:
+                bit = WORD_F
+            elif w == LETTER_S:
+                bit = WORD_S
+            elif w == LETTER_P:
+                bit = WORD_P
+            elif w == LETTER_T:
+                bit = WORD_T
+            elif w == LETTER_R:
+                bit = WORD_R
             else:
                 return ST_PYTHON, line_start, n_out
             if has & bit:
@@ -411,31 +428,31 @@ def scan_chunk(buf, pos, end, st, ist, out, n_out, feat_raw, feat_len, feat_idx)
             if not ok:
                 return ST_PYTHON, line_start, n_out
             has |= bit
-            if bit == 1:
+            if bit == WORD_X:
                 vx = v
-            elif bit == 2:
+            elif bit == WORD_Y:
                 vy = v
-            elif bit == 4:
+            elif bit == WORD_Z:
                 vz = v
-            elif bit == 8:
+            elif bit == WORD_E:
                 ve = v
-            elif bit == 16:
+            elif bit == WORD_F:
                 vf = v
-            elif bit == 32:
+            elif bit == WORD_S:
                 vs = v
-            elif bit == 64:
+            elif bit == WORD_P:
                 vp = v
-            elif bit == 128:
+            elif bit == WORD_T:
                 vt = v
             else:
                 vr = v
         eol = q
         nxt = eol + 1 if eol < end else end
 
-        if letter == 103 and (code == 0 or code == 1):
-            if has & (32 | 64 | 128 | 256):
+        if letter == LETTER_G and (code == 0 or code == 1):
+            if has & (WORD_S | WORD_P | WORD_T | WORD_R):
                 return ST_PYTHON, line_start, n_out
-            if (has & 16) and not vf > 0.0:
+            if (has & WORD_F) and not vf > 0.0:
                 return ST_PYTHON, line_start, n_out
             scale = st[S_UNIT]
             x0 = st[S_X]
@@ -448,14 +465,14 @@ def scan_chunk(buf, pos, end, st, ist, out, n_out, feat_raw, feat_len, feat_idx)
             e1 = e0
             absc = ist[I_ABS_COORD] != 0
             f32 = ist[I_F32_REL] != 0
-            if has & 1:
+            if has & WORD_X:
                 x1 = vx * scale + st[S_OX] if absc else relative_sum(x0, vx * scale, f32)
-            if has & 2:
+            if has & WORD_Y:
                 y1 = vy * scale + st[S_OY] if absc else relative_sum(y0, vy * scale, f32)
-            if has & 4:
+            if has & WORD_Z:
                 z1 = vz * scale + st[S_OZ] if absc else relative_sum(z0, vz * scale, f32)
             elog = st[S_ELOG]
-            if has & 8:
+            if has & WORD_E:
                 ev = ve * scale
                 if ist[I_ABS_E] != 0 and (absc or ist[I_G90_SETS_E] != 0):
                     de_log = ev - elog
@@ -466,7 +483,7 @@ def scan_chunk(buf, pos, end, st, ist, out, n_out, feat_raw, feat_len, feat_idx)
                     elog = new_elog
                 e1 = e0 + de_log * st[S_FLOW_F]
             feed = st[S_FEED]
-            if has & 16:
+            if has & WORD_F:
                 feed = vf * scale / 60.0
             dx = x1 - x0
             dy = y1 - y0
@@ -513,7 +530,7 @@ def scan_chunk(buf, pos, end, st, ist, out, n_out, feat_raw, feat_len, feat_idx)
             pos = nxt
             continue
 
-        if letter == 103:
+        if letter == LETTER_G:
             if code == 90 or code == 91:
                 if has != 0:
                     return ST_PYTHON, line_start, n_out
@@ -524,12 +541,12 @@ def scan_chunk(buf, pos, end, st, ist, out, n_out, feat_raw, feat_len, feat_idx)
                 # the interpreter sets positions (and notes "G92 E" for firmware models: planner/marlin.py)
                 return ST_PYTHON, line_start, n_out
             elif code == 4:
-                if has & ~(32 | 64):
+                if has & ~(WORD_S | WORD_P):
                     return ST_PYTHON, line_start, n_out
                 dwell_t = 0.0
-                if has & 64:
+                if has & WORD_P:
                     dwell_t = vp if dialect == DIALECT_CNC else vp / 1000.0
-                if has & 32:
+                if has & WORD_S:
                     if dialect == DIALECT_KLIPPER:
                         return ST_PYTHON, line_start, n_out
                     dwell_t = vs
@@ -553,14 +570,14 @@ def scan_chunk(buf, pos, end, st, ist, out, n_out, feat_raw, feat_len, feat_idx)
                 # printers (CNC dialects never get here)
                 pass
             elif code == 204:
-                if dialect == DIALECT_CNC or (has & ~(32 | 64 | 128 | 256)):
+                if dialect == DIALECT_CNC or (has & ~(WORD_S | WORD_P | WORD_T | WORD_R)):
                     return ST_PYTHON, line_start, n_out
                 if dialect == DIALECT_KLIPPER:
                     # Klipper: S, else min(P, T) only when both are given, else "Invalid M204"
                     a = vs
-                    if not (has & 32):
+                    if not (has & WORD_S):
                         a = min(vp, vt)
-                    if not (has & 32) and not ((has & 64) and (has & 128)):
+                    if not (has & WORD_S) and not ((has & WORD_P) and (has & WORD_T)):
                         ist[I_M204_IGNORED] += 1
                     else:
                         if not a > 0.0:
@@ -570,17 +587,17 @@ def scan_chunk(buf, pos, end, st, ist, out, n_out, feat_raw, feat_len, feat_idx)
                         st[S_ACC_R] = a
                 else:
                     # Marlin M204: S sets print and travel, then P print, R retract, T travel
-                    if ((has & 32) and not vs > 0.0) or ((has & 64) and not vp > 0.0) or \
-                            ((has & 128) and not vt > 0.0) or ((has & 256) and not vr > 0.0):
+                    if ((has & WORD_S) and not vs > 0.0) or ((has & WORD_P) and not vp > 0.0) or \
+                            ((has & WORD_T) and not vt > 0.0) or ((has & WORD_R) and not vr > 0.0):
                         return ST_PYTHON, line_start, n_out
-                    if has & 32:
+                    if has & WORD_S:
                         st[S_ACC_P] = vs
                         st[S_ACC_T] = vs
-                    if has & 64:
+                    if has & WORD_P:
                         st[S_ACC_P] = vp
-                    if has & 256:
+                    if has & WORD_R:
                         st[S_ACC_R] = vr
-                    if has & 128:
+                    if has & WORD_T:
                         st[S_ACC_T] = vt
             else:
                 return ST_PYTHON, line_start, n_out
@@ -623,7 +640,7 @@ def summarise_rows(moves, acc, rapid_v):
                 acc[A_RETRACTS] += 1.0
             if r.flags & FLAG_RAPID:
                 acc[A_RAPIDS] += 1.0
-            if r.flags & 2:
+            if r.flags & FLAG_ARC:
                 acc[A_ARC_CHORDS] += 1.0
             if k != KIND_EXTRUDE_ONLY:
                 acc[A_MIN_X] = min(acc[A_MIN_X], r.x1)
@@ -644,9 +661,9 @@ def count_lines(buf, start, end):
     """Lines in buf[start:end] (a last line without a newline counts)."""
     n = 0
     for i in range(start, end):
-        if buf[i] == 10:
+        if buf[i] == BYTE_LF:
             n += 1
-    if end > start and buf[end - 1] != 10:
+    if end > start and buf[end - 1] != BYTE_LF:
         n += 1
     return n
 

@@ -19,36 +19,17 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..errors import ConfigError
 from ..machine import POLICIES
 from .passes import plan_from_prep
 from .prepare import POLICY_BLEND, POLICY_LINUXCNC, PREP_DTYPE, policy_code, prepare
 from .sampling import sample_segments
 from .segments import to_segments
 from .blend import plan_blend
-from .scurve import plan_scurve
+from .scurve import plan_scurve, scurve_jerk
 from .stream import StreamPlanner, no_blend_with_jerk
 
 __all__ = ["plan_moves", "StreamPlanner", "to_segments", "sample_segments", "POLICIES", "prepare",
            "PREP_DTYPE", "plan_from_prep"]
-
-
-def scurve_jerk(moves: np.ndarray, limits: np.ndarray, jerk: float | None) -> float | None:
-    """The S-curve jerk asked for (argument, else the limits in force), or None for trapezoids."""
-    if jerk is not None:
-        if not (jerk > 0.0 and np.isfinite(jerk)):
-            raise ConfigError(f"max_jerk: must be finite and > 0 for S-curves, got {jerk!r}")
-        return float(jerk)
-    if len(moves) == 0:
-        return None
-    all_mj = limits["max_jerk"]
-    if not np.any(np.isfinite(all_mj) & (all_mj > 0.0)):  # the common case: no jerk limit anywhere
-        return None
-    used = np.unique(moves["limits"])
-    used = used[(used >= 0) & (used < len(limits))]
-    mj = limits["max_jerk"][used]
-    on = np.isfinite(mj) & (mj > 0.0)
-    return float(mj[on].min()) if np.any(on) else None
 
 
 def _plan_only(result):

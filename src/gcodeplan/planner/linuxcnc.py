@@ -188,6 +188,46 @@ def arc_limits(r0, dr, angle, p0, p1, i, j, vmax, amax):
 
 
 @njit(cache=True)
+def _chords_circumcircle(pts, m, i, j):
+    """The circle through the first, middle and last of the ``m + 1`` chord points ``pts`` in the (i, j) plane
+    (another point for the last when the chords close a full circle). Returns (ok, centre i, centre j,
+    radius), mm."""
+    A = pts[0]
+    B = pts[(m + 1) // 2]
+    C = pts[m]
+    if (m + 1) // 2 == m or (m + 1) // 2 == 0:
+        B = pts[1]
+    ax_, ay_ = A[i], A[j]
+    bx_, by_ = B[i], B[j]
+    cx_, cy_ = C[i], C[j]
+    if abs(ax_ - cx_) + abs(ay_ - cy_) < 1e-12:
+        C = pts[m - 1]   # a full circle: use another point
+        cx_, cy_ = C[i], C[j]
+    den = 2.0 * (ax_ * (by_ - cy_) + bx_ * (cy_ - ay_) + cx_ * (ay_ - by_))
+    if den == 0.0:
+        return False, 0.0, 0.0, 0.0
+    a2 = ax_ * ax_ + ay_ * ay_
+    b2 = bx_ * bx_ + by_ * by_
+    c2_ = cx_ * cx_ + cy_ * cy_
+    ux = (a2 * (by_ - cy_) + b2 * (cy_ - ay_) + c2_ * (ay_ - by_)) / den
+    uy = (a2 * (cx_ - bx_) + b2 * (ax_ - cx_) + c2_ * (bx_ - ax_)) / den
+    return True, ux, uy, math.hypot(ax_ - ux, ay_ - uy)
+
+
+@njit(cache=True)
+def _chords_sweep(pts, m, i, j, ux, uy):
+    """The signed angle (rad) the ``m`` chords sweep around the centre (ux, uy) of the (i, j) plane."""
+    sweep = 0.0
+    for k in range(m):
+        p = pts[k]
+        q = pts[k + 1]
+        vx0, vy0 = p[i] - ux, p[j] - uy
+        vx1, vy1 = q[i] - ux, q[j] - uy
+        sweep += math.atan2(vx0 * vy1 - vy0 * vx1, vx0 * vx1 + vy0 * vy1)
+    return sweep
+
+
+@njit(cache=True)
 def _emit_arc(out, n, moves, r0, r1, term, tol, feed, vmax, amax, amax_tool, cycle):
     """The chords r0..r1 of one arc as one circular segment; returns (n, ok)."""
     m = r1 - r0 + 1
@@ -210,35 +250,10 @@ def _emit_arc(out, n, moves, r0, r1, term, tol, feed, vmax, amax, amax_tool, cyc
         return n, False
     i = (ax + 1) % 3
     j = (ax + 2) % 3
-    # circumcircle of first, middle and last point in the (i, j) plane
-    A = pts[0]
-    B = pts[(m + 1) // 2]
-    C = pts[m]
-    if (m + 1) // 2 == m or (m + 1) // 2 == 0:
-        B = pts[1]
-    ax_, ay_ = A[i], A[j]
-    bx_, by_ = B[i], B[j]
-    cx_, cy_ = C[i], C[j]
-    if abs(ax_ - cx_) + abs(ay_ - cy_) < 1e-12:
-        C = pts[m - 1]   # a full circle: use another point
-        cx_, cy_ = C[i], C[j]
-    den = 2.0 * (ax_ * (by_ - cy_) + bx_ * (cy_ - ay_) + cx_ * (ay_ - by_))
-    if den == 0.0:
+    ok, ux, uy, R = _chords_circumcircle(pts, m, i, j)
+    if not ok:
         return n, False
-    a2 = ax_ * ax_ + ay_ * ay_
-    b2 = bx_ * bx_ + by_ * by_
-    c2_ = cx_ * cx_ + cy_ * cy_
-    ux = (a2 * (by_ - cy_) + b2 * (cy_ - ay_) + c2_ * (ay_ - by_)) / den
-    uy = (a2 * (cx_ - bx_) + b2 * (ax_ - cx_) + c2_ * (bx_ - ax_)) / den
-    R = math.hypot(ax_ - ux, ay_ - uy)
-    # signed sweep
-    sweep = 0.0
-    for k in range(m):
-        p = pts[k]
-        q = pts[k + 1]
-        vx0, vy0 = p[i] - ux, p[j] - uy
-        vx1, vy1 = q[i] - ux, q[j] - uy
-        sweep += math.atan2(vx0 * vy1 - vy0 * vx1, vx0 * vx1 + vy0 * vy1)
+    sweep = _chords_sweep(pts, m, i, j, ux, uy)
     # The parser places the chord ends as LinuxCNC's arc does: equal angle steps, the radius changing
     # linearly from start to end (a "spiral" when the G-code's end point is slightly off the circle of its
     # I/J centre). Fit that exactly (Gauss-Newton from the circle through three points) so that the
@@ -452,6 +467,70 @@ def _linkable(pts, nc, bx, by, bz, px, py, pz, q_tol):
 
 
 @njit(cache=True)
+def _flush_segments(out, n, bx, by, bz, pts, pt_line, nc, ch_row0, ch_row1, ch_p, ch_feed, vmax, amax, vlimit_tool,
+                    amax_tool, cycle):
+    """emccanon.cc flush_segments: the naive-CAM chain (its ``nc`` points ``pts`` after the start (bx, by, bz))
+    sent as one blended line to its last point, tagged with that point's line and the MOVE rows
+    ch_row0..ch_row1 (none when empty). Returns the new segment count."""
+    return _emit_line(out, n, bx, by, bz, pts[nc - 1, 0], pts[nc - 1, 1], pts[nc - 1, 2], pt_line[nc - 1],
+                      ch_row0 if ch_row0 <= ch_row1 else -1, ch_row1, TERM_PARABOLIC, ch_p, ch_feed, 0, vmax, amax,
+                      vlimit_tool, amax_tool, cycle)
+
+
+@njit(cache=True)
+def _arc_chords_end(moves, r):
+    """The last MOVE row of the arc whose first chord is row ``r``: the chords of one G2/G3 line, each starting
+    where the one before ends."""
+    nm = moves.shape[0]
+    r1 = r
+    while (r1 + 1 < nm and (moves[r1 + 1].flags & FLAG_ARC) != 0 and moves[r1 + 1].line == moves[r].line
+           and moves[r1 + 1].x0 == moves[r1].x1 and moves[r1 + 1].y0 == moves[r1].y1
+           and moves[r1 + 1].z0 == moves[r1].z1):
+        r1 += 1
+    return r1
+
+
+@njit(cache=True)
+def _emit_arc_or_chords(out, n, moves, r, r1, term, tol, vmax, amax, vlimit_tool, amax_tool, cycle):
+    """The arc of chords r..r1 as one circular segment (as LinuxCNC's tpAddCircle gets it), or, when no circle
+    fits them, each chord as a line. Returns the new segment count."""
+    n2, ok = _emit_arc(out, n, moves, r, r1, term, tol, moves[r].feed_v, vmax, amax, amax_tool, cycle)
+    if ok:
+        return n2
+    for rr in range(r, r1 + 1):
+        m2 = moves[rr]
+        n = _emit_line(out, n, m2.x0, m2.y0, m2.z0, m2.x1, m2.y1, m2.z1, m2.line, rr, rr, term, tol,
+                       m2.feed_v, 0, vmax, amax, vlimit_tool, amax_tool, cycle)
+    return n
+
+
+@njit(cache=True)
+def _naive_cam_points(moves, r, r1, arc, q_tol, p_mid):
+    """How many points a chainable row offers the naive-CAM chain (emccanon.cc see_segment): a line its end
+    point (1); an XY arc within ``q_tol`` (mm) of its chord its middle point (written to ``p_mid``) and its end
+    (2); another arc none (0)."""
+    if not arc:
+        return 1
+    ok, dev, mx, my, mz = _naive_arc_points(moves, r, r1)
+    if ok and dev < q_tol:
+        p_mid[0], p_mid[1], p_mid[2] = mx, my, mz
+        return 2
+    return 0
+
+
+@njit(cache=True)
+def _queue_wait(out, n, mv, lead_dwell):
+    """A dwell or wait row: the queue drains after the last segment queued (``sync_after``), a dwell adds its
+    time (s) there, or before the first segment when none is queued yet. Returns that leading dwell (s)."""
+    if n > 0:
+        out[n - 1].sync_after = 1
+        out[n - 1].dwell_after += mv.dwell_t if mv.kind == KIND_DWELL else 0.0
+    elif mv.kind == KIND_DWELL:
+        lead_dwell += mv.dwell_t
+    return lead_dwell
+
+
+@njit(cache=True)
 def build_kernel(moves, vmax, amax, vlimit_tool, amax_tool, cycle, out):
     """MOVE rows → input TP segments in ``out``. Returns (n segments, dwell before the first segment).
 
@@ -485,29 +564,16 @@ def build_kernel(moves, vmax, amax, vlimit_tool, amax_tool, cycle, out):
         term = _mode(mv)
         tol = mv.blend_p if mv.blend_p == mv.blend_p else 0.0
         q_tol = mv.blend_q if mv.blend_q == mv.blend_q else 0.0
-        r1 = r
-        if arc:
-            while (r1 + 1 < nm and (moves[r1 + 1].flags & FLAG_ARC) != 0 and moves[r1 + 1].line == mv.line
-                   and moves[r1 + 1].x0 == moves[r1].x1 and moves[r1 + 1].y0 == moves[r1].y1
-                   and moves[r1 + 1].z0 == moves[r1].z1):
-                r1 += 1
+        r1 = _arc_chords_end(moves, r) if arc else r
         # the points this row offers to the naive-CAM chain (none: it is not chainable)
-        npt = 0
         p_mid = np.empty(3)
         chainable = is_motion and not rapid and term == TERM_PARABOLIC and q_tol > 0.0
-        if chainable and arc:
-            ok, dev, mx, my, mz = _naive_arc_points(moves, r, r1)
-            if ok and dev < q_tol:
-                npt = 2
-                p_mid[0], p_mid[1], p_mid[2] = mx, my, mz
-        elif chainable:
-            npt = 1
+        npt = _naive_cam_points(moves, r, r1, arc, q_tol, p_mid) if chainable else 0
         # a chain cannot absorb a move with other settings, or one that does not start where it ends
         if nc > 0 and not (npt > 0 and mv.feed_v == ch_feed and tol == ch_p and q_tol == ch_q
                            and mv.x0 == pts[nc - 1, 0] and mv.y0 == pts[nc - 1, 1] and mv.z0 == pts[nc - 1, 2]):
-            n = _emit_line(out, n, bx, by, bz, pts[nc - 1, 0], pts[nc - 1, 1], pts[nc - 1, 2], pt_line[nc - 1],
-                           ch_row0 if ch_row0 <= ch_row1 else -1, ch_row1, TERM_PARABOLIC, ch_p, ch_feed, 0, vmax,
-                           amax, vlimit_tool, amax_tool, cycle)
+            n = _flush_segments(out, n, bx, by, bz, pts, pt_line, nc, ch_row0, ch_row1, ch_p, ch_feed, vmax, amax,
+                                vlimit_tool, amax_tool, cycle)
             last_row = max(last_row, ch_row1)
             bx, by, bz = pts[nc - 1, 0], pts[nc - 1, 1], pts[nc - 1, 2]
             nc = 0
@@ -520,9 +586,8 @@ def build_kernel(moves, vmax, amax, vlimit_tool, amax_tool, cycle, out):
                     px, py, pz = moves[r1].x1, moves[r1].y1, moves[r1].z1
                     prow = r1
                 if nc > 0 and not (nc <= CHAIN_MAX - 1 and _linkable(pts, nc, bx, by, bz, px, py, pz, q_tol)):
-                    n = _emit_line(out, n, bx, by, bz, pts[nc - 1, 0], pts[nc - 1, 1], pts[nc - 1, 2],
-                                   pt_line[nc - 1], ch_row0 if ch_row0 <= ch_row1 else -1, ch_row1,
-                                   TERM_PARABOLIC, ch_p, ch_feed, 0, vmax, amax, vlimit_tool, amax_tool, cycle)
+                    n = _flush_segments(out, n, bx, by, bz, pts, pt_line, nc, ch_row0, ch_row1, ch_p, ch_feed, vmax,
+                                        amax, vlimit_tool, amax_tool, cycle)
                     last_row = max(last_row, ch_row1)
                     bx, by, bz = pts[nc - 1, 0], pts[nc - 1, 1], pts[nc - 1, 2]
                     nc = 0
@@ -541,25 +606,14 @@ def build_kernel(moves, vmax, amax, vlimit_tool, amax_tool, cycle, out):
             r = r1 + 1
             continue
         if is_wait:
-            if n > 0:
-                out[n - 1].sync_after = 1
-                out[n - 1].dwell_after += mv.dwell_t if k == KIND_DWELL else 0.0
-            elif k == KIND_DWELL:
-                lead_dwell += mv.dwell_t
+            lead_dwell = _queue_wait(out, n, mv, lead_dwell)
             r += 1
             continue
         if not is_motion:
             r += 1
             continue
         if arc:
-            n2, ok = _emit_arc(out, n, moves, r, r1, term, tol, mv.feed_v, vmax, amax, amax_tool, cycle)
-            if ok:
-                n = n2
-            else:
-                for rr in range(r, r1 + 1):
-                    m2 = moves[rr]
-                    n = _emit_line(out, n, m2.x0, m2.y0, m2.z0, m2.x1, m2.y1, m2.z1, m2.line, rr, rr, term, tol,
-                                   m2.feed_v, 0, vmax, amax, vlimit_tool, amax_tool, cycle)
+            n = _emit_arc_or_chords(out, n, moves, r, r1, term, tol, vmax, amax, vlimit_tool, amax_tool, cycle)
             r = r1 + 1
             continue
         if rapid:
@@ -571,9 +625,8 @@ def build_kernel(moves, vmax, amax, vlimit_tool, amax_tool, cycle, out):
                        vmax, amax, vlimit_tool, amax_tool, cycle)
         r += 1
     if nc > 0:
-        n = _emit_line(out, n, bx, by, bz, pts[nc - 1, 0], pts[nc - 1, 1], pts[nc - 1, 2], pt_line[nc - 1],
-                       ch_row0 if ch_row0 <= ch_row1 else -1, ch_row1, TERM_PARABOLIC, ch_p, ch_feed, 0, vmax, amax,
-                       vlimit_tool, amax_tool, cycle)
+        n = _flush_segments(out, n, bx, by, bz, pts, pt_line, nc, ch_row0, ch_row1, ch_p, ch_feed, vmax, amax,
+                            vlimit_tool, amax_tool, cycle)
     return n, lead_dwell
 
 
@@ -916,14 +969,14 @@ def make_stream_mode(base_cls):
 
         def plan(self, final: bool):
             sp = self.sp
-            n_rows = window_end(sp._moves, final)
+            n_rows = window_end(sp.pending_moves, final)
             if n_rows == 0:
-                return 0, None, sp._clock, None
-            window = sp._moves[:n_rows]
+                return 0, None, sp.clock, None
+            window = sp.pending_moves[:n_rows]
             run = run_linuxcnc(window, self.limits, sp.machine)
-            plan = plan_rows(run, sp._clock)
-            t_end = sp._clock + run.lead + run.n_cycles * run.cycle
-            return n_rows, plan, t_end, (run, sp._clock)
+            plan = plan_rows(run, sp.clock)
+            t_end = sp.clock + run.lead + run.n_cycles * run.cycle
+            return n_rows, plan, t_end, (run, sp.clock)
 
         def segments(self, moves, plan, prep, ctx, first_index):
             run, clock = ctx

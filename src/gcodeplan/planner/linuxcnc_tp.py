@@ -493,52 +493,80 @@ def _line_circle_center(P, c_circ, d_c, R, u, binormal, sgn):
 
 
 @njit(cache=True)
-def blend_arc(q, i_prev, i_cur, i_blend, acc_bound, vel_bound, cycle, gap_cycles, vlimit, tan1, tan2):
-    """tp.c tpCreateLineLineBlend / tpCreateLineArcBlend / tpCreateArcLineBlend / tpCreateArcArcBlend with
-    blendmath.c's geometry: a circular arc tangent to both segments within the tolerance, as fast as the
-    normal acceleration allows. Writes the arc into row ``i_blend``, trims both segments when the arc wins
-    tpChooseBestBlend, and returns (ok, consume_prev)."""
+def blend_geom3_init(tan1, tan2):
+    """blendmath.c blendGeom3Init: the half angle between the segments at the corner (``theta_tan``), the
+    plane's binormal tan1 × tan2 and the unit normal tan2 − tan1 (towards the inside of the corner).
+    Returns (ok, theta_tan, binormal, normal)."""
+    binormal = np.empty(3)
+    normal = np.empty(3)
+    d = max(-1.0, min(1.0, _dot(tan1, tan2)))
+    theta_tan = math.acos(-d) / 2.0
+    if math.pi / 2.0 - theta_tan < TP_ANGLE_EPSILON or theta_tan < TP_ANGLE_EPSILON:
+        return False, theta_tan, binormal, normal
+    _cross(tan1, tan2, binormal)
+    for a in range(3):
+        normal[a] = tan2[a] - tan1[a]
+    if not (_unit_eq(binormal) and _unit_eq(normal)):
+        return False, theta_tan, binormal, normal
+    return True, theta_tan, binormal, normal
+
+
+@njit(cache=True)
+def find_spiral_approximation(sg, P, tan, center):
+    """blendmath.c findSpiralApproximation: the circle through the corner ``P`` standing in for the spiral
+    ``sg`` there, its centre shifted along the tangent ``tan`` by the spiral's radius change per radian.
+    Writes the centre into ``center``; returns the radius (mm)."""
+    bp = np.empty(3)
+    for a in range(3):
+        center[a] = sg.c[a] + tan[a] * (sg.spiral / sg.angle)
+        bp[a] = P[a] - center[a]
+    return math.sqrt(_dot(bp, bp))
+
+
+@njit(cache=True)
+def blend_init3(q, i_prev, i_cur, tan1, tan2):
+    """blendmath.c blendInit3FromLineLine / blendInit3FromLineArc / blendInit3FromArcLine /
+    blendInit3FromArcArc, their geometry (blendParamKinematics is :func:`blend_param_kinematics`): the corner
+    ``P``, the directions ``u1``, ``u2`` the blend sees (an arc convex towards the other segment is replaced by
+    a secant), the blend's half angle ``theta`` and swept angle ``phi``, each arc's approximating circle
+    (centre, radius, convexity, the largest angle the blend may take from it) and the lengths ``L1``, ``L2`` the
+    blend may take from each segment. Returns (ok, P, u1, u2, binormal, normal, theta, phi, c1, c2, r1, r2,
+    convex1, convex2, phi1_max, phi2_max, L1, L2)."""
     pv = q[i_prev]
     cu = q[i_cur]
     line1 = pv.kind == SEG_LINE
     line2 = cu.kind == SEG_LINE
-    # blendGeom3Init: tangents, corner, intersection angle, plane
-    d = max(-1.0, min(1.0, _dot(tan1, tan2)))
-    theta_tan = math.acos(-d) / 2.0
-    if math.pi / 2.0 - theta_tan < TP_ANGLE_EPSILON or theta_tan < TP_ANGLE_EPSILON:
-        return False, False
-    binormal = np.empty(3)
-    _cross(tan1, tan2, binormal)
-    normal = np.empty(3)
-    for a in range(3):
-        normal[a] = tan2[a] - tan1[a]
-    if not (_unit_eq(binormal) and _unit_eq(normal)):
-        return False, False
     P = np.empty(3)
-    for a in range(3):
-        P[a] = cu.p0[a]
     u1 = tan1.copy()
     u2 = tan2.copy()
-    theta = theta_tan
     c1 = np.zeros(3)
     c2 = np.zeros(3)
+    nrm = np.empty(3)
+    bp = np.empty(3)
     r1 = 0.0
     r2 = 0.0
     convex1 = False
     convex2 = False
     phi1_max = 0.0
     phi2_max = 0.0
-    nrm = np.empty(3)
-    bp = np.empty(3)
+    phi = 0.0
+    L1 = 0.0
+    L2 = 0.0
+    ok, theta_tan, binormal, normal = blend_geom3_init(tan1, tan2)
+    theta = theta_tan
+    if not ok:
+        return (False, P, u1, u2, binormal, normal, theta, phi, c1, c2, r1, r2, convex1, convex2, phi1_max,
+                phi2_max, L1, L2)
+    for a in range(3):
+        P[a] = cu.p0[a]
     if not line1:
         # a helix can be neither blended in its plane nor cut (pmCircleStretch)
         if _dot(pv.h, pv.h) > 1e-6 or not _circle_normal(pv, nrm) or not _colinear(binormal, nrm):
-            return False, False
-        # findSpiralApproximation: the circle through P whose centre is shifted along the tangent
+            return (False, P, u1, u2, binormal, normal, theta, phi, c1, c2, r1, r2, convex1, convex2, phi1_max,
+                    phi2_max, L1, L2)
+        r1 = find_spiral_approximation(pv, P, tan1, c1)
         for a in range(3):
-            c1[a] = pv.c[a] + tan1[a] * (pv.spiral / pv.angle)
             bp[a] = P[a] - c1[a]
-        r1 = math.sqrt(_dot(bp, bp))
         convex1 = _dot(bp, tan2) < 0.0                     # arcConvexTest(center1, P, u_tan2, false)
         phi1_max = min(pv.angle * 2.0 / 3.0, theta_tan if convex1 else math.pi / 2.0)
         if convex1:
@@ -550,11 +578,11 @@ def blend_arc(q, i_prev, i_cur, i_blend, acc_bound, vel_bound, cycle, gap_cycles
             theta = min(theta, theta_tan - phi1_max / 4.0)
     if not line2:
         if _dot(cu.h, cu.h) > 1e-6 or not _circle_normal(cu, nrm) or not _colinear(binormal, nrm):
-            return False, False
+            return (False, P, u1, u2, binormal, normal, theta, phi, c1, c2, r1, r2, convex1, convex2, phi1_max,
+                    phi2_max, L1, L2)
+        r2 = find_spiral_approximation(cu, P, tan2, c2)
         for a in range(3):
-            c2[a] = cu.c[a] + tan2[a] * (cu.spiral / cu.angle)
             bp[a] = P[a] - c2[a]
-        r2 = math.sqrt(_dot(bp, bp))
         convex2 = not (_dot(bp, tan1) < 0.0)               # arcConvexTest(center2, P, u_tan1, true)
         phi2_max = min(cu.angle / 3.0, theta_tan if convex2 else math.pi / 2.0)
         if convex2:
@@ -564,7 +592,8 @@ def blend_arc(q, i_prev, i_cur, i_blend, acc_bound, vel_bound, cycle, gap_cycles
             _unit_eq(u2)
             theta = min(theta, theta_tan - phi2_max / 4.0)
     if not line1 and not line2 and theta < math.pi / 12.0:
-        return False, False
+        return (False, P, u1, u2, binormal, normal, theta, phi, c1, c2, r1, r2, convex1, convex2, phi1_max,
+                phi2_max, L1, L2)
     phi = math.pi - 2.0 * theta
     # blend lengths: half a line (the previous one only up to half its programmed length); on an arc the
     # blendable angle, or half its chord when the arc is convex towards the other segment
@@ -576,7 +605,18 @@ def blend_arc(q, i_prev, i_cur, i_blend, acc_bound, vel_bound, cycle, gap_cycles
         L2 = cu.target * BLEND_GREEDINESS
     else:
         L2 = math.sin(phi2_max / 4.0) * r2 if convex2 else phi2_max * r2
-    # blendParamKinematics
+    return (True, P, u1, u2, binormal, normal, theta, phi, c1, c2, r1, r2, convex1, convex2, phi1_max, phi2_max,
+            L1, L2)
+
+
+@njit(cache=True)
+def blend_param_kinematics(q, i_prev, i_cur, binormal, u1, u2, phi, acc_bound, vel_bound):
+    """blendmath.c blendParamKinematics: the tolerance (mm), the acceleration in the blend's plane and its
+    normal share (mm/s²), the requested speed and the speed the blend aims at (mm/s; for two lines the
+    speed that keeps both segments' limits, LinuxCNC's triangle construction). Returns
+    (tol, a_max, a_n_max, v_req, v_goal)."""
+    pv = q[i_prev]
+    cu = q[i_cur]
     tol = blend_tolerance(q, i_prev, i_cur)
     a_max = inscribed_limit(binormal, acc_bound[0], acc_bound[1], acc_bound[2])
     a_n_max = a_max * BLEND_ACC_RATIO_NORMAL
@@ -584,7 +624,7 @@ def blend_arc(q, i_prev, i_cur, i_blend, acc_bound, vel_bound, cycle, gap_cycles
     v_goal = v_req
     v_planar = inscribed_limit(binormal, vel_bound[0], vel_bound[1], vel_bound[2])
     v_alt = 0.0
-    if line1 and line2:
+    if pv.kind == SEG_LINE and cu.kind == SEG_LINE:
         phi_eff = min(phi, math.pi * 0.49)
         v1 = min(pv.maxvel, cu.maxvel / math.cos(phi_eff))
         v2 = min(cu.maxvel, pv.maxvel / math.cos(phi_eff))
@@ -595,9 +635,16 @@ def blend_arc(q, i_prev, i_cur, i_blend, acc_bound, vel_bound, cycle, gap_cycles
         base = math.sqrt(base2)
         v_alt = 2.0 * area / base if base > 0.0 else 0.0
     v_goal = min(v_goal, max(v_alt, v_planar))
-    # blendComputeParameters
+    return tol, a_max, a_n_max, v_req, v_goal
+
+
+@njit(cache=True)
+def blend_compute_parameters(theta, phi, tol, L1, L2, a_max, a_n_max, v_goal):
+    """blendmath.c blendComputeParameters: the blend's speed (mm/s), radius (mm) and the distance (mm) from
+    the corner to where it meets each segment, the largest the tolerance, the lengths and the normal
+    acceleration allow. Returns (ok, v_plan, r_plan, d_plan)."""
     if not (theta > 0.0 and theta < math.pi / 2.0):
-        return False, False
+        return False, 0.0, 0.0, 0.0
     h_tol = tol / (1.0 - math.sin(theta))
     d_tol = math.cos(theta) * h_tol
     d_geom = min(min(L1, L2), d_tol)
@@ -613,89 +660,110 @@ def blend_arc(q, i_prev, i_cur, i_blend, acc_bound, vel_bound, cycle, gap_cycles
     d_plan = r_plan / math.tan(theta)
     s_arc = r_plan * phi
     if r_plan < TP_POS_EPSILON or s_arc < TP_MIN_ARC_LENGTH or not v_plan > 0.0:
-        return False, False
-    # the blend circle's centre and how much of each segment it replaces (blendFindPoints3 for two
-    # lines; the exact post-processing when an arc is involved)
+        return False, v_plan, r_plan, d_plan
+    return True, v_plan, r_plan, d_plan
+
+
+@njit(cache=True)
+def blend_find_points3(P, normal, theta, r_plan, d_plan):
+    """blendmath.c blendFindPoints3 (two lines): the blend circle's centre on the corner's bisector and how
+    much of each line it replaces (mm). Returns (center, trim1, trim2)."""
     center = np.empty(3)
-    if line1 and line2:
-        center_dist = r_plan / math.sin(theta)
+    center_dist = r_plan / math.sin(theta)
+    for a in range(3):
+        center[a] = P[a] + normal[a] * center_dist
+    return center, d_plan, d_plan
+
+
+@njit(cache=True)
+def blend_line_arc_post_process(P, c2, r2, convex2, r_plan, u1, binormal):
+    """blendmath.c blendLineArcPostProcess: the exact centre of the blend circle tangent to the line before
+    ``P`` and to the arc after it; trims: mm of the line, rad of the arc. Returns (ok, center, trim1, trim2)."""
+    ok, trim1, center = _line_circle_center(P, c2, (r2 - r_plan) if convex2 else (r2 + r_plan), r_plan,
+                                            u1, binormal, -1.0)
+    if not ok:
+        return False, center, 0.0, 0.0
+    return True, center, trim1, _trim_angle(P, center, c2)
+
+
+@njit(cache=True)
+def blend_arc_line_post_process(P, c1, r1, convex1, r_plan, u2, binormal):
+    """blendmath.c blendArcLinePostProcess: as :func:`blend_line_arc_post_process` for an arc then a line;
+    trims: rad of the arc, mm of the line. Returns (ok, center, trim1, trim2)."""
+    ok, trim2, center = _line_circle_center(P, c1, (r1 - r_plan) if convex1 else (r1 + r_plan), r_plan,
+                                            u2, binormal, 1.0)
+    if not ok:
+        return False, center, 0.0, 0.0
+    return True, center, _trim_angle(P, center, c1), trim2
+
+
+@njit(cache=True)
+def blend_arc_arc_post_process(P, c1, c2, r1, r2, convex1, convex2, r_plan, binormal, normal):
+    """blendmath.c blendArcArcPostProcess: the centre at distance d1 from centre 1 and d2 from centre 2 (the
+    intersection nearer the corner); trims in rad of each arc. Returns (ok, center, trim1, trim2)."""
+    center = np.empty(3)
+    d1 = (r1 - r_plan) if convex1 else (r1 + r_plan)
+    d2 = (r2 - r_plan) if convex2 else (r2 + r_plan)
+    uc = np.empty(3)
+    for a in range(3):
+        uc[a] = c2[a] - c1[a]
+    c2x = math.sqrt(_dot(uc, uc))
+    if not _unit_eq(uc):
+        return False, center, 0.0, 0.0
+    cx = (-d1 * d1 + d2 * d2 - c2x * c2x) / (-2.0 * c2x)
+    cy2 = d1 * d1 - cx * cx
+    if not cy2 >= 0.0:
+        return False, center, 0.0, 0.0
+    cy = math.sqrt(cy2)
+    nc = np.empty(3)
+    _cross(binormal, uc, nc)
+    if _dot(normal, nc) < 0.0:
         for a in range(3):
-            center[a] = P[a] + normal[a] * center_dist
-        trim1 = d_plan
-        trim2 = d_plan
-    elif line1:
-        ok, trim1, center = _line_circle_center(P, c2, (r2 - r_plan) if convex2 else (r2 + r_plan), r_plan,
-                                                u1, binormal, -1.0)
-        if not ok:
-            return False, False
-        trim2 = _trim_angle(P, center, c2)
-    elif line2:
-        ok, trim2, center = _line_circle_center(P, c1, (r1 - r_plan) if convex1 else (r1 + r_plan), r_plan,
-                                                u2, binormal, 1.0)
-        if not ok:
-            return False, False
-        trim1 = _trim_angle(P, center, c1)
-    else:
-        # blendArcArcPostProcess: the centre at distance d1 from centre 1 and d2 from centre 2
-        d1 = (r1 - r_plan) if convex1 else (r1 + r_plan)
-        d2 = (r2 - r_plan) if convex2 else (r2 + r_plan)
-        uc = np.empty(3)
-        for a in range(3):
-            uc[a] = c2[a] - c1[a]
-        c2x = math.sqrt(_dot(uc, uc))
-        if not _unit_eq(uc):
-            return False, False
-        cx = (-d1 * d1 + d2 * d2 - c2x * c2x) / (-2.0 * c2x)
-        cy2 = d1 * d1 - cx * cx
-        if not cy2 >= 0.0:
-            return False, False
-        cy = math.sqrt(cy2)
-        nc = np.empty(3)
-        _cross(binormal, uc, nc)
-        if _dot(normal, nc) < 0.0:
-            for a in range(3):
-                nc[a] = -nc[a]
-        if not _unit_eq(nc):
-            return False, False
-        m1 = 0.0
-        m2 = 0.0
-        for a in range(3):
-            base_a = c1[a] - P[a] + uc[a] * cx
-            m1 += (base_a + nc[a] * cy) ** 2
-            m2 += (base_a - nc[a] * cy) ** 2
-        if m2 < m1:
-            cy = -cy
-        for a in range(3):
-            center[a] = c1[a] + uc[a] * cx + nc[a] * cy
-        trim1 = _trim_angle(P, center, c1)
-        trim2 = _trim_angle(P, center, c2)
-    if not line1 or not line2:
-        hv = 0.0
-        for a in range(3):
-            hv += (center[a] - P[a]) ** 2
-        if math.sqrt(hv) - r_plan > tol:            # the projected blend leaves the tolerance
-            return False, False
-        if not line1 and trim1 > phi1_max:
-            return False, False
-        if not line2 and trim2 > phi2_max:
-            return False, False
-    # blendCheckConsume: a line remainder shorter than ARC_BLEND_GAP_CYCLES at the blend speed is
-    # swallowed (not a line that starts in a parabolic blend: tcCanConsume)
+            nc[a] = -nc[a]
+    if not _unit_eq(nc):
+        return False, center, 0.0, 0.0
+    m1 = 0.0
+    m2 = 0.0
+    for a in range(3):
+        base_a = c1[a] - P[a] + uc[a] * cx
+        m1 += (base_a + nc[a] * cy) ** 2
+        m2 += (base_a - nc[a] * cy) ** 2
+    if m2 < m1:
+        cy = -cy
+    for a in range(3):
+        center[a] = c1[a] + uc[a] * cx + nc[a] * cy
+    return True, center, _trim_angle(P, center, c1), _trim_angle(P, center, c2)
+
+
+@njit(cache=True)
+def blend_check_consume(pv, trim1, v_plan, gap_cycles, cycle):
+    """blendmath.c blendCheckConsume: a line remainder shorter than ARC_BLEND_GAP_CYCLES at the blend speed is
+    swallowed by the blend (not a line that starts in a parabolic blend: tcCanConsume). Returns
+    (consume, remainder mm)."""
     l_prev = max(pv.target - trim1, 0.0)
-    consume = line1 and (l_prev / v_plan) < gap_cycles * cycle and pv.blend_prev == 0
-    # the cut segments (pmCartLineStretch / pmCircleStretch refuse to cut to nothing)
-    if line1 and not line2 and not (pv.target - trim1 > DOUBLE_FUZZ):
-        return False, False
-    if line2 and not line1 and not (cu.target - trim2 > DOUBLE_FUZZ):
-        return False, False
-    if line2 and trim2 > cu.target:
-        return False, False
-    if not line1 and not (pv.angle - trim1 > DOUBLE_FUZZ):
-        return False, False
-    if not line2 and not (cu.angle - trim2 > DOUBLE_FUZZ):
-        return False, False
+    consume = pv.kind == SEG_LINE and (l_prev / v_plan) < gap_cycles * cycle and pv.blend_prev == 0
+    return consume, l_prev
+
+
+@njit(cache=True)
+def blend_stretch_points(pv, cu, trim1, trim2, tan1, tan2):
+    """tp.c tpCreate*Blend: the cut segments (pmCartLineStretch / pmCircleStretch refuse to cut to nothing)
+    and the points where the blend leaves the previous segment and joins this one (pmCartLinePoint /
+    pmCirclePoint). Returns (ok, start, end)."""
+    line1 = pv.kind == SEG_LINE
+    line2 = cu.kind == SEG_LINE
     start = np.empty(3)
     end = np.empty(3)
+    if line1 and not line2 and not (pv.target - trim1 > DOUBLE_FUZZ):
+        return False, start, end
+    if line2 and not line1 and not (cu.target - trim2 > DOUBLE_FUZZ):
+        return False, start, end
+    if line2 and trim2 > cu.target:
+        return False, start, end
+    if not line1 and not (pv.angle - trim1 > DOUBLE_FUZZ):
+        return False, start, end
+    if not line2 and not (cu.angle - trim2 > DOUBLE_FUZZ):
+        return False, start, end
     if line1:
         for a in range(3):
             start[a] = pv.p1[a] - tan1[a] * trim1
@@ -706,7 +774,14 @@ def blend_arc(q, i_prev, i_cur, i_blend, acc_bound, vel_bound, cycle, gap_cycles
             end[a] = cu.p0[a] + tan2[a] * trim2
     else:
         _circle_point_at(cu, trim2, end)
-    # spherical_arc.c arcInitFromPoints
+    return True, start, end
+
+
+@njit(cache=True)
+def arc_from_blend_points3(start, end, center):
+    """blendmath.c arcFromBlendPoints3 (spherical_arc.c arcInitFromPoints): the blend arc from ``start`` to
+    ``end`` around ``center``. Returns (ok, start radius vector, end radius vector, start radius mm, end
+    radius mm, swept angle rad)."""
     rs = np.empty(3)
     re = np.empty(3)
     for a in range(3):
@@ -715,32 +790,35 @@ def blend_arc(q, i_prev, i_cur, i_blend, acc_bound, vel_bound, cycle, gap_cycles
     rad0 = math.sqrt(_dot(rs, rs))
     rad1 = math.sqrt(_dot(re, re))
     if rad0 < TP_POS_EPSILON or rad1 < TP_POS_EPSILON:
-        return False, False
+        return False, rs, re, rad0, rad1, 0.0
     ang = math.acos(max(-1.0, min(1.0, _dot(rs, re) / (rad0 * rad1))))
     if ang < TP_ANGLE_EPSILON:
-        return False, False
-    # checkTangentAngle: the blend must meet a cut arc within the kink the servo cycle allows
-    if not line1 or not line2:
-        ang_max = BLEND_ACC_RATIO_NORMAL * BLEND_KINK_FACTOR * a_max / (v_plan / cycle)
-        ua = np.empty(3)
-        uc2 = np.empty(3)
-        if not line2:
-            _cross(binormal, re, ua)
-            for a in range(3):
-                ua[a] += re[a] / rad1 * ((rad1 - rad0) / ang)
-            _unit_eq(ua)
-            _circle_tangent_at(cu, trim2, uc2)
-            if math.acos(max(-1.0, min(1.0, _dot(ua, uc2)))) > ang_max:
-                return False, False
-        if not line1:
-            _cross(binormal, rs, ua)
-            for a in range(3):
-                ua[a] += rs[a] / rad0 * ((rad1 - rad0) / ang)
-            _unit_eq(ua)
-            _circle_tangent_at(pv, pv.angle - trim1, uc2)
-            if math.acos(max(-1.0, min(1.0, _dot(ua, uc2)))) > ang_max:
-                return False, False
-    # the arc
+        return False, rs, re, rad0, rad1, ang
+    return True, rs, re, rad0, rad1, ang
+
+
+@njit(cache=True)
+def check_tangent_angle(circ, phi, binormal, r_vec, rad, rad0, rad1, ang, ang_max):
+    """blendmath.c checkTangentAngle: the blend arc (radius vector ``r_vec`` of length ``rad`` where it meets
+    the cut arc ``circ`` at angle ``phi``) meets it within the kink ``ang_max`` (rad) the servo cycle allows."""
+    ua = np.empty(3)
+    uc2 = np.empty(3)
+    _cross(binormal, r_vec, ua)
+    for a in range(3):
+        ua[a] += r_vec[a] / rad * ((rad1 - rad0) / ang)
+    _unit_eq(ua)
+    _circle_tangent_at(circ, phi, uc2)
+    return not (math.acos(max(-1.0, min(1.0, _dot(ua, uc2)))) > ang_max)
+
+
+@njit(cache=True)
+def init_blend_arc_from_prev(q, i_prev, i_cur, i_blend, consume, l_prev, center, rs, rad0, rad1, ang, start,
+                             end, tan1, binormal, v_req, v_plan, a_max, cycle):
+    """tp.c tpInitBlendArcFromPrev: the blend arc as segment row ``i_blend``, tangent-joined, at the blend
+    speed ``v_plan`` (mm/s) and acceleration ``a_max`` (mm/s²), led by the consumed line's remainder
+    ``l_prev`` (mm) when ``consume``; then finalised (tpFinalizeSegment)."""
+    pv = q[i_prev]
+    cu = q[i_cur]
     bl = q[i_blend]
     bl.kind = SEG_BLEND
     bl.line = cu.line
@@ -801,20 +879,85 @@ def blend_arc(q, i_prev, i_cur, i_blend, acc_bound, vel_bound, cycle, gap_cycles
     bl.sync_after = 0
     bl.dwell_after = 0.0
     finalize(bl, cycle)
-    if choose_best_blend(q, i_prev, i_cur, bl.maxvel, vlimit, tan1, tan2) != 2:
-        return False, False
-    # connect: the previous segment ends where the arc starts, this one starts where it ends
+
+
+@njit(cache=True)
+def connect_blend_arc(pv, cu, consume, trim1, trim2):
+    """tp.c tcConnectBlendArc (with tcSetLineXYZ / tcSetCircleXYZ): the previous segment ends where the arc
+    starts (unless the arc consumed it), this one starts where it ends; the join is tangent."""
     if not consume:
-        if line1:
+        if pv.kind == SEG_LINE:
             trim_end(pv, trim1)
         else:
             trim_end(pv, trim1 / pv.angle * pv.target)
-    if line2:
+    if cu.kind == SEG_LINE:
         trim_start(cu, trim2)
     else:
         trim_start(cu, trim2 / cu.angle * cu.target)
     pv.term = TERM_TANGENT
     cu.blend_prev = 0
+
+
+@njit(cache=True)
+def blend_arc(q, i_prev, i_cur, i_blend, acc_bound, vel_bound, cycle, gap_cycles, vlimit, tan1, tan2):
+    """tp.c tpCreateLineLineBlend / tpCreateLineArcBlend / tpCreateArcLineBlend / tpCreateArcArcBlend in one,
+    step by step as they are (blendmath.c's geometry): a circular arc tangent to both segments within the
+    tolerance, as fast as the normal acceleration allows. Writes the arc into row ``i_blend``, trims both
+    segments when the arc wins tpChooseBestBlend, and returns (ok, consume_prev)."""
+    pv = q[i_prev]
+    cu = q[i_cur]
+    line1 = pv.kind == SEG_LINE
+    line2 = cu.kind == SEG_LINE
+    (ok, P, u1, u2, binormal, normal, theta, phi, c1, c2, r1, r2, convex1, convex2, phi1_max, phi2_max,
+     L1, L2) = blend_init3(q, i_prev, i_cur, tan1, tan2)
+    if not ok:
+        return False, False
+    tol, a_max, a_n_max, v_req, v_goal = blend_param_kinematics(q, i_prev, i_cur, binormal, u1, u2, phi,
+                                                                acc_bound, vel_bound)
+    ok, v_plan, r_plan, d_plan = blend_compute_parameters(theta, phi, tol, L1, L2, a_max, a_n_max, v_goal)
+    if not ok:
+        return False, False
+    # the blend circle's centre and how much of each segment it replaces
+    if line1 and line2:
+        center, trim1, trim2 = blend_find_points3(P, normal, theta, r_plan, d_plan)
+    elif line1:
+        ok, center, trim1, trim2 = blend_line_arc_post_process(P, c2, r2, convex2, r_plan, u1, binormal)
+    elif line2:
+        ok, center, trim1, trim2 = blend_arc_line_post_process(P, c1, r1, convex1, r_plan, u2, binormal)
+    else:
+        ok, center, trim1, trim2 = blend_arc_arc_post_process(P, c1, c2, r1, r2, convex1, convex2, r_plan,
+                                                              binormal, normal)
+    if not ok:
+        return False, False
+    if not line1 or not line2:
+        hv = 0.0
+        for a in range(3):
+            hv += (center[a] - P[a]) ** 2
+        if math.sqrt(hv) - r_plan > tol:            # the projected blend leaves the tolerance
+            return False, False
+        if not line1 and trim1 > phi1_max:
+            return False, False
+        if not line2 and trim2 > phi2_max:
+            return False, False
+    consume, l_prev = blend_check_consume(pv, trim1, v_plan, gap_cycles, cycle)
+    ok, start, end = blend_stretch_points(pv, cu, trim1, trim2, tan1, tan2)
+    if not ok:
+        return False, False
+    ok, rs, re, rad0, rad1, ang = arc_from_blend_points3(start, end, center)
+    if not ok:
+        return False, False
+    if not line1 or not line2:
+        ang_max = BLEND_ACC_RATIO_NORMAL * BLEND_KINK_FACTOR * a_max / (v_plan / cycle)
+        if not line2 and not check_tangent_angle(cu, trim2, binormal, re, rad1, rad0, rad1, ang, ang_max):
+            return False, False
+        if not line1 and not check_tangent_angle(pv, pv.angle - trim1, binormal, rs, rad0, rad0, rad1, ang,
+                                                 ang_max):
+            return False, False
+    init_blend_arc_from_prev(q, i_prev, i_cur, i_blend, consume, l_prev, center, rs, rad0, rad1, ang, start, end,
+                             tan1, binormal, v_req, v_plan, a_max, cycle)
+    if choose_best_blend(q, i_prev, i_cur, q[i_blend].maxvel, vlimit, tan1, tan2) != 2:
+        return False, False
+    connect_blend_arc(pv, cu, consume, trim1, trim2)
     return True, consume
 
 
@@ -1043,6 +1186,88 @@ def _next_of(q, i, n):
 
 
 @njit(cache=True)
+def activate_segment(q, tc, st, flags, vlimit, ramp_freq):
+    """tp.c tpActivateSegment: a segment starts executing; a short tangent segment ramps its velocity
+    (ARC_BLEND_RAMP_FREQ) instead of running a trapezoid."""
+    flags[tc, 5] = 1
+    length = q[tc].target - st[tc, 0]
+    denom = st[tc, 1] + min(q[tc].finalvel, _real_target(q, tc, vlimit))
+    seg_time = 2.0 * length / denom if denom > 0.0 else math.inf
+    if (seg_time < 1.0 / max(ramp_freq, TP_TIME_EPSILON) and q[tc].traverse == 0
+            and q[tc].term == TERM_TANGENT):
+        flags[tc, 3] = 1
+    flags[tc, 2] = 0
+    flags[tc, 4] = 0
+
+
+@njit(cache=True)
+def handle_split_cycle(q, tc, nx, nx2, st, flags, vlimit, cycle, pos, p_a, p_b):
+    """tp.c tpHandleSplitCycle: the cycle in which segment ``tc`` ends; the rest of the cycle runs the next
+    segment ``nx`` (tangent or parabolic join). Moves ``pos``; returns (path distance mm, the segment shown
+    executing)."""
+    execd = tc
+    moved = 0.0
+    seg_point(q[tc], st[tc, 0], p_a)
+    moved += q[tc].target - st[tc, 0]
+    st[tc, 0] = q[tc].target
+    seg_point(q[tc], st[tc, 0], p_b)
+    for a in range(3):
+        pos[a] += p_b[a] - p_a[a]
+    flags[tc, 1] = 1
+    if nx >= 0:
+        term = q[tc].term
+        if term == TERM_TANGENT or term == TERM_PARABOLIC:
+            if term == TERM_TANGENT:
+                st[nx, 2] = cycle - st[tc, 2]
+                st[nx, 1] = st[tc, 3]
+            seg_point(q[nx], st[nx, 0], p_a)
+            moved += _update_cycle(q, nx, nx2, st, flags, vlimit, cycle)
+            seg_point(q[nx], st[nx, 0], p_b)
+            for a in range(3):
+                pos[a] += p_b[a] - p_a[a]
+        if not (term == TERM_STOP or term == TERM_EXACT or (st[tc, 2] > st[nx, 2] and term == TERM_TANGENT)):
+            execd = nx
+    return moved, execd
+
+
+@njit(cache=True)
+def handle_regular_cycle(q, tc, nx, st, flags, vlimit, cycle, pos, p_a, p_b):
+    """tp.c tpHandleRegularCycle: one whole cycle of segment ``tc``, and of the next one too while a parabolic
+    blend runs both (tcIsBlending). Moves ``pos``; returns (path distance mm, the segment shown executing)."""
+    execd = tc
+    moved = 0.0
+    st[tc, 2] = cycle
+    seg_point(q[tc], st[tc, 0], p_a)
+    moved += _update_cycle(q, tc, nx, st, flags, vlimit, cycle)
+    seg_point(q[tc], st[tc, 0], p_b)
+    for a in range(3):
+        pos[a] += p_b[a] - p_a[a]
+    if q[tc].term == TERM_PARABOLIC:
+        if nx >= 0:
+            seg_tangent(q[tc], True, p_a)
+            seg_tangent(q[nx], False, p_b)
+            v_this, v_next, _ = blend_velocity(q, tc, nx, _real_target(q, tc, vlimit),
+                                               _real_target(q, nx, vlimit), p_a, p_b)
+            st[tc, 5] = v_this
+            st[nx, 5] = v_next
+        else:
+            st[tc, 5] = 0.0
+    if nx >= 0:
+        # tcIsBlending: latched once the decelerating segment drops below its blend speed
+        if (q[tc].term == TERM_PARABOLIC and flags[tc, 4] != 0 and st[tc, 1] < st[tc, 5]):
+            flags[tc, 2] = 1
+        if flags[tc, 2] != 0:
+            seg_point(q[nx], st[nx, 0], p_a)
+            moved += _update_cycle(q, nx, -1, st, flags, vlimit, cycle)
+            seg_point(q[nx], st[nx, 0], p_b)
+            for a in range(3):
+                pos[a] += p_b[a] - p_a[a]
+            if not (st[tc, 1] > st[nx, 1]):
+                execd = nx
+    return moved, execd
+
+
+@njit(cache=True)
 def execute_kernel(q, n, vlimit, cycle, ramp_freq, max_cycles, out_seg, out_pos, out_dist):
     """Run the queue servo cycle by servo cycle. Per cycle k: ``out_seg[k]`` the executing segment,
     ``out_pos[k]`` the commanded position at its end, ``out_dist[k]`` the path distance covered.
@@ -1069,71 +1294,12 @@ def execute_kernel(q, n, vlimit, cycle, ramp_freq, max_cycles, out_seg, out_pos,
         tc = i
         nx = _next_of(q, tc, n)
         nx2 = _next_of(q, nx, n) if nx >= 0 else -1
-        execd = tc
-        moved = 0.0
-        # activation (tpActivateSegment)
         if flags[tc, 5] == 0:
-            flags[tc, 5] = 1
-            length = q[tc].target - st[tc, 0]
-            denom = st[tc, 1] + min(q[tc].finalvel, _real_target(q, tc, vlimit))
-            seg_time = 2.0 * length / denom if denom > 0.0 else math.inf
-            if (seg_time < 1.0 / max(ramp_freq, TP_TIME_EPSILON) and q[tc].traverse == 0
-                    and q[tc].term == TERM_TANGENT):
-                flags[tc, 3] = 1
-            flags[tc, 2] = 0
-            flags[tc, 4] = 0
+            activate_segment(q, tc, st, flags, vlimit, ramp_freq)
         if flags[tc, 0] != 0:
-            # tpHandleSplitCycle
-            seg_point(q[tc], st[tc, 0], p_a)
-            moved += q[tc].target - st[tc, 0]
-            st[tc, 0] = q[tc].target
-            seg_point(q[tc], st[tc, 0], p_b)
-            for a in range(3):
-                pos[a] += p_b[a] - p_a[a]
-            flags[tc, 1] = 1
-            if nx >= 0:
-                term = q[tc].term
-                if term == TERM_TANGENT or term == TERM_PARABOLIC:
-                    if term == TERM_TANGENT:
-                        st[nx, 2] = cycle - st[tc, 2]
-                        st[nx, 1] = st[tc, 3]
-                    seg_point(q[nx], st[nx, 0], p_a)
-                    moved += _update_cycle(q, nx, nx2, st, flags, vlimit, cycle)
-                    seg_point(q[nx], st[nx, 0], p_b)
-                    for a in range(3):
-                        pos[a] += p_b[a] - p_a[a]
-                if not (term == TERM_STOP or term == TERM_EXACT or (st[tc, 2] > st[nx, 2] and term == TERM_TANGENT)):
-                    execd = nx
+            moved, execd = handle_split_cycle(q, tc, nx, nx2, st, flags, vlimit, cycle, pos, p_a, p_b)
         else:
-            # tpHandleRegularCycle
-            st[tc, 2] = cycle
-            seg_point(q[tc], st[tc, 0], p_a)
-            moved += _update_cycle(q, tc, nx, st, flags, vlimit, cycle)
-            seg_point(q[tc], st[tc, 0], p_b)
-            for a in range(3):
-                pos[a] += p_b[a] - p_a[a]
-            if q[tc].term == TERM_PARABOLIC:
-                if nx >= 0:
-                    seg_tangent(q[tc], True, p_a)
-                    seg_tangent(q[nx], False, p_b)
-                    v_this, v_next, _ = blend_velocity(q, tc, nx, _real_target(q, tc, vlimit),
-                                                       _real_target(q, nx, vlimit), p_a, p_b)
-                    st[tc, 5] = v_this
-                    st[nx, 5] = v_next
-                else:
-                    st[tc, 5] = 0.0
-            if nx >= 0:
-                # tcIsBlending: latched once the decelerating segment drops below its blend speed
-                if (q[tc].term == TERM_PARABOLIC and flags[tc, 4] != 0 and st[tc, 1] < st[tc, 5]):
-                    flags[tc, 2] = 1
-                if flags[tc, 2] != 0:
-                    seg_point(q[nx], st[nx, 0], p_a)
-                    moved += _update_cycle(q, nx, -1, st, flags, vlimit, cycle)
-                    seg_point(q[nx], st[nx, 0], p_b)
-                    for a in range(3):
-                        pos[a] += p_b[a] - p_a[a]
-                    if not (st[tc, 1] > st[nx, 1]):
-                        execd = nx
+            moved, execd = handle_regular_cycle(q, tc, nx, st, flags, vlimit, cycle, pos, p_a, p_b)
         out_seg[k] = execd
         out_dist[k] = moved
         for a in range(3):

@@ -36,6 +36,7 @@ from .._jit import njit
 import numpy as np
 
 from ..errors import ConfigError, GcodeError
+from ..machine import POLICIES
 from ..schema import LIMITS_DTYPE
 from .junctions import (jd_junction_v2, klipper_centripetal_v2, klipper_extruder_corner_v2,
                         marlin_jerk_junction_v, marlin_small_segment_v2)
@@ -125,16 +126,15 @@ _REGISTRY: dict[str, Policy] = {}
 
 
 def _register_builtins() -> None:
-    from .prepare import POLICY_BLEND, POLICY_CLASSIC_JERK, POLICY_EXACT_STOP, POLICY_JD, POLICY_KLIPPER, POLICY_LINUXCNC
-
-    for name, fn, code in (("klipper", klipper_cap_v2, POLICY_KLIPPER),
-                           ("junction-deviation", junction_deviation_cap_v2, POLICY_JD),
-                           ("classic-jerk", classic_jerk_cap_v2, POLICY_CLASSIC_JERK),
-                           ("blend", junction_deviation_cap_v2, POLICY_BLEND),
-                           ("exact-stop", exact_stop_cap_v2, POLICY_EXACT_STOP),
-                           # LinuxCNC's planner (planner/linuxcnc.py) does its own corners; the cap is unused
-                           ("linuxcnc", junction_deviation_cap_v2, POLICY_LINUXCNC)):
-        _REGISTRY[name] = Policy(name, fn, name, code, stop_every_junction=(code == POLICY_EXACT_STOP))
+    # a built-in's kernel code is its index in machine.POLICIES (prepare.policy_code, prepare's POLICY_* codes)
+    for name, fn in (("klipper", klipper_cap_v2),
+                     ("junction-deviation", junction_deviation_cap_v2),
+                     ("classic-jerk", classic_jerk_cap_v2),
+                     ("blend", junction_deviation_cap_v2),
+                     ("exact-stop", exact_stop_cap_v2),
+                     # LinuxCNC's planner (planner/linuxcnc.py) does its own corners; the cap is unused
+                     ("linuxcnc", junction_deviation_cap_v2)):
+        _REGISTRY[name] = Policy(name, fn, name, POLICIES.index(name), stop_every_junction=(name == "exact-stop"))
 
 
 def register_policy(name: str, cap_v2, *, moves_like: str = "junction-deviation", replace: bool = False) -> Policy:

@@ -257,6 +257,24 @@ def scurve_layout_kernel(kind, dwell_t, prep, speeds, durations, peak_v, jerk, t
     return t_clock
 
 
+def scurve_jerk(moves: np.ndarray, limits: np.ndarray, jerk: float | None) -> float | None:
+    """The S-curve jerk asked for (argument, else the limits in force), or None for trapezoids."""
+    if jerk is not None:
+        if not (jerk > 0.0 and np.isfinite(jerk)):
+            raise ConfigError(f"max_jerk: must be finite and > 0 for S-curves, got {jerk!r}")
+        return float(jerk)
+    if len(moves) == 0:
+        return None
+    all_mj = limits["max_jerk"]
+    if not np.any(np.isfinite(all_mj) & (all_mj > 0.0)):  # the common case: no jerk limit anywhere
+        return None
+    used = np.unique(moves["limits"])
+    used = used[(used >= 0) & (used < len(limits))]
+    mj = limits["max_jerk"][used]
+    on = np.isfinite(mj) & (mj > 0.0)
+    return float(mj[on].min()) if np.any(on) else None
+
+
 def check_jerk(jerk) -> float:
     """The S-curve jerk as a float; ConfigError unless finite and > 0."""
     try:

@@ -37,7 +37,14 @@ MODE_TRAPEZOID, MODE_SCURVE, MODE_BLEND = "trapezoid", "scurve", "blend"
 
 class _Mode:
     """One planning mode: how a chunk is prepared, how much of the window can be planned for good, and
-    the SEGMENT rows of what was emitted. The StreamPlanner owns the window; a mode owns its own state."""
+    the SEGMENT rows of what was emitted. The StreamPlanner owns the window; a mode owns its own state.
+
+    What a mode may use of its planner ``sp`` (the interface; nothing private): ``sp.machine``,
+    ``sp.pending_moves`` / ``sp.pending_prep`` (the window's MOVE and PREP rows), ``sp.clock`` (s, the end of
+    what was emitted), ``sp.policy_code``, ``sp.jerk`` (mm/s³, S-curves), ``sp.stop_pending`` (a known full
+    stop precedes the next move), ``sp.prepare_chunk`` (the shared preparation, continuing from the previous
+    chunk) and ``sp.check_same_jerk``. A mode answers :meth:`plan` with (rows final, their PLAN rows, end time,
+    context for :meth:`segments`)."""
 
     name = ""
     own_segments = False     # True: the mode's pieces are not trapezoids (to_segments cannot rebuild them)
@@ -54,7 +61,7 @@ class _Mode:
     def window_prep(self, moves_chunk: np.ndarray, limits: np.ndarray) -> np.ndarray:
         """The new window's PREP rows: the pending ones, then the chunk's. With the shared preparation the
         chunk's rows are made in place behind the pending ones (the chunk is not copied in afterwards)."""
-        pending = self.sp._prep
+        pending = self.sp.pending_prep
         if self.own_prepare:
             prep = self.prepare(moves_chunk, limits)
             return concat_rows(pending, prep) if len(pending) else prep
@@ -65,21 +72,7 @@ class _Mode:
 
     def _prepare(self, moves_chunk: np.ndarray, limits: np.ndarray, out: np.ndarray | None) -> np.ndarray:
         """PREP rows of a chunk into ``out`` (zeroed rows, None = new ones)."""
-        sp = self.sp
-        pcode = POLICY_JD if sp._pcode == POLICY_BLEND else sp._pcode   # S-curves with blend: refused earlier
-        # the same LIMITS table passes the same checks: checked again only when it has changed
-        key = (pcode, limits.tobytes())
-        if moves_chunk.dtype != MOVE_DTYPE or key != sp._limits_checked:
-            validate(moves_chunk, limits, pcode)
-            sp._limits_checked = key
-        prep, sp._stop_pending = prepare_with_context(moves_chunk, limits, pcode, sp._last_move, sp._last_prep,
-                                                      sp._stop_pending, cap_v2=sp._cap_v2, out=out,
-                                                      kinematics_hook=sp._kin_hook)
-        real = np.nonzero(prep["is_move"])[0]      # not flatnonzero: that copies the strided field first
-        if real.size:
-            sp._last_move = moves_chunk[real[-1]:real[-1] + 1].copy()
-            sp._last_prep = prep[real[-1]:real[-1] + 1].copy()
-        return prep
+        return self.sp.prepare_chunk(moves_chunk, limits, out)
 
     def plan(self, final: bool):
         """(rows planned for good, their PLAN rows, end time, context for segments())."""
@@ -102,26 +95,26 @@ class _TrapezoidMode(_Mode):
 
     def plan(self, final: bool):
         sp = self.sp
-        prep = sp._prep
+        prep = sp.pending_prep
         rows = np.nonzero(prep["is_move"])[0]
         m = len(rows)
         bufs = speed_buffers(m)
         # Moves before the open run (the one not yet followed by a known full stop) are final.
-        if final or sp._stop_pending:
+        if final or sp.stop_pending:
             closed = m
         else:
             starts = np.flatnonzero(prep["stop_before"][rows])
             closed = int(starts[-1]) if starts.size else 0
-        plan_runs(sp._pcode, prep, rows, 0, closed, *bufs)
+        plan_runs(sp.policy_code, prep, rows, 0, closed, *bufs)
         done = closed
         if closed < m:
-            flush = klipper_flush if sp._pcode == POLICY_KLIPPER else standard_flush
+            flush = klipper_flush if sp.policy_code == POLICY_KLIPPER else standard_flush
             done = flush(prep, rows, closed, m, True, *bufs)
         # Emit every row before the first move still pending (dwell / dropped rows included).
-        n_rows = len(sp._moves) if done == m else int(rows[done])
+        n_rows = len(sp.pending_moves) if done == m else int(rows[done])
         if n_rows == 0:
-            return 0, None, sp._clock, None
-        plan, t_end = layout_rows(sp._moves[:n_rows], prep, n_rows, *bufs, sp._clock)
+            return 0, None, sp.clock, None
+        plan, t_end = layout_rows(sp.pending_moves[:n_rows], prep, n_rows, *bufs, sp.clock)
         return n_rows, plan, t_end, None
 
 
@@ -136,15 +129,15 @@ class _SCurveMode(_Mode):
         self.start_v = 0.0        # final start speed of the first pending move
 
     def window_prep(self, moves_chunk, limits):
-        self.sp._check_same_jerk(moves_chunk, limits)
+        self.sp.check_same_jerk(moves_chunk, limits)
         return super().window_prep(moves_chunk, limits)
 
     def plan(self, final: bool):
         from .scurve import scurve_plan_window
 
         sp = self.sp
-        n_rows, plan, t_end, v_end, ctx = scurve_plan_window(sp._moves, sp._prep, sp._jerk, self.start_v, sp._clock,
-                                                             lazy=not final)
+        n_rows, plan, t_end, v_end, ctx = scurve_plan_window(sp.pending_moves, sp.pending_prep, sp.jerk, self.start_v,
+                                                             sp.clock, lazy=not final)
         self.start_v = v_end
         return n_rows, plan, t_end, ctx
 
@@ -154,7 +147,7 @@ class _SCurveMode(_Mode):
     def segments(self, moves, plan, prep, ctx, first_index):
         from .scurve import scurve_segments
 
-        return scurve_segments(moves, prep, plan, ctx, self.sp._jerk, first_index)
+        return scurve_segments(moves, prep, plan, ctx, self.sp.jerk, first_index)
 
 
 class _BlendMode(_Mode):
@@ -180,8 +173,8 @@ class _BlendMode(_Mode):
         from .blend import blend_plan_window
 
         sp = self.sp
-        n_rows, plan, t_end, ctx = blend_plan_window(sp._moves, sp._prep, self.aux, sp._clock, lazy=not final,
-                                                     head=self.head)
+        n_rows, plan, t_end, ctx = blend_plan_window(sp.pending_moves, sp.pending_prep, self.aux, sp.clock,
+                                                     lazy=not final, head=self.head)
         self.head = ctx["head"]
         return n_rows, plan, t_end, ctx
 
@@ -289,10 +282,59 @@ class StreamPlanner:
         """Rows held in the look-ahead window."""
         return len(self._moves)
 
+    # ------------------------------------------------------------------ what a planning mode uses (_Mode)
+    @property
+    def pending_moves(self) -> np.ndarray:
+        """The window's MOVE rows (not emitted yet)."""
+        return self._moves
+
+    @property
+    def pending_prep(self) -> np.ndarray:
+        """The window's PREP rows, 1:1 with :attr:`pending_moves`."""
+        return self._prep
+
+    @property
+    def clock(self) -> float:
+        """s: the end time of everything emitted so far (the next emitted row starts there)."""
+        return self._clock
+
+    @property
+    def policy_code(self) -> int:
+        """The junction policy's kernel code (planner/prepare.py POLICY_*)."""
+        return self._pcode
+
+    @property
+    def jerk(self) -> float | None:
+        """mm/s³: the S-curve jerk, None for trapezoids."""
+        return self._jerk
+
+    @property
+    def stop_pending(self) -> bool:
+        """A known full stop precedes the next move (after a dwell/wait row, an exact stop, at the start)."""
+        return self._stop_pending
+
+    def prepare_chunk(self, moves_chunk: np.ndarray, limits: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+        """PREP rows of a chunk (into ``out``: zeroed rows, None = new ones), continuing the junctions from the
+        last move prepared before it; the planner keeps that context between chunks."""
+        pcode = POLICY_JD if self._pcode == POLICY_BLEND else self._pcode   # S-curves with blend: refused earlier
+        # the same LIMITS table passes the same checks: checked again only when it has changed
+        key = (pcode, limits.tobytes())
+        if moves_chunk.dtype != MOVE_DTYPE or key != self._limits_checked:
+            validate(moves_chunk, limits, pcode)
+            self._limits_checked = key
+        prep, self._stop_pending = prepare_with_context(moves_chunk, limits, pcode, self._last_move, self._last_prep,
+                                                        self._stop_pending, cap_v2=self._cap_v2, out=out,
+                                                        kinematics_hook=self._kin_hook)
+        real = np.nonzero(prep["is_move"])[0]      # not flatnonzero: that copies the strided field first
+        if real.size:
+            self._last_move = moves_chunk[real[-1]:real[-1] + 1].copy()
+            self._last_prep = prep[real[-1]:real[-1] + 1].copy()
+        return prep
+
     # ------------------------------------------------------------------ internals
     def _choose_mode(self, moves: np.ndarray, limits: np.ndarray) -> _Mode:
         """plan_moves' dispatch: a jerk (argument, else the limits in force) selects S-curves, then 'blend'."""
-        from . import scurve_jerk
+        from .scurve import scurve_jerk
 
         if self.firmware != "generic":
             if self._jerk is not None:
@@ -317,12 +359,12 @@ class StreamPlanner:
             return make_stream_mode(_Mode)(self)
         return _BlendMode(self) if self._pcode == POLICY_BLEND else _TrapezoidMode(self)
 
-    def _check_same_jerk(self, moves: np.ndarray, limits: np.ndarray) -> None:
+    def check_same_jerk(self, moves: np.ndarray, limits: np.ndarray) -> None:
         """Whole-file planning takes the least max_jerk of the limits rows the program uses; a stream cannot
         know later rows, so a jerk from the limits must not change along the program."""
         if not self._jerk_from_limits:
             return
-        from . import scurve_jerk
+        from .scurve import scurve_jerk
 
         j = scurve_jerk(moves, limits, None)
         if j is not None and j != self._jerk:

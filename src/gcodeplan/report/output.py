@@ -37,6 +37,7 @@ import tempfile
 from dataclasses import dataclass
 
 from ..errors import GcodeplanError
+from ..signals import at_restore, held
 
 TMP_SUFFIX = ".tmp"
 SPOOL_SUFFIX = ".spool"
@@ -112,12 +113,13 @@ def discard_temporaries() -> None:
     remove_made_dirs(list(_made_dirs))
 
 
+at_restore(discard_temporaries)      # the signal handlers' restore sweeps what is still registered
+
+
 def make_dirs(directory: str | os.PathLike) -> list[str]:
     """Create ``directory`` and its missing parents (like ``mkdir -p``); returns those created, outermost
     first. They are registered: unless :func:`keep_made_dirs` is called, :func:`remove_made_dirs` or the
     sweep on exit removes those left empty, so an interrupted or failed output leaves no empty directory."""
-    from ..signals import held
-
     missing = []
     d = os.path.abspath(str(directory))
     while not os.path.lexists(d):
@@ -160,8 +162,6 @@ def remove_made_dirs(made: list[str]) -> None:
 def make_temp_file(path: str | os.PathLike, suffix: str = TMP_SUFFIX) -> tuple[int, str]:
     """(fd, name) of a new registered temporary file beside ``path``; signals are held back until it is
     registered (gcodeplan/signals.py), so an interruption cannot leave it unknown."""
-    from ..signals import held
-
     parent = os.path.dirname(os.path.abspath(str(path)))
     with held():
         fd, tmp = tempfile.mkstemp(prefix=temp_prefix(path), suffix=suffix, dir=parent)
@@ -171,8 +171,6 @@ def make_temp_file(path: str | os.PathLike, suffix: str = TMP_SUFFIX) -> tuple[i
 
 def make_temp_dir(path: str | os.PathLike) -> str:
     """A new registered temporary directory beside ``path`` (see :func:`make_temp_file`)."""
-    from ..signals import held
-
     parent = os.path.dirname(os.path.abspath(str(path)))
     with held():
         tmp = tempfile.mkdtemp(prefix=temp_prefix(path), suffix=SPOOL_SUFFIX, dir=parent)

@@ -288,6 +288,28 @@ def post_process(path, out=None, machine=None, policy: str | None = None, jerk: 
                              progress=progress, exclude_objects=exclude_objects)
 
 
+def _cnc_flavor(path, machine) -> tuple[bool, str]:
+    """(the program is for a CNC controller, the flavor to name): the flavor the pipeline reads the file with,
+    or "CNC" for a CNC program (its name or CAM header says so) planned on a printer machine the user named, which
+    is planned as asked but must get no printer command written into it."""
+    from ..gcode.dialect import reading_machine
+
+    read_machine, note, _ = reading_machine(path, machine)
+    flavor = read_machine.flavor
+    cnc = flavor in ("grbl", "linuxcnc")
+    if not cnc and note and note["kind"] == "cnc":
+        cnc, flavor = True, "CNC"
+    return cnc, flavor
+
+
+def _note_insert(result, out_line: int, text: str) -> None:
+    """Count an inserted line in ``result``; an ``M73 P<percent> R<minutes>`` is noted with its output line."""
+    result.inserted += 1
+    if text.startswith("M73"):
+        pv, rv = text[5:].split(" R")
+        result.m73.append((out_line, int(pv), int(rv)))
+
+
 def _post_process(path, given, out, machine, policy, jerk, *, strict, m73, layer_info, progress,
                   exclude_objects) -> PostProcessResult:
     """:func:`post_process` on ``path``, a regular file or a spool of ``given`` (the input as named)."""
@@ -297,18 +319,10 @@ def _post_process(path, given, out, machine, policy, jerk, *, strict, m73, layer
     from ..pipeline import run
     from .output import atomic_output
 
-    from ..gcode.dialect import reading_machine
-
     _refuse_unsupported(path, out is None)
     name = source_name(path)
     machine = as_machine(machine)
-    read_machine, note, _ = reading_machine(path, machine)
-    flavor = read_machine.flavor            # the flavor the pipeline will read the file with
-    cnc = flavor in ("grbl", "linuxcnc")
-    if not cnc and note and note["kind"] == "cnc":
-        # a CNC program (its name or CAM header says so) planned on a printer machine the user named: it is
-        # planned as asked, but a printer command written into it would stop the controller it is for
-        cnc, flavor = True, "CNC"
+    cnc, flavor = _cnc_flavor(path, machine)
     if cnc:
         if layer_info:
             raise GcodeplanError(f"--layer-info writes Klipper's SET_PRINT_STATS_INFO: not into a {flavor} "
@@ -351,10 +365,7 @@ def _post_process(path, given, out, machine, policy, jerk, *, strict, m73, layer
                     for text in inserts[n]:
                         write(text.encode() + ins_eol)
                         out_line += 1
-                        result.inserted += 1
-                        if text.startswith("M73"):
-                            pv, rv = text[5:].split(" R")
-                            result.m73.append((out_line, int(pv), int(rv)))
+                        _note_insert(result, out_line, text)
                     ki += 1
                     next_ins = keys[ki] if ki < len(keys) else -1
                 c = line[:1]
@@ -392,10 +403,7 @@ def _post_process(path, given, out, machine, policy, jerk, *, strict, m73, layer
             for text in tail:
                 write(text.encode() + eol)
                 out_line += 1
-                result.inserted += 1
-                if text.startswith("M73"):
-                    pv, rv = text[5:].split(" R")
-                    result.m73.append((out_line, int(pv), int(rv)))
+                _note_insert(result, out_line, text)
     except OSError as err:
         raise GcodeError(f"cannot read: {err.strerror or err}", name) from None
     return result
