@@ -80,5 +80,6 @@ def test_strict_and_errors_are_the_full_paths(tmp_path, monkeypatch, text, match
 
 def test_linuxcnc_lines_go_the_full_path(tmp_path):
     lc = Machine(flavor="linuxcnc", max_velocity=100.0)
-    _, warnings, _, _, _, _ = _read(tmp_path, "M204 P1000\nM204 P1000\n", lc)
-    assert warnings and not any("grbl" in w for w in warnings)      # LinuxCNC's own words, never grbl's
+    _, warnings, count, unknown, _, _ = _read(tmp_path, "M204 P1000\nM204 P1000\n", lc)
+    # LinuxCNC counts an unknown M code and warns of nothing; grbl's error:20 is no LinuxCNC word
+    assert unknown == {"M204": 2} and count == 0 and not warnings
