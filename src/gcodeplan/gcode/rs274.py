@@ -65,7 +65,8 @@ GRBL_G = {0.0, 1.0, 2.0, 3.0, 4.0, 10.0, 17.0, 18.0, 19.0, 20.0, 21.0, 28.0, 28.
 GRBL_M = {0, 1, 2, 3, 4, 5, 7, 8, 9, 30, 56}
 # codes modelled as having no effect on the motion
 NO_EFFECT_G = {40.0, 94.0, 97.0, 17.1, 18.1, 19.1}
-# a grbl line of one M code and words only G or M codes read (a slicer's "M204 P1000"): see Rs274Commands.grbl_inert_line
+# a grbl line of one M code and words only G or M codes read (a slicer's "M204 P1000"):
+# see Rs274Commands.grbl_inert_line
 _INERT_LINE = re.compile(rb"[ \t]*[Mm]0*([0-9]{1,4})((?:[ \t]+[DHIJKLPQRdhijklpqr][-+]?"
                          rb"(?:[0-9]{1,9}(?:\.[0-9]{0,9})?|\.[0-9]{1,9}))*)[ \t]*\r?")
 _INERT_MEMO_MAX = 256        # distinct inert lines remembered (a program has a handful: M204 P800, P1000 ...)
