@@ -6,7 +6,8 @@ run (the issue's target: at most 2× the klipper policy's time); then ``gcodepla
 in step pulses per second of wall time.
 
 grbl has no E axis (an E word is its error:20), so the grbl rows run on a copy of the file without E words
-(the same motion); the file defaults to the 50 MB PrusaSlicer plate in ../shared/gcode.
+(the same motion) beside the klipper policy on that copy; the Marlin rows run on the file as sliced beside the
+klipper policy on it. The file defaults to the 50 MB PrusaSlicer plate in ../shared/gcode.
 """
 from __future__ import annotations
 
@@ -62,21 +63,29 @@ def main(argv: list[str]) -> int:
     with tempfile.TemporaryDirectory() as tmp:
         grbl_file = Path(tmp) / (src.stem + "_noE.gcode")
         without_e(src, grbl_file)
-        rows = [("grbl-1.1 (grbl preset)", grbl_file, ["--machine", "grbl", "--no-bounds"]),
-                ("klipper policy (klipper preset)", grbl_file, ["--machine", "klipper", "--no-bounds"])]
+        # each model beside the klipper policy on the same file: grbl on the file without E words, Marlin on
+        # the file as sliced (its extruder moves are part of its planning)
+        groups = [[("grbl-1.1 (grbl preset)", grbl_file, ["--machine", "grbl", "--no-bounds"]),
+                   ("klipper policy (klipper preset)", grbl_file, ["--machine", "klipper", "--no-bounds"])],
+                  [("marlin-2.1.2 (marlin preset)", src, ["--machine", "marlin", "--no-bounds"]),
+                   ("klipper policy (klipper preset)", src, ["--machine", "klipper", "--no-bounds"])]]
         est = ["estimate", "--quiet", "--json"]
-        for _name, f, opts in rows:                      # warm numba's on-disk cache
-            best_wall(exe + est + opts + [str(f)], 1)
-        print(f"file: {src.name} without E words ({grbl_file.stat().st_size / 1e6:.1f} MB)\n")
-        print("| model | wall s (best of %d) | × klipper policy | total time s |" % args.repeat)
-        print("|---|---:|---:|---:|")
-        walls = {}
-        for name, f, opts in rows:
-            wall, out = best_wall(exe + est + opts + [str(f)], args.repeat)
-            walls[name] = (wall, json.loads(out)["total_time_s"])
-        ref = walls[rows[-1][0]][0]
-        for name, (wall, total) in walls.items():
-            print(f"| {name} | {wall:.2f} | {wall / ref:.2f} | {total:.3f} |")
+        for rows in groups:                              # warm numba's on-disk cache
+            for _name, f, opts in rows:
+                best_wall(exe + est + opts + [str(f)], 1)
+        print(f"file: {src.name} ({src.stat().st_size / 1e6:.1f} MB; "
+              f"without E words {grbl_file.stat().st_size / 1e6:.1f} MB)\n")
+        print("| model | file | wall s (best of %d) | × klipper policy | total time s |" % args.repeat)
+        print("|---|---|---:|---:|---:|")
+        for rows in groups:
+            walls = []
+            for name, f, opts in rows:
+                wall, out = best_wall(exe + est + opts + [str(f)], args.repeat)
+                walls.append((name, f, wall, json.loads(out)["total_time_s"]))
+            ref = walls[-1][2]
+            for name, f, wall, total in walls:
+                tag = "without E" if f == grbl_file else "as sliced"
+                print(f"| {name} | {tag} | {wall:.2f} | {wall / ref:.2f} | {total:.3f} |")
         npz = Path(tmp) / "s.npz"
         wall, out = best_wall(exe + ["steps", "--machine", "grbl", "--no-bounds", "-o", str(npz), str(grbl_file)], 1)
         n = sum(int(m.group(1).replace(",", "")) for m in re.finditer(r": ([0-9,]+) steps", out))

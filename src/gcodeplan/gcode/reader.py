@@ -282,6 +282,7 @@ class GcodeReader:
         cap = self.batch_moves
         out, n = self._out, self._n
         buf = np.frombuffer(data, dtype=np.uint8)
+        cnc = interp.dialect == S.DIALECT_CNC
         while True:
             if ist[S.I_STOPPED]:
                 ist[S.I_LINE] += S.count_lines(buf, pos, end)
@@ -306,7 +307,9 @@ class GcodeReader:
                 eol = end
             lineno = int(ist[S.I_LINE]) + 1
             t0 = perf_counter()
-            interp.handle(bytes(data[pos:eol]), lineno)
+            raw = bytes(data[pos:eol])
+            if not (cnc and interp.grbl_inert_line(raw, lineno)):    # a grbl line that does nothing: at once
+                interp.handle(raw, lineno)
             self.python_s += perf_counter() - t0
             ist[S.I_LINE] = lineno
             pos = eol + 1

@@ -36,10 +36,11 @@ warned about and planned uncompensated.
 from __future__ import annotations
 
 import math
+import re
 
 from ..schema import FLAG_RAPID, KIND_TRAVEL
 from . import scan as S
-from .lexing import QUIET_G, Word
+from .lexing import FREE_TEXT_M, QUIET_G, Word
 
 CYCLE_G = (73, 81, 82, 83, 85, 86, 89)
 MOTION_G = {0.0, 1.0, 2.0, 3.0, 33.0, 33.1, 38.2, 38.3, 38.4, 38.5, 73.0, 76.0, 80.0, 81.0, 82.0, 83.0, 84.0, 85.0,
@@ -82,6 +83,11 @@ MOTION_G33, MOTION_G33_1, MOTION_G76 = 33, 331, 76
 SPECIAL_MOTION = PROBE_MOTION + (MOTION_G33, MOTION_G33_1, MOTION_G76)
 # codes modelled as having no effect on the motion
 NO_EFFECT_G = {40.0, 94.0, 97.0, 17.1, 18.1, 19.1}
+# a grbl line of one M code and words only G or M codes read (a slicer's "M204 P1000"):
+# see Rs274Commands.grbl_inert_line
+_INERT_LINE = re.compile(rb"[ \t]*[Mm]0*([0-9]{1,4})((?:[ \t]+[DHIJKLPQRdhijklpqr][-+]?"
+                         rb"(?:[0-9]{1,9}(?:\.[0-9]{0,9})?|\.[0-9]{1,9}))*)[ \t]*\r?")
+_INERT_MEMO_MAX = 256        # distinct inert lines remembered (a program has a handful: M204 P800, P1000 ...)
 
 
 def _gname(g: float) -> str:
@@ -194,6 +200,50 @@ class Rs274Commands:
         if key not in self._noted:
             self._noted.add(key)
             self.warn(msg)
+
+    # ------------------------------------------------------------------ fast path: lines that do nothing
+    def grbl_inert_line(self, raw: bytes, lineno: int) -> bool:
+        """Interpret line ``lineno`` (``raw``: its bytes, no newline) at once if it is a grbl line of one M code
+        grbl does not have and words that only a G or M code would read (no G code, no F, S, T or axis word):
+        a printer's ``M204 P1000`` in a program run on grbl. Such a line changes nothing; what the full path
+        (:meth:`_execute_cnc`) makes of it, its error:20 and its ignored words, is replayed from a memo of the
+        line's text. False (nothing done) for any other line, under ``--strict`` (the line is an error there),
+        on LinuxCNC and before the machine's start time is counted: those go the full path."""
+        memo = self.__dict__.get("_inert_memo")
+        if memo is None:
+            memo = self._inert_memo = {}
+        got = memo.get(raw)
+        if got is None:
+            got = self._grbl_inert_effect(raw)
+            if len(memo) < _INERT_MEMO_MAX:
+                memo[raw] = got
+        if not got or self.strict or self._start_pending or self.dialect != S.DIALECT_CNC or \
+                self.machine.flavor == "linuxcnc" or self.ist[S.I_STOPPED]:
+            return False
+        name, unused = got
+        self.line = lineno
+        # as _grbl_unsupported, then the unused words' warning of _execute_cnc
+        self.warn(f"{name}: grbl rejects it (error:20, unsupported command); ignored")
+        self.unknown[name] = self.unknown.get(name, 0) + 1
+        if unused:
+            self.warn(unused)
+        return True
+
+    @staticmethod
+    def _grbl_inert_effect(raw: bytes):
+        """(M code name, its unused-words warning or "") when ``raw`` is an inert grbl line
+        (:meth:`grbl_inert_line`), else False."""
+        m = _INERT_LINE.fullmatch(raw)
+        if m is None:
+            return False
+        mc = int(m.group(1))
+        # grbl's own M codes act; free-text ones and M486 are read before the words (interp._classic)
+        if mc in GRBL_M or mc in FREE_TEXT_M or mc == 486:
+            return False
+        letters = [w[:1].decode().upper() for w in m.group(2).split()]
+        if len(set(letters)) != len(letters):
+            return False              # a repeated word is an error: the full path names it
+        return f"M{mc}", ("word(s) " + " ".join(letters) + " ignored" if letters else "")
 
     # ------------------------------------------------------------------ checks
     def _grbl_unsupported(self, name: str) -> None:

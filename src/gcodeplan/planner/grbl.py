@@ -734,11 +734,14 @@ def _rest_of_segment(si, st_sec, st_op, window_base, op_end_tick, step_t, step_d
     si[I_PHASE] = -1
 
 
-@njit(cache=True, nogil=True)
+# _nrt=False: the kernel allocates nothing (its scratch is GrblState's), and without numba's reference counting
+# the ~60 array arguments of the functions inlined per segment are not counted up and down (an atomic operation
+# each): measured, 40 % of the kernel's time went to those counts
+@njit(cache=True, nogil=True, _nrt=False)
 def grbl_feed_kernel(si, sf, bf, bsteps, bdir, bop, brapid, st_steps, st_sec, st_dir, st_op, seg_n, seg_cycles,
                      seg_block, seg_amass, op_kind, op_target, op_rate, op_rapid, op_dwell_ticks, op_base, final,
                      steps_per_mm, max_rate, acceleration, junction_deviation, window_base, op_end_tick, op_info,
-                     step_t, step_dir, n_out):
+                     step_t, step_dir, n_out, target_steps, unit_vecs):
     """Run grbl's main loop over a batch of operations (global indices op_base …), resuming from the state in
     the arrays (grbl's globals, :class:`GrblState`); with ``final`` the program then ends (auto cycle start,
     the motion runs out). An OP_LINE op is a straight move to op_target at op_rate mm/min (or a rapid); an
@@ -746,10 +749,9 @@ def grbl_feed_kernel(si, sf, bf, bsteps, bdir, bop, brapid, st_steps, st_sec, st
     Outputs, indexed by global op − window_base: op_end_tick (absolute tick of the op's last step pulse, or
     of the end of a sync; −1 none) and op_info (entry, peak, exit speed mm/min, acceleration mm/min²,
     length mm of the block as the segment generator first profiled it); step pulses into step_t / step_dir
-    (absolute ticks, per axis up to their width; n_out counts every pulse)."""
+    (absolute ticks, per axis up to their width; n_out counts every pulse). ``target_steps`` (3 int64) and
+    ``unit_vecs`` (2×3 float32): _plan_buffer_line's scratch."""
     nops = op_kind.shape[0]
-    target_steps = np.zeros(3, np.int64)           # _plan_buffer_line's scratch
-    unit_vecs = np.zeros((2, 3), np.float32)
     for j in range(nops + (1 if final else 0)):
         k = op_base + j
         if j < nops and op_kind[j] == OP_LINE:
@@ -851,6 +853,8 @@ class GrblState:
         self.st_dir = np.zeros(ST_BLOCK_BUFFER_SIZE, np.int64)
         self.st_op = np.zeros(ST_BLOCK_BUFFER_SIZE, np.int64)
         self.seg = np.zeros((4, SEGMENT_BUFFER_SIZE), np.int64)     # n_step, cycles_per_tick, st block, amass
+        self.target_steps = np.zeros(3, np.int64)      # _plan_buffer_line's scratch (the kernel allocates nothing)
+        self.unit_vecs = np.zeros((2, 3), np.float32)
         si = self.si
         si[I_NEXT_HEAD] = 1
         si[I_PL_BLOCK] = -1
@@ -867,7 +871,7 @@ class GrblState:
                          self.st_sec, self.st_dir, self.st_op, g[0], g[1], g[2], g[3], op_kind, op_target, op_rate,
                          op_rapid, op_dwell_ticks, int(self.si[I_NEXT_OP]), final, s.steps_per_mm, s.max_rate,
                          s.acceleration, s.junction_deviation, window_base, op_end_tick, op_info, step_t, step_dir,
-                         n_out)
+                         n_out, self.target_steps, self.unit_vecs)
 
     def first_open_op(self) -> int:
         """The first operation whose last step pulse has not been issued yet (all before it are final)."""

@@ -1,0 +1,85 @@
+"""grbl's fast path for lines that do nothing (``Rs274Commands.grbl_inert_line``, gcode/rs274.py).
+
+A printer program run on grbl has tens of thousands of ``M204 P1000`` lines: an M code grbl does not have
+(error:20) with a word only such a code reads. The reader interprets them from a memo instead of the full
+RS274 path. Truth: the full path itself (``_execute_cnc``, the fast path turned off) on the same program must
+give the same rows, warnings, counts and errors, line for line; and grbl's gcode.c for what the line means
+(error:20 for the M code, the P word read by no command).
+"""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from gcodeplan.errors import GcodeError
+from gcodeplan.gcode import rs274
+from gcodeplan.gcode.reader import read_moves
+from gcodeplan.machine import Machine
+
+# every kind of line near the fast path's edge: inert ones (memo hits and misses) and ones that must not be
+LINES = [
+    "G0 X1 Y2", "M204 P1000", "M204 P1000", "m204 p800", "M0204 P1.5", " M204\tP1000 ", "M204 P1000\r",
+    "M204", "M999 I1 J2 K3 R4 L5 Q6 H7 D8", "M204 S1000", "M204 P1000 T1500", "M204 P1000 F600",
+    "M204 P-.5", "M3 S1000", "M204 P1000", "M5", "M8", "M204 P1000 ; comment", "M204 P1000 (c)", "M117 hi",
+    "M486 S1", "M204 X5", "G1 X3 F600", "M204 P1000", "N10 M204 P1000", "M204 P1000*10", "M204P1000",
+    "M9", "M30 P1",
+]
+
+
+def _read(tmp_path, text, machine, **kw):
+    path = tmp_path / "p.nc"
+    path.write_bytes(text.encode())
+    rows, reader = read_moves(str(path), machine, **kw)
+    s = reader.summary
+    return rows, s.warnings, s.warning_count, s.unknown_commands, s.ignored_commands, s.spindle_commands
+
+
+def _full_path(monkeypatch):
+    monkeypatch.setattr(rs274.Rs274Commands, "grbl_inert_line", lambda self, raw, lineno: False)
+
+
+@pytest.mark.parametrize("force_python", [False, True])
+def test_fast_path_equals_the_full_path(tmp_path, monkeypatch, force_python):
+    g = Machine(flavor="grbl", max_velocity=100.0)
+    text = "\n".join(LINES) + "\n"
+    fast = _read(tmp_path, text, g, force_python=force_python)
+    _full_path(monkeypatch)
+    full = _read(tmp_path, text, g, force_python=force_python)
+    # the same rows, field for field (nan equal to nan): G0 X1 Y2, M204 X5 (a G0), G1 X3, the syncs of M3 M5 M8 M9
+    assert len(fast[0]) == len(full[0]) == 7
+    for name in full[0].dtype.names:
+        np.testing.assert_array_equal(fast[0][name], full[0][name], err_msg=name)
+    assert fast[1:] == full[1:]
+    # grbl's meaning, by hand: each M204 line is one error:20, its P one word read by nothing
+    assert fast[3]["M204"] == sum(1 for line in LINES if "M204" in line.upper() or "M0204" in line.upper())
+    assert "p.nc:2: word(s) P ignored" in " ".join(fast[1])
+    assert any(w.endswith("p.nc:9: word(s) I J K R L Q H D ignored") for w in fast[1])
+
+
+def test_fast_path_takes_only_inert_lines():
+    inert = rs274.Rs274Commands._grbl_inert_effect
+    assert inert(b"M204 P1000") == ("M204", "word(s) P ignored")
+    assert inert(b"M204") == ("M204", "")
+    for line in (b"M3 P1", b"M204 S1", b"M204 F1", b"M204 T1", b"M204 X1", b"M204 P1 P2", b"M117 P1",
+                 b"M486 P1", b"M204 P1 ;c", b"G4 P1", b"M204 P1e3", b"M204.5 P1", b"M204 N1"):
+        assert inert(line) is False, line
+
+
+@pytest.mark.parametrize("text,match", [("G0 X1\nM204 P1000\n", "M204: grbl error:20"),
+                                        ("M204 P1 P2\n", "repeated")])
+def test_strict_and_errors_are_the_full_paths(tmp_path, monkeypatch, text, match):
+    g = Machine(flavor="grbl", max_velocity=100.0)
+    strict = "grbl error" in match
+    with pytest.raises(GcodeError, match=match) as fast:
+        _read(tmp_path, text, g, strict=strict)
+    _full_path(monkeypatch)
+    with pytest.raises(GcodeError, match=match) as full:
+        _read(tmp_path, text, g, strict=strict)
+    assert str(fast.value) == str(full.value)
+
+
+def test_linuxcnc_lines_go_the_full_path(tmp_path):
+    lc = Machine(flavor="linuxcnc", max_velocity=100.0)
+    _, warnings, count, unknown, _, _ = _read(tmp_path, "M204 P1000\nM204 P1000\n", lc)
+    # LinuxCNC counts an unknown M code and warns of nothing; grbl's error:20 is no LinuxCNC word
+    assert unknown == {"M204": 2} and count == 0 and not warnings
