@@ -196,9 +196,8 @@ def test_resolve_refuses_a_name_that_is_not_there():
 
 
 # ----------------------------------------------------------------------------- planning modes
-# Modes still reading the planner's private fields; their files are edited elsewhere: convert them to the
-# interface (sp.pending_moves, sp.clock) and drop them from this list.
-MODES_NOT_CONVERTED = {"planner/grbl.py": {"_moves", "_clock"}, "planner/marlin.py": {"_clock"}}
+# Modes still reading the planner's private fields (none now: grbl's and Marlin's use sp.pending_moves, sp.clock)
+MODES_NOT_CONVERTED: dict[str, set[str]] = {}
 
 
 def _private_planner_reads(path) -> set[str]:

@@ -301,7 +301,7 @@ class Toolhead:
     def print_time(self) -> float:
         """End time (s) of the last final move: the planned time so far."""
         with self._lock:
-            return self._planner._clock
+            return self._planner.clock
 
     @property
     def summary(self):

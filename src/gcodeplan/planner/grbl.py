@@ -1101,7 +1101,7 @@ def make_stream_mode(base_cls):
 
         def plan(self, final: bool):
             sp = self.sp
-            new = sp._moves[self.fed:]
+            new = sp.pending_moves[self.fed:]
             kind, target, rate, rapid, dwell, rows = operations(new)
             first = self.op_base + len(self.op_kind)
             ops = np.full(len(new), -1, np.int64)
@@ -1115,18 +1115,18 @@ def make_stream_mode(base_cls):
                 self._make_room(kind, target)
             self.state.feed(kind, target, rate, rapid, dwell, final, self.op_base, self.op_end, self.op_info,
                             self.no_steps, self.no_dirs, self.n_out)
-            self.fed = len(sp._moves)
+            self.fed = len(sp.pending_moves)
             if final:
-                n_rows = len(sp._moves)
+                n_rows = len(sp.pending_moves)
             else:
                 open_op = self.state.first_open_op()
                 later = np.nonzero(self.row_op >= open_op)[0]
-                n_rows = int(later[0]) if later.size else len(sp._moves)
+                n_rows = int(later[0]) if later.size else len(sp.pending_moves)
             if n_rows == 0:
-                return 0, None, sp._clock, None
+                return 0, None, sp.clock, None
             local = np.where(self.row_op[:n_rows] >= 0, self.row_op[:n_rows] - self.op_base, -1)
-            plan, t_end = _plan_rows(sp._moves[:n_rows], local, self.op_kind, self.op_end, self.op_info,
-                                     self.op_rapid, sp._clock, 0)
+            plan, t_end = _plan_rows(sp.pending_moves[:n_rows], local, self.op_kind, self.op_end, self.op_info,
+                                     self.op_rapid, sp.clock, 0)
             if self.want_steps:
                 self.last_steps = self._take_steps(None if final else int(round(t_end * F_CPU)))
             return n_rows, plan, t_end, None
