@@ -101,9 +101,6 @@ class MarlinModel:
         self.mm_per_step = (np.float32(1) / self.spm).astype(np.float32)
         self.acc_rate_scale = np.float32(np.float32(16777216.0) / np.float32(self.timer_hz))
         self.state = mk.new_state()
-        # the kernel's work arrays (it allocates nothing: marlin_kernels.marlin_run_kernel)
-        self._scratch_f = np.zeros((4, 4), dtype=np.float32)
-        self._scratch_i = np.zeros((4, 4), dtype=np.int64)
         self.row_base = 0                        # absolute number of the window's first row
         self._moves = None                       # window: rows read, not settled
         self._arrays = None
@@ -286,8 +283,7 @@ class MarlinModel:
                                      a["min_feed"], a["min_travel"], a["wait_ticks"], self.spm, self.mm_per_step,
                                      MIN_SEGMENT_TIME_US, self.timer_hz, self.acc_rate_scale, final,
                                      self.row_base, bf, bi, gi, gf, self._out_i, self._out_f, self.junction_mode,
-                                     a["amax_mm"], a["jdev"], a["advance_k"], self.s_curve, self._scratch_f,
-                                     self._scratch_i, self.version)
+                                     a["amax_mm"], a["jdev"], a["advance_k"], self.s_curve, self.version)
         n_done = int(first) - self.row_base
         if final:
             n_done = len(self._moves)

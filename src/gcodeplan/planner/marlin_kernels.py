@@ -892,26 +892,22 @@ def _pick_and_run(bf, bi, gi, out_i, out_f, timer_hz, acc_rate_scale, row_base, 
     return False
 
 
-# _nrt=False: no reference counting of the ~40 arrays handed down to every function it calls, per block (its
-# share of the run's time was ~30 %); it allocates nothing, its scratch arrays come from the caller
-@njit(cache=True, _nrt=False)
+@njit(cache=True)
 def marlin_run_kernel(kind, tgt, reset_bits, reset_pos, fr, acc_p, acc_t, acc_r, vmax, amax_steps, cutoff, jerk,
                       min_feed, min_travel, wait_ticks, spm, mm_per_step, min_segment_time_us, timer_hz,
                       acc_rate_scale, final, row_base, bf, bi, gi, gf, out_i, out_f, junction_mode, amax_mm, jdev,
-                      advance_k, s_curve, scratch_f, scratch_i, version=VERSION_2_1_2):
+                      advance_k, s_curve, version=VERSION_2_1_2):
     """Run rows ``gi[GI_NEXT_ROW] - row_base ..`` of this window through Marlin's host loop, planner and
     stepper until the input runs out (``final``: then until the buffer is empty).
 
     Row arrays are indexed from ``row_base`` (``bi[., BI_ROW]`` and ``gi[GI_NEXT_ROW]`` are absolute row
     numbers); times are ticks of ``timer_hz`` from the first pick-up. Returns the absolute number of the
     first row whose block has not run yet (rows before it are final). ``version``: whose rules run
-    (VERSION_2_1_2, VERSION_BUGFIX). ``scratch_f`` / ``scratch_i``: 4 × 4 float32 / int64 work arrays."""
+    (VERSION_2_1_2, VERSION_BUGFIX)."""
     n = len(kind)
     end_row = row_base + n
-    for i in range(4):          # as fresh as the arrays this kernel once made itself
-        for j in range(4):
-            scratch_f[i, j] = 0.0
-            scratch_i[i, j] = 0
+    scratch_f = np.zeros((4, 4), dtype=np.float32)
+    scratch_i = np.zeros((4, 4), dtype=np.int64)
     while True:
         # the host: Marlin's main loop fills the buffer (15 usable slots) in no time
         while gi[GI_NEXT_ROW] < end_row and _queued(gi) < BLOCK_BUFFER_SIZE - 1:
