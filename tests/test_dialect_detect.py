@@ -156,12 +156,13 @@ def test_ultigcode_flow_equals_the_commanded_volume(tmp_path):
 ])
 def test_m200_volumetric_mode(lines, filament_mm):
     est = gp.estimate(["G21", "G90", "M83", "G1 X0 F1200"] + lines, "marlin")
-    assert est.to_json()["filament_mm"] == pytest.approx(filament_mm, rel=1e-9)
+    # the marlin preset runs Marlin's model: relative E adds up in Marlin's 32-bit floats (about 7 digits)
+    assert est.to_json()["filament_mm"] == pytest.approx(filament_mm, rel=1e-7)
 
 
 def test_m200_with_m221_flow():
     est = gp.estimate(["G90", "M83", "M221 S50", "M200 D1.75", "G1 X10 E2.4052818754046 F1200"], "marlin")
-    assert est.to_json()["filament_mm"] == pytest.approx(0.5, rel=1e-9)
+    assert est.to_json()["filament_mm"] == pytest.approx(0.5, rel=1e-7)        # 32-bit relative E, as above
 
 
 def test_m200_is_not_klippers():
