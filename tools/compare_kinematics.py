@@ -1,11 +1,11 @@
 #!/usr/bin/env python3
 """Compare gcodeplan's plug-in kinematics with real Klipper (../shared/reference/klipper/kinematics/).
 
-``python tools/compare_kinematics.py [--cube]`` prints a Markdown table: for each of Klipper's polar,
+``python tools/compare_kinematics.py [--cube] [--per-motor]`` prints a Markdown table: for each of Klipper's polar,
 rotary_delta, winch, deltesian, hybrid_corexy, hybrid_corexz and generic_cartesian and each reference file
 (b_square, c_circle200, d_slicer_like; with ``--cube`` also the PrusaSlicer cube's first 2032 lines), our total
 next to Klipper's, the relative difference, whether every motor has Klipper's step count and net steps, and the
-worst step-time difference. The inputs are prepared as the reference README says: the cube's G28 becomes
+worst step-time difference (``--per-motor``: each motor's too, on stderr). The inputs are prepared as the reference README says: the cube's G28 becomes
 ``SET_KINEMATIC_POSITION X=0 Y=0 Z=0``; for polar every X/Y coordinate is shifted by (+30, +30) mm (decimal
 arithmetic) so that no move passes the polar centre. The tests (tests/test_kinematics_plugins.py) use the same
 functions.
@@ -108,6 +108,7 @@ def compare_steps(ours, ref, figures):
     pairwise over the npz prefix (the cube's are the first n_steps_in_npz steps)."""
     counts_ok = True
     worst = 0.0
+    per_motor = {}
     for name, (t, d) in ours.items():
         full = figures[name]
         if len(t) != full["n_steps"] or int(d.sum(dtype=np.int64)) != full["net_steps"]:
@@ -119,7 +120,10 @@ def compare_steps(ours, ref, figures):
             counts_ok = False
             continue
         if k:
-            worst = max(worst, float(np.max(np.abs(t[:k] - rt))))
+            per_motor[name] = float(np.max(np.abs(t[:k] - rt)))
+            worst = max(worst, per_motor[name])
+    if figures is not None and "--per-motor" in sys.argv:
+        print("    " + ", ".join(f"{n} {w * 1e9:.1f} ns" for n, w in per_motor.items()), file=sys.stderr)
     return counts_ok, worst
 
 

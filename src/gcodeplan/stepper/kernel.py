@@ -1127,10 +1127,67 @@ def _its_position(pt0, pdt, coef, k, t):
     return coef[k, 0] + s * (coef[k, 1] + s * (coef[k, 2] + s * (coef[k, 3] + s * (coef[k, 4] + s * coef[k, 5])))), k
 
 
-@njit(cache=True, error_model="numpy", inline="always")
-def _its_range(m_start, m_len, abs_start, abs_end, pt0, pdt, coef, half, sds_t, st, out_t, out_dir, out_n):
+IK_NCOEF = 12           # x, y, z pieces for the search's inverse-kinematics callback: p, v, a/2, j/6 per axis
+IK_CHECK_SAMPLES = 8    # points per piece where a plug-in motor's position is checked to exist before the search
+
+
+@njit(cache=True)
+def ik_positions(ik, params, x, y, z):
+    """``ik(x[i], y[i], z[i], params)`` for every i (motor positions; NaN where the kinematics cannot reach)."""
+    out = np.empty(x.shape[0])
+    for i in range(x.shape[0]):
+        out[i] = ik(x[i], y[i], z[i], params)
+    return out
+
+
+@njit(cache=True, inline="always")
+def _its_ik_position(pt0, pdt, coef, ik, params, period, ref, k, base, t):
+    """(motor position, piece index) at absolute time base + t through a plug-in's inverse kinematics ``ik`` (Klipper's
+    calc_position callback): x, y, z of piece k are coef[k, 4q:4q + 4] (p, v, a/2, j/6 of axis q), clamped to the
+    piece as in :func:`_its_position`. ``period`` > 0: a cyclic position taken on the branch within half a period of
+    ``ref`` (Klipper's polar bed compares atan2 with the commanded angle). The time into the piece is
+    (base − pt0[k]) + t, exactly t on the piece that starts the trapq move at ``base`` (Klipper evaluates a move
+    at its own time): the search's secant through two guesses a fraction of a nanometre apart would feel the
+    rounding of an absolute time."""
+    n = pt0.shape[0]
+    ta = base + t
+    while k > 0 and ta < pt0[k]:
+        k -= 1
+    while k + 1 < n and ta >= pt0[k + 1]:
+        k += 1
+    s = (base - pt0[k]) + t
+    if s < 0.0:
+        s = 0.0
+    elif s > pdt[k]:
+        s = pdt[k]
+    x = coef[k, 0] + s * (coef[k, 1] + s * (coef[k, 2] + s * coef[k, 3]))
+    y = coef[k, 4] + s * (coef[k, 5] + s * (coef[k, 6] + s * coef[k, 7]))
+    z = coef[k, 8] + s * (coef[k, 9] + s * (coef[k, 10] + s * coef[k, 11]))
+    m = ik(x, y, z, params)
+    if period > 0.0:
+        if m - ref > 0.5 * period:
+            m -= period
+        elif m - ref < -0.5 * period:
+            m += period
+    return m, k
+
+
+@njit(cache=True)
+def _its_eval(pt0, pdt, coef, ik, params, period, ref, k, base, t):
+    """The search's position callback at time base + t (s): the polynomial pieces (``ik`` None:
+    :func:`_its_position`, compiled away) or a plug-in's inverse kinematics of the x, y, z pieces
+    (:func:`_its_ik_position`)."""
+    if ik is None:
+        return _its_position(pt0, pdt, coef, k, base + t)
+    return _its_ik_position(pt0, pdt, coef, ik, params, period, ref, k, base, t)
+
+
+@njit(cache=True, error_model="numpy")
+def _its_range(m_start, m_len, abs_start, abs_end, pt0, pdt, coef, half, sds_t, st, out_t, out_dir, out_n,
+               ik, params, period):
     """One itersolve_gen_steps_range call: the steps of trapq move [m_start, m_start + m_len] inside
-    [abs_start, abs_end]. Updates the state ``st``; returns the new out_n, or −1 when ``out_t`` is full."""
+    [abs_start, abs_end]. Updates the state ``st``; returns the new out_n, or −1 when ``out_t`` is full.
+    The position comes from :func:`_its_eval` (``ik``, ``params``, ``period``: see there)."""
     cap = out_t.shape[0]
     start = abs_start - m_start
     if start < 0.0:
@@ -1176,7 +1233,7 @@ def _its_range(m_start, m_len, abs_start, abs_end, pt0, pdt, coef, half, sds_t, 
         og_t = g_t
         og_p = g_p
         g_t = nxt
-        g_p, k = _its_position(pt0, pdt, coef, k, m_start + nxt)
+        g_p, k = _its_eval(pt0, pdt, coef, ik, params, period, commanded, k, m_start, nxt)
         g_d = g_p - target
         if abs(g_d) > ITS_CLOSE_MM:
             rel = g_d if sdir else -g_d
@@ -1249,6 +1306,8 @@ def _its_range(m_start, m_len, abs_start, abs_end, pt0, pdt, coef, half, sds_t, 
         is_dir_change = False
         have_bracket = False
         check_osc = False
+        if ik is not None:
+            continue
         # Fast path. While the next step is the crossing of a monotone run of quadratic pieces (trapezoid phases,
         # shaped or not) that Klipper's probes for it cannot leave — they stay below last + 2·max(interval, seek)
         # — its search finds exactly that crossing: take it in closed form, then hand the search the state
@@ -1350,7 +1409,14 @@ def _its_range(m_start, m_len, abs_start, abs_end, pt0, pdt, coef, half, sds_t, 
             high_t = g_t + seek
             if high_t > end:
                 high_t = end
-    st[I_COMMANDED] = target - half if sdir else target + half
+    commanded = target - half if sdir else target + half
+    if ik is not None and period > 0.0:
+        # Klipper's polar_stepper_angle_post_fixup: the commanded angle back within half a period of 0
+        if commanded < -0.5 * period:
+            commanded += period
+        elif commanded > 0.5 * period:
+            commanded -= period
+    st[I_COMMANDED] = commanded
     st[I_PIECE] = k
     st[I_PENDING] = 1.0 if pend else 0.0
     st[I_PEND_T] = pend_t
@@ -1359,7 +1425,7 @@ def _its_range(m_start, m_len, abs_start, abs_end, pt0, pdt, coef, half, sds_t, 
 
 @njit(cache=True, error_model="numpy")
 def itersolve_steps(flush_t, m_start, m_len, m_active, pre_t, post_t, pt0, pdt, coef, step_dist, sds_t, state,
-                    out_t, out_dir, out_n):
+                    out_t, out_dir, out_n, ik=None, params=None, period=0.0):
     """Klipper's steps for the step-generation windows ending at ``flush_t`` (s, increasing), itersolve_generate_steps
     call by call.
 
@@ -1367,7 +1433,9 @@ def itersolve_steps(flush_t, m_start, m_len, m_active, pre_t, post_t, pt0, pdt, 
     ``m_active`` (Klipper's check_active: the move has motion on an axis this stepper follows). ``pre_t``/``post_t``:
     how long before/after its active moves the stepper moves (the shaper's or pressure advance's reach; Klipper's
     gen_steps_pre_active / post_active). Position: Σ coef[k, i]·(t − pt0[k])^i on piece k (degree ≤ 5, mm), at rest
-    outside the pieces. ``sds_t`` > 0: hold each step back and drop it with an opposite step less than sds_t later
+    outside the pieces; with ``ik`` (a plug-in's inverse kinematics cfunc, :func:`_its_ik_position`) the motor
+    position is ``ik(x, y, z, params)`` of the x, y, z pieces in ``coef`` (12 columns) instead, Klipper's
+    calc_position callback (``period`` > 0: a cyclic motor, e.g. polar's bed, rad). ``sds_t`` > 0: hold each step back and drop it with an opposite step less than sds_t later
     (stepcompress.c); 0: no filter. ``state`` (I_*) carries everything between calls; the commanded position
     starts at the position of the first piece.
 
@@ -1378,7 +1446,7 @@ def itersolve_steps(flush_t, m_start, m_len, m_active, pre_t, post_t, pt0, pdt, 
     half = 0.5 * step_dist
     saved = np.empty(ITS_LEN)
     if state[I_STARTED] == 0.0:
-        p0, k0 = _its_position(pt0, pdt, coef, 0, state[I_START_T])
+        p0, k0 = _its_eval(pt0, pdt, coef, ik, params, period, 0.0, 0, state[I_START_T], 0.0)
         state[I_PIECE] = k0
         state[I_COMMANDED] = p0
         state[I_STARTED] = 1.0
@@ -1415,14 +1483,15 @@ def itersolve_steps(flush_t, m_start, m_len, m_active, pre_t, post_t, pt0, pdt, 
                         skip -= 1
                     while pm != mi:
                         out_n = _its_range(m_start[pm], m_len[pm], a0, F, pt0, pdt, coef, half, sds_t, state,
-                                           out_t, out_dir, out_n)
+                                           out_t, out_dir, out_n, ik, params, period)
                         if out_n < 0:
                             break
                         pm += 1
                     if out_n < 0:
                         full = True
                         break
-                out_n = _its_range(ms, m_len[mi], lft, F, pt0, pdt, coef, half, sds_t, state, out_t, out_dir, out_n)
+                out_n = _its_range(ms, m_len[mi], lft, F, pt0, pdt, coef, half, sds_t, state, out_t, out_dir, out_n,
+                                   ik, params, period)
                 if out_n < 0:
                     full = True
                     break
@@ -1437,7 +1506,7 @@ def itersolve_steps(flush_t, m_start, m_len, m_active, pre_t, post_t, pt0, pdt, 
                     # steps just past the activity (the shaper / smoothing lags behind)
                     a1 = force if force < F else F
                     out_n = _its_range(ms, m_len[mi], lft, a1, pt0, pdt, coef, half, sds_t, state, out_t, out_dir,
-                                       out_n)
+                                       out_n, ik, params, period)
                     if out_n < 0:
                         full = True
                         break
