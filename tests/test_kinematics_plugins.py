@@ -2,10 +2,14 @@
 
 Klipper's polar, rotary_delta, winch, deltesian, hybrid_corexy, hybrid_corexz and generic_cartesian, each a
 plug-in (gcodeplan.kinematics.plugin) read from Klipper's own printer.cfg: totals within 1e-9 relative, the
-same step count and net steps per motor, and every step within 100 ns of Klipper's. Rotary delta's motors are
-angles, and Klipper's search stops within 1e-9 rad of the half-step point (itersolve.c), which at the arms'
-slowest turns is more than 100 ns: there a step of ours off by more than 100 ns must have Klipper's own time
-within that tolerance of the half-step point (test_rotary_delta_steps_off_by_more_than_100ns_are_klippers_slack).
+same step count and net steps per motor, and every step within 100 ns of Klipper's (the plug-in motors run
+Klipper's own search, itersolve.c, with the inverse kinematics as its position callback). One exception, on the
+cube only: Klipper's batch mode makes its 0.25 s step-generation windows regularly for the first 100 of them
+(25 s) and then jumps ahead by how the file's 4096-byte reads fall (motion_queuing.py _flush_handler_debug); the
+search restarts at each window, and on a slowly turning angle motor (polar's bed, rotary delta's arms) a restart
+moves where it stops within its 1e-9 rad tolerance by more than 100 ns. Such a step must come after those first
+25 s, and both Klipper's time and ours must put the motor within that tolerance of the half-step point
+(assert_within_100ns_or_klippers_window_slack).
 A user's polar, written in this file outside the package, gives the built-in's steps bit for bit.
 """
 from __future__ import annotations
@@ -64,10 +68,14 @@ def angle_motors(m):
             if r.ik is not None and (r.period > 0.0 or m.kinematics == "rotary_delta")}
 
 
-def assert_within_100ns_or_klippers_slack(ours, ref, worst, m, lines):
-    """Every step within 100 ns of Klipper's, except on an angle motor where Klipper's search stopped within its
-    1e-9 rad tolerance (itersolve.c): there Klipper's time must put the motor within 1e-9 rad (plus the 10 ns
-    clock rounding) of the half-step point, and ours on it. Returns how many steps needed the slack."""
+KLIPPER_REGULAR_WINDOWS_S = 25.0    # s: Klipper's batch mode's first 100 windows of 0.25 s (module docstring)
+ITERSOLVE_CLOSE = 1e-9              # motor units: itersolve.c takes a guess this close to the half-step point
+
+
+def assert_within_100ns_or_klippers_window_slack(ours, ref, worst, m, lines):
+    """Every step within 100 ns of Klipper's, except on an angle motor after Klipper's regular windows (module
+    docstring), where both Klipper's time and ours must put the motor within itersolve's 1e-9 rad (plus the 10 ns
+    clock rounding) of the half-step point. Returns how many steps needed the slack."""
     from gcodeplan import api as gp
 
     angles = angle_motors(m)
@@ -82,6 +90,7 @@ def assert_within_100ns_or_klippers_slack(ours, ref, worst, m, lines):
         rt = ref[motor]
         k = len(rt)
         bad = np.flatnonzero(np.abs(t[:k] - rt) > TOL_S)
+        assert np.all(rt[bad] > KLIPPER_REGULAR_WINDOWS_S), f"{motor}: off by > 100 ns within the regular windows"
         plan = plan or gp.plan(lines, m)
         params = np.array(rail.ik_params)
         ik = getattr(rail.ik, "py_func", rail.ik)
@@ -100,8 +109,8 @@ def assert_within_100ns_or_klippers_slack(ours, ref, worst, m, lines):
         rate = np.abs(angle(t[bad] + h) - angle(t[bad] - h)) / (2 * h)
         klipper_off = np.abs(angle(rt[bad]) - target)
         ours_off = np.abs(angle(t[bad]) - target)
-        assert np.all(klipper_off <= 1e-9 + rate * 10e-9 + 1e-12), f"{motor}: beyond Klipper's own tolerance"
-        assert np.all(ours_off <= 1e-11), f"{motor}: our step is off its half-step point"
+        assert np.all(klipper_off <= ITERSOLVE_CLOSE + rate * 10e-9 + 1e-12), f"{motor}: beyond Klipper's tolerance"
+        assert np.all(ours_off <= ITERSOLVE_CLOSE + 1e-12), f"{motor}: beyond itersolve's tolerance"
         slack += len(bad)
     return slack
 
@@ -109,18 +118,15 @@ def assert_within_100ns_or_klippers_slack(ours, ref, worst, m, lines):
 @pytest.mark.parametrize("config", CONFIGS)
 @pytest.mark.parametrize("name", FAST_FILES)
 def test_matches_klipper(name, config):
-    assert_within_100ns_or_klippers_slack(*run_case(name, config))
+    """Every step of the synthetic files within 100 ns of Klipper's, no exception."""
+    _, _, worst, _, _ = run_case(name, config)
+    assert max(worst.values()) < TOL_S, {k: f"{v * 1e9:.1f} ns" for k, v in worst.items()}
 
 
 @pytest.mark.slow
 @pytest.mark.parametrize("config", CONFIGS)
 def test_cube_matches_klipper(config):
-    assert_within_100ns_or_klippers_slack(*run_case(ck.CUBE, config))
-
-
-def test_rotary_delta_needs_klippers_slack_somewhere():
-    """The slack rule above is exercised: d_slicer_like's rotary delta has steps > 100 ns from Klipper's."""
-    assert assert_within_100ns_or_klippers_slack(*run_case("d_slicer_like", "rotary_delta")) > 0
+    assert_within_100ns_or_klippers_window_slack(*run_case(ck.CUBE, config))
 
 
 # ----------------------------------------------------------------- a user's plug-in, outside the package
