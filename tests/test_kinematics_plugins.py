@@ -315,27 +315,36 @@ def test_cli_plugin_file_registers_a_kinematics(tmp_path, capsys):
 
 # ----------------------------------------------------------------- the engine against closed forms
 
-def _line_piece(x0, y0, vx, vy, span):
-    one = lambda *v: np.array([v], np.float64)       # noqa: E731
-    return (np.zeros(1), np.array([span]), one(x0, y0, 0.0), one(vx, vy, 0.0), one(0.0, 0.0, 0.0),
-            one(0.0, 0.0, 0.0))
+def _line_rows(x0, y0, vx, vy, spans):
+    """SEGMENT rows of a straight line at constant velocity (vx, vy) mm/s from (x0, y0), one row per span (s)."""
+    from gcodeplan.schema import SEGMENT_DTYPE
+
+    seg = np.zeros(len(spans), SEGMENT_DTYPE)
+    t = np.concatenate(([0.0], np.cumsum(spans)[:-1]))
+    seg["t0"], seg["dt"] = t, spans
+    seg["px"], seg["py"] = x0 + vx * t, y0 + vy * t
+    seg["vx"], seg["vy"] = vx, vy
+    seg["move"] = np.arange(len(spans))
+    return seg
+
+
+def _ik_rail(fn, params, step):
+    from gcodeplan.kinematics import Rail
+
+    return Rail("m", 1.0 / step, None, ik=fn, ik_params=tuple(params))
 
 
 def test_engine_finds_both_crossings_around_a_turning_point():
     """An arm radius r = √(d² + (v·t − s0)²) along a straight line passing the centre at d = 20 mm: the radius
     falls, turns at t = s0/v and rises. Every half-step crossing is at t = (s0 ± √(r*² − d²))/v (closed form);
-    the reversal steps on the other side's half-step point (the hysteresis)."""
+    the reversal steps on the other side's half-step point (the hysteresis). Klipper's search takes a time
+    within 1 ns of the crossing or a position within 1e-9 mm of it (itersolve.c): every step must be one of those."""
     from gcodeplan.kinematics.polar import arm_radius
-    from gcodeplan.kinematics.plugin import ik_cfunc
-    from gcodeplan.stepper import kernel
+    from gcodeplan.stepper.generate import generate_steps
 
     d, s0, v, step = 20.0, 30.0, 100.0, 0.0125
-    t0, dt, p, vel, a, j = _line_piece(-s0, d, v, 0.0, 0.6)
-    out_t, out_d = np.empty(20000), np.empty(20000, np.int8)
-    state = kernel.new_state()
-    nxt, n, need = kernel.gen_steps_ik(t0, dt, p, vel, a, j, np.zeros(1, np.uint8), ik_cfunc(arm_radius),
-                                       np.zeros(1), 0.0, step, state, 0, out_t, out_d, 0)
-    assert (nxt, need) == (1, 0)
+    seg = _line_rows(-s0, d, v, 0.0, np.array([0.6]))
+    t, dirs = generate_steps(seg, rails=[_ik_rail(arm_radius, (), step)])["m"]
     r0 = math.hypot(s0, d)
     r_end = math.hypot(v * 0.6 - s0, d)
     down = np.arange(1, 10_000)
@@ -346,42 +355,37 @@ def test_engine_finds_both_crossings_around_a_turning_point():
     up_r = last + (np.arange(1, 10_000) - 0.5) * step
     up_r = up_r[up_r <= r_end]
     expect = np.concatenate(((s0 - np.sqrt(down_r ** 2 - d * d)) / v, (s0 + np.sqrt(up_r ** 2 - d * d)) / v))
-    assert n == len(expect)
-    assert np.array_equal(out_d[:n], np.r_[-np.ones(n_down), np.ones(len(up_r))].astype(np.int8))
-    assert np.max(np.abs(out_t[:n] - expect)) < 1e-9
+    assert len(t) == len(expect)
+    assert np.array_equal(dirs, np.r_[-np.ones(n_down), np.ones(len(up_r))].astype(np.int8))
+    r_at = np.hypot(v * t - s0, d)
+    r_target = np.concatenate((down_r, up_r))
+    ok = (np.abs(t - expect) <= 1e-9 + 1e-15) | (np.abs(r_at - r_target) <= 1e-9 + 1e-13)
+    assert ok.all(), np.flatnonzero(~ok)[:5]
+    # and the search is no looser than that: most steps are far closer to the crossing than 1 ns
+    assert np.median(np.abs(t - expect)) < 1e-10
 
 
 def test_engine_resumes_when_its_output_is_full():
-    """The output-full protocol: a buffer too small for a piece returns need = its step count and no step of it;
-    fed piece by piece into small buffers, the engine gives the one-buffer steps bit for bit."""
+    """The output-full protocol: with a buffer of 10 steps (one window holds more: it grows), the steps equal
+    those made with one big buffer, bit for bit."""
     from gcodeplan.kinematics.winch import cable_length
-    from gcodeplan.kinematics.plugin import ik_cfunc
-    from gcodeplan.stepper import kernel
+    from gcodeplan.stepper.generate import StepGenerator
 
-    fn = ik_cfunc(cable_length)
-    anchor = np.array([110.0, -290.0, -20.0])
-    pieces = [_line_piece(0.0, 0.0, 50.0, 20.0, 0.5), _line_piece(25.0, 10.0, -40.0, 30.0, 0.5)]
-    cols = [np.concatenate([pc[k] for pc in pieces]) for k in range(6)]
-    cols[0] = np.array([0.0, 0.5])
-    reset = np.zeros(2, np.uint8)
-    big_t, big_d = np.empty(100000), np.empty(100000, np.int8)
-    _, n_all, _ = kernel.gen_steps_ik(*cols, reset, fn, anchor, 0.0, 1 / 80, kernel.new_state(), 0, big_t, big_d, 0)
-    small_t, small_d = np.empty(10), np.empty(10, np.int8)
-    state = kernel.new_state()
-    got_t, got_d, start, grown = [], [], 0, 0
-    while start < 2:
-        nxt, n, need = kernel.gen_steps_ik(*cols, reset, fn, anchor, 0.0, 1 / 80, state, start, small_t, small_d, 0)
-        if n == 0 and need > 0:         # the piece does not fit: nothing of it was written; grow, as the generator
-            assert nxt == start and need > len(small_t)
-            small_t, small_d = np.empty(need), np.empty(need, np.int8)
-            grown += 1
-            continue
-        got_t.append(small_t[:n].copy())
-        got_d.append(small_d[:n].copy())
-        start = nxt
-    assert grown >= 1
-    assert np.array_equal(np.concatenate(got_t), big_t[:n_all])
-    assert np.array_equal(np.concatenate(got_d), big_d[:n_all])
+    rail = _ik_rail(cable_length, (110.0, -290.0, -20.0), 1 / 80)
+    seg = _line_rows(0.0, 0.0, 50.0, 20.0, np.full(4, 0.25))
+
+    def run(chunk):
+        parts = []
+        gen = StepGenerator([rail], lambda si, t, d: parts.append((t.copy(), d.copy())), chunk_steps=chunk)
+        gen.feed(seg[:2])
+        gen.feed(seg[2:])
+        gen.finish()
+        return np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts]), len(parts)
+
+    big_t, big_d, _ = run(1 << 16)
+    small_t, small_d, n_parts = run(10)
+    assert n_parts > 1 and len(big_t) > 100
+    assert np.array_equal(small_t, big_t) and np.array_equal(small_d, big_d)
 
 
 @pytest.mark.parametrize("config", CONFIGS)
