@@ -405,6 +405,22 @@ def test_engine_resumes_when_its_output_is_full():
     assert np.array_equal(small_t, big_t) and np.array_equal(small_d, big_d)
 
 
+def test_engine_refuses_a_position_the_kinematics_cannot_give():
+    """A motor position √(100 − x²) mm along x = 0 → 15 mm: no position past x = 10 (NaN), which the search would
+    otherwise take for a step: a clear error naming the motor and the time, no steps made up."""
+    import numba
+
+    from gcodeplan.stepper.generate import generate_steps
+
+    @numba.njit
+    def half_circle(x, y, z, p):
+        return math.sqrt(100.0 - x * x)
+
+    seg = _line_rows(0.0, 0.0, 15.0, 0.0, np.array([0.5, 0.5]))
+    with pytest.raises(ConfigError, match=r"m: the kinematics cannot reach the position at t = 0\.5 s"):
+        generate_steps(seg, rails=[_ik_rail(half_circle, (), 0.01)])
+
+
 @pytest.mark.parametrize("config", CONFIGS)
 def test_klipper_configs_have_a_toml_twin_with_the_same_steps(config, tmp_path):
     """Each reference printer.cfg read, written as a machine TOML (kinematics + [kinematics_params]) and read

@@ -8,9 +8,10 @@ height of the x, y, z pieces itself). A full buffer is handed to ``sink(stepper_
 reused, so memory stays bounded whatever the file size. The optional
 step+dir+step filter and the per-stepper statistics run on the way out.
 
-Motors whose position is shaped or pressure-advanced (linear kinematics) take Klipper's own search instead
-(:func:`kernel.itersolve_steps`, docs/design.md §11): its trapq (:class:`_Trapq`) and step-generation
-windows decide where the search restarts, and it skips the excursions Klipper's probes miss.
+Motors whose position is shaped or pressure-advanced (linear kinematics), and every plug-in motor (an
+inverse-kinematics function as the search's position callback, as Klipper's calc_position), take Klipper's own
+search instead (:func:`kernel.itersolve_steps`, docs/design.md §11): its trapq (:class:`_Trapq`) and
+step-generation windows decide where the search restarts, and it skips the excursions Klipper's probes miss.
 """
 from __future__ import annotations
 
@@ -52,8 +53,9 @@ class StepGenerator:
     (:mod:`.shaping`) turns the pieces of the motors that move with X or Y; pressure
     advance (:mod:`.pressure_advance`) those of a motor that drives E alone; Z and pure
     extruder motors without pressure advance see the planner's pieces untouched. A linear motor while
-    shaped or smoothed is stepped by Klipper's own search (:class:`_Itersolve`), which applies the
-    step+dir+step filter the way Klipper's stepcompress does (when ``sds_filter_t`` is set).
+    shaped or smoothed, and a plug-in motor (its ``ik``) always, is stepped by Klipper's own search
+    (:class:`_Itersolve`), which applies the step+dir+step filter the way Klipper's stepcompress does (when
+    ``sds_filter_t`` is set).
     """
 
     def __init__(self, rails: list[Rail], sink: Sink, *, chunk_steps: int = DEFAULT_CHUNK_STEPS,
@@ -472,11 +474,12 @@ class StepGenerator:
             if horizon is not None and self._its_mode[si]:
                 self._run_its(si, horizon)
             return
-        if not (np.all(np.isfinite(dt)) and np.all(np.isfinite(p[:, :3])) and np.all(np.isfinite(v[:, :3]))
-                and np.all(np.isfinite(a[:, :3])) and np.all(np.isfinite(j[:, :3]))):
-            bad = int(np.flatnonzero(~(np.isfinite(dt) & np.isfinite(p[:, :3]).all(1) & np.isfinite(v[:, :3]).all(1)
-                                       & np.isfinite(a[:, :3]).all(1) & np.isfinite(j[:, :3]).all(1)))[0])
-            raise RuntimeError(f"{self.rails[si].name}: plan piece at t = {t0[bad]!r} s has a non-finite "
+        finite = np.isfinite(dt)
+        for col in (p, v, a, j):
+            finite &= np.isfinite(col[:, :3]).all(axis=1)
+        if not finite.all():
+            bad = int(np.flatnonzero(~finite)[0])
+            raise RuntimeError(f"{self.rails[si].name}: plan piece at t = {float(t0[bad])!r} s has a non-finite "
                                f"coefficient (a planner bug)")
         fn = self._ik_callback(si)
         rail = self.rails[si]
@@ -495,7 +498,7 @@ class StepGenerator:
         pos = kernel.ik_positions(fn, self._ik_params[si], xyz[0].ravel(), xyz[1].ravel(), xyz[2].ravel())
         if not np.all(np.isfinite(pos)):
             k = int(np.flatnonzero(~np.isfinite(pos))[0]) // (kernel.IK_CHECK_SAMPLES + 1)
-            raise ConfigError(f"{rail.name}: the kinematics cannot reach the position at t = {t0[k]!r} s "
+            raise ConfigError(f"{rail.name}: the kinematics cannot reach the position at t = {float(t0[k])!r} s "
                               f"(its inverse kinematics gives no motor position there)")
         cuts = [0] + (np.flatnonzero(reset[1:] == kernel.RESET_ANCHOR) + 1).tolist() + [n_pieces]
         for i0, i1 in zip(cuts[:-1], cuts[1:]):
