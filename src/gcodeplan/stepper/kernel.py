@@ -1172,7 +1172,7 @@ def _its_ik_position(pt0, pdt, coef, ik, params, period, ref, k, base, t):
     return m, k
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _its_eval(pt0, pdt, coef, ik, params, period, ref, k, base, t):
     """The search's position callback at time base + t (s): the polynomial pieces (``ik`` None:
     :func:`_its_position`, compiled away) or a plug-in's inverse kinematics of the x, y, z pieces
@@ -1182,7 +1182,7 @@ def _its_eval(pt0, pdt, coef, ik, params, period, ref, k, base, t):
     return _its_ik_position(pt0, pdt, coef, ik, params, period, ref, k, base, t)
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", inline="always")
 def _its_range(m_start, m_len, abs_start, abs_end, pt0, pdt, coef, half, sds_t, st, out_t, out_dir, out_n,
                ik, params, period):
     """One itersolve_gen_steps_range call: the steps of trapq move [m_start, m_start + m_len] inside
