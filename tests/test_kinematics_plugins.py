@@ -2,10 +2,14 @@
 
 Klipper's polar, rotary_delta, winch, deltesian, hybrid_corexy, hybrid_corexz and generic_cartesian, each a
 plug-in (gcodeplan.kinematics.plugin) read from Klipper's own printer.cfg: totals within 1e-9 relative, the
-same step count and net steps per motor, and every step within 100 ns of Klipper's. Rotary delta's motors are
-angles, and Klipper's search stops within 1e-9 rad of the half-step point (itersolve.c), which at the arms'
-slowest turns is more than 100 ns: there a step of ours off by more than 100 ns must have Klipper's own time
-within that tolerance of the half-step point (test_rotary_delta_steps_off_by_more_than_100ns_are_klippers_slack).
+same step count and net steps per motor, and every step within 100 ns of Klipper's (the plug-in motors run
+Klipper's own search, itersolve.c, with the inverse kinematics as its position callback). One exception, on the
+cube only: Klipper's batch mode makes its 0.25 s step-generation windows regularly for the first 100 of them
+(25 s) and then jumps ahead by how the file's 4096-byte reads fall (motion_queuing.py _flush_handler_debug); the
+search restarts at each window, and on a slowly turning angle motor (polar's bed, rotary delta's arms) a restart
+moves where it stops within its 1e-9 rad tolerance by more than 100 ns. Such a step must come after those first
+25 s, and both Klipper's time and ours must put the motor within that tolerance of the half-step point
+(assert_within_100ns_or_klippers_window_slack).
 A user's polar, written in this file outside the package, gives the built-in's steps bit for bit.
 """
 from __future__ import annotations
@@ -64,10 +68,14 @@ def angle_motors(m):
             if r.ik is not None and (r.period > 0.0 or m.kinematics == "rotary_delta")}
 
 
-def assert_within_100ns_or_klippers_slack(ours, ref, worst, m, lines):
-    """Every step within 100 ns of Klipper's, except on an angle motor where Klipper's search stopped within its
-    1e-9 rad tolerance (itersolve.c): there Klipper's time must put the motor within 1e-9 rad (plus the 10 ns
-    clock rounding) of the half-step point, and ours on it. Returns how many steps needed the slack."""
+KLIPPER_REGULAR_WINDOWS_S = 25.0    # s: Klipper's batch mode's first 100 windows of 0.25 s (module docstring)
+ITERSOLVE_CLOSE = 1e-9              # motor units: itersolve.c takes a guess this close to the half-step point
+
+
+def assert_within_100ns_or_klippers_window_slack(ours, ref, worst, m, lines):
+    """Every step within 100 ns of Klipper's, except on an angle motor after Klipper's regular windows (module
+    docstring), where both Klipper's time and ours must put the motor within itersolve's 1e-9 rad (plus the 10 ns
+    clock rounding) of the half-step point. Returns how many steps needed the slack."""
     from gcodeplan import api as gp
 
     angles = angle_motors(m)
@@ -82,6 +90,7 @@ def assert_within_100ns_or_klippers_slack(ours, ref, worst, m, lines):
         rt = ref[motor]
         k = len(rt)
         bad = np.flatnonzero(np.abs(t[:k] - rt) > TOL_S)
+        assert np.all(rt[bad] > KLIPPER_REGULAR_WINDOWS_S), f"{motor}: off by > 100 ns within the regular windows"
         plan = plan or gp.plan(lines, m)
         params = np.array(rail.ik_params)
         ik = getattr(rail.ik, "py_func", rail.ik)
@@ -100,8 +109,8 @@ def assert_within_100ns_or_klippers_slack(ours, ref, worst, m, lines):
         rate = np.abs(angle(t[bad] + h) - angle(t[bad] - h)) / (2 * h)
         klipper_off = np.abs(angle(rt[bad]) - target)
         ours_off = np.abs(angle(t[bad]) - target)
-        assert np.all(klipper_off <= 1e-9 + rate * 10e-9 + 1e-12), f"{motor}: beyond Klipper's own tolerance"
-        assert np.all(ours_off <= 1e-11), f"{motor}: our step is off its half-step point"
+        assert np.all(klipper_off <= ITERSOLVE_CLOSE + rate * 10e-9 + 1e-12), f"{motor}: beyond Klipper's tolerance"
+        assert np.all(ours_off <= ITERSOLVE_CLOSE + 1e-12), f"{motor}: beyond itersolve's tolerance"
         slack += len(bad)
     return slack
 
@@ -109,18 +118,32 @@ def assert_within_100ns_or_klippers_slack(ours, ref, worst, m, lines):
 @pytest.mark.parametrize("config", CONFIGS)
 @pytest.mark.parametrize("name", FAST_FILES)
 def test_matches_klipper(name, config):
-    assert_within_100ns_or_klippers_slack(*run_case(name, config))
+    """Every step of the synthetic files within 100 ns of Klipper's, no exception."""
+    _, _, worst, _, _ = run_case(name, config)
+    assert max(worst.values()) < TOL_S, {k: f"{v * 1e9:.1f} ns" for k, v in worst.items()}
+
+
+@pytest.mark.parametrize("config", ["polar", "rotary_delta", "winch", "deltesian"])
+def test_klippers_own_windows_give_klippers_steps(config):
+    """With Klipper's recorded batch windows (the compression reference's run of d_slicer_like, whose batch mode
+    jumps from 25 s to 33 s), the search restarts where Klipper's did, and every step of the non-linear motors is
+    Klipper's to two clock ticks (40 ns; 74 ns on rotary delta's arm b with regular 0.25 s windows)."""
+    kin_ref()
+    sched = ck.batch_schedule("d_slicer_like")
+    if sched is None:
+        pytest.skip("no recorded batch windows (../shared/reference/klipper/compression)")
+    assert np.any(np.diff(sched) > 1.0)          # the jump that the regular windows miss
+    info, ref = ck.reference("d_slicer_like", config)
+    m = ck.machine(config)
+    ours = ck.klipper_steps(ck.source_lines("d_slicer_like", config), m, sched)
+    ok, worst = ck.compare_steps(ours, ref, info["steps"]["steppers"])
+    assert ok and worst < 40e-9, f"{worst * 1e9:.1f} ns"
 
 
 @pytest.mark.slow
 @pytest.mark.parametrize("config", CONFIGS)
 def test_cube_matches_klipper(config):
-    assert_within_100ns_or_klippers_slack(*run_case(ck.CUBE, config))
-
-
-def test_rotary_delta_needs_klippers_slack_somewhere():
-    """The slack rule above is exercised: d_slicer_like's rotary delta has steps > 100 ns from Klipper's."""
-    assert assert_within_100ns_or_klippers_slack(*run_case("d_slicer_like", "rotary_delta")) > 0
+    assert_within_100ns_or_klippers_window_slack(*run_case(ck.CUBE, config))
 
 
 # ----------------------------------------------------------------- a user's plug-in, outside the package
@@ -309,27 +332,36 @@ def test_cli_plugin_file_registers_a_kinematics(tmp_path, capsys):
 
 # ----------------------------------------------------------------- the engine against closed forms
 
-def _line_piece(x0, y0, vx, vy, span):
-    one = lambda *v: np.array([v], np.float64)       # noqa: E731
-    return (np.zeros(1), np.array([span]), one(x0, y0, 0.0), one(vx, vy, 0.0), one(0.0, 0.0, 0.0),
-            one(0.0, 0.0, 0.0))
+def _line_rows(x0, y0, vx, vy, spans):
+    """SEGMENT rows of a straight line at constant velocity (vx, vy) mm/s from (x0, y0), one row per span (s)."""
+    from gcodeplan.schema import SEGMENT_DTYPE
+
+    seg = np.zeros(len(spans), SEGMENT_DTYPE)
+    t = np.concatenate(([0.0], np.cumsum(spans)[:-1]))
+    seg["t0"], seg["dt"] = t, spans
+    seg["px"], seg["py"] = x0 + vx * t, y0 + vy * t
+    seg["vx"], seg["vy"] = vx, vy
+    seg["move"] = np.arange(len(spans))
+    return seg
+
+
+def _ik_rail(fn, params, step):
+    from gcodeplan.kinematics import Rail
+
+    return Rail("m", 1.0 / step, None, ik=fn, ik_params=tuple(params))
 
 
 def test_engine_finds_both_crossings_around_a_turning_point():
     """An arm radius r = √(d² + (v·t − s0)²) along a straight line passing the centre at d = 20 mm: the radius
     falls, turns at t = s0/v and rises. Every half-step crossing is at t = (s0 ± √(r*² − d²))/v (closed form);
-    the reversal steps on the other side's half-step point (the hysteresis)."""
+    the reversal steps on the other side's half-step point (the hysteresis). Klipper's search takes a time
+    within 1 ns of the crossing or a position within 1e-9 mm of it (itersolve.c): every step must be one of those."""
     from gcodeplan.kinematics.polar import arm_radius
-    from gcodeplan.kinematics.plugin import ik_cfunc
-    from gcodeplan.stepper import kernel
+    from gcodeplan.stepper.generate import generate_steps
 
     d, s0, v, step = 20.0, 30.0, 100.0, 0.0125
-    t0, dt, p, vel, a, j = _line_piece(-s0, d, v, 0.0, 0.6)
-    out_t, out_d = np.empty(20000), np.empty(20000, np.int8)
-    state = kernel.new_state()
-    nxt, n, need = kernel.gen_steps_ik(t0, dt, p, vel, a, j, np.zeros(1, np.uint8), ik_cfunc(arm_radius),
-                                       np.zeros(1), 0.0, step, state, 0, out_t, out_d, 0)
-    assert (nxt, need) == (1, 0)
+    seg = _line_rows(-s0, d, v, 0.0, np.array([0.6]))
+    t, dirs = generate_steps(seg, rails=[_ik_rail(arm_radius, (), step)])["m"]
     r0 = math.hypot(s0, d)
     r_end = math.hypot(v * 0.6 - s0, d)
     down = np.arange(1, 10_000)
@@ -340,42 +372,53 @@ def test_engine_finds_both_crossings_around_a_turning_point():
     up_r = last + (np.arange(1, 10_000) - 0.5) * step
     up_r = up_r[up_r <= r_end]
     expect = np.concatenate(((s0 - np.sqrt(down_r ** 2 - d * d)) / v, (s0 + np.sqrt(up_r ** 2 - d * d)) / v))
-    assert n == len(expect)
-    assert np.array_equal(out_d[:n], np.r_[-np.ones(n_down), np.ones(len(up_r))].astype(np.int8))
-    assert np.max(np.abs(out_t[:n] - expect)) < 1e-9
+    assert len(t) == len(expect)
+    assert np.array_equal(dirs, np.r_[-np.ones(n_down), np.ones(len(up_r))].astype(np.int8))
+    r_at = np.hypot(v * t - s0, d)
+    r_target = np.concatenate((down_r, up_r))
+    ok = (np.abs(t - expect) <= 1e-9 + 1e-15) | (np.abs(r_at - r_target) <= 1e-9 + 1e-13)
+    assert ok.all(), np.flatnonzero(~ok)[:5]
+    # and the search is no looser than that: most steps are far closer to the crossing than 1 ns
+    assert np.median(np.abs(t - expect)) < 1e-10
 
 
 def test_engine_resumes_when_its_output_is_full():
-    """The output-full protocol: a buffer too small for a piece returns need = its step count and no step of it;
-    fed piece by piece into small buffers, the engine gives the one-buffer steps bit for bit."""
+    """The output-full protocol: with a buffer of 10 steps (one window holds more: it grows), the steps equal
+    those made with one big buffer, bit for bit."""
     from gcodeplan.kinematics.winch import cable_length
-    from gcodeplan.kinematics.plugin import ik_cfunc
-    from gcodeplan.stepper import kernel
+    from gcodeplan.stepper.generate import StepGenerator
 
-    fn = ik_cfunc(cable_length)
-    anchor = np.array([110.0, -290.0, -20.0])
-    pieces = [_line_piece(0.0, 0.0, 50.0, 20.0, 0.5), _line_piece(25.0, 10.0, -40.0, 30.0, 0.5)]
-    cols = [np.concatenate([pc[k] for pc in pieces]) for k in range(6)]
-    cols[0] = np.array([0.0, 0.5])
-    reset = np.zeros(2, np.uint8)
-    big_t, big_d = np.empty(100000), np.empty(100000, np.int8)
-    _, n_all, _ = kernel.gen_steps_ik(*cols, reset, fn, anchor, 0.0, 1 / 80, kernel.new_state(), 0, big_t, big_d, 0)
-    small_t, small_d = np.empty(10), np.empty(10, np.int8)
-    state = kernel.new_state()
-    got_t, got_d, start, grown = [], [], 0, 0
-    while start < 2:
-        nxt, n, need = kernel.gen_steps_ik(*cols, reset, fn, anchor, 0.0, 1 / 80, state, start, small_t, small_d, 0)
-        if n == 0 and need > 0:         # the piece does not fit: nothing of it was written; grow, as the generator
-            assert nxt == start and need > len(small_t)
-            small_t, small_d = np.empty(need), np.empty(need, np.int8)
-            grown += 1
-            continue
-        got_t.append(small_t[:n].copy())
-        got_d.append(small_d[:n].copy())
-        start = nxt
-    assert grown >= 1
-    assert np.array_equal(np.concatenate(got_t), big_t[:n_all])
-    assert np.array_equal(np.concatenate(got_d), big_d[:n_all])
+    rail = _ik_rail(cable_length, (110.0, -290.0, -20.0), 1 / 80)
+    seg = _line_rows(0.0, 0.0, 50.0, 20.0, np.full(4, 0.25))
+
+    def run(chunk):
+        parts = []
+        gen = StepGenerator([rail], lambda si, t, d: parts.append((t.copy(), d.copy())), chunk_steps=chunk)
+        gen.feed(seg[:2])
+        gen.feed(seg[2:])
+        gen.finish()
+        return np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts]), len(parts)
+
+    big_t, big_d, _ = run(1 << 16)
+    small_t, small_d, n_parts = run(10)
+    assert n_parts > 1 and len(big_t) > 100
+    assert np.array_equal(small_t, big_t) and np.array_equal(small_d, big_d)
+
+
+def test_engine_refuses_a_position_the_kinematics_cannot_give():
+    """A motor position √(100 − x²) mm along x = 0 → 15 mm: no position past x = 10 (NaN), which the search would
+    otherwise take for a step: a clear error naming the motor and the time, no steps made up."""
+    import numba
+
+    from gcodeplan.stepper.generate import generate_steps
+
+    @numba.njit
+    def half_circle(x, y, z, p):
+        return math.sqrt(100.0 - x * x)
+
+    seg = _line_rows(0.0, 0.0, 15.0, 0.0, np.array([0.5, 0.5]))
+    with pytest.raises(ConfigError, match=r"m: the kinematics cannot reach the position at t = 0\.5 s"):
+        generate_steps(seg, rails=[_ik_rail(half_circle, (), 0.01)])
 
 
 @pytest.mark.parametrize("config", CONFIGS)

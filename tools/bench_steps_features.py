@@ -11,8 +11,8 @@ cartesian. Target: ≥ 50 M steps/s shaped. Shaped and pressure-advanced motors 
 (kernel.itersolve_steps: closed-form crossings where its probes cannot leave a monotone run, its probe
 sequence near turning points); delta towers keep the exact kernel.
 
-Then the kinematics plug-ins (issue 22): the generic step engine (kernel.gen_steps_ik, the motor position from
-a compiled inverse-kinematics function, a guarded root search) against the exact linear kernel on the same
+Then the kinematics plug-ins (issue 22): the generic step engine (kernel.itersolve_steps, Klipper's search with
+the motor position from a compiled inverse-kinematics function as its callback) against the exact linear kernel on the same
 cartesian plan — a plug-in whose three motors are ik functions x, y, z — (target: generic within 1.5× of
 linear per step), and steps/s per kinematics on Klipper's seven reference configs
 (../shared/reference/klipper/kinematics/*.cfg; polar on the input shifted by (+30, +30) mm as the reference is).

@@ -1,11 +1,12 @@
 #!/usr/bin/env python3
 """Compare gcodeplan's plug-in kinematics with real Klipper (../shared/reference/klipper/kinematics/).
 
-``python tools/compare_kinematics.py [--cube]`` prints a Markdown table: for each of Klipper's polar,
+``python tools/compare_kinematics.py [--cube] [--per-motor] [--schedule]`` prints a Markdown table: for each of Klipper's polar,
 rotary_delta, winch, deltesian, hybrid_corexy, hybrid_corexz and generic_cartesian and each reference file
 (b_square, c_circle200, d_slicer_like; with ``--cube`` also the PrusaSlicer cube's first 2032 lines), our total
 next to Klipper's, the relative difference, whether every motor has Klipper's step count and net steps, and the
-worst step-time difference. The inputs are prepared as the reference README says: the cube's G28 becomes
+worst step-time difference (``--per-motor``: each motor's too, on stderr; ``--schedule``: with Klipper's
+recorded batch windows where the compression reference has them, :func:`batch_schedule`). The inputs are prepared as the reference README says: the cube's G28 becomes
 ``SET_KINEMATIC_POSITION X=0 Y=0 Z=0``; for polar every X/Y coordinate is shifted by (+30, +30) mm (decimal
 arithmetic) so that no move passes the polar centre. The tests (tests/test_kinematics_plugins.py) use the same
 functions.
@@ -72,8 +73,22 @@ def machine(config: str):
     return load_klipper_config(str(KIN / f"{config}.cfg"))
 
 
-def klipper_steps(lines, m) -> dict[str, tuple[np.ndarray, np.ndarray]]:
-    """{stepper: (times s, dirs)} through the pipeline and the step sink, Klipper's names and filter."""
+def batch_schedule(name: str) -> np.ndarray | None:
+    """Klipper's batch-mode step-generation windows recorded for ``name`` by the compression reference (its
+    corexy run of the same file; s from the first move's start, the final flush left out), or None. Batch mode
+    makes 0.25 s windows but after 100 of them in one timer call jumps ahead by how the file's reads fall
+    (motion_queuing.py _flush_handler_debug); the search restarts at every window."""
+    key = CUBE if name in (CUBE, CUBE_KEY) else name
+    path = SHARED / "reference" / "klipper" / "compression" / f"{key}_corexy_queue_step.npz"
+    if not path.exists():
+        return None     # (the cube's is of the whole file: its first 2032 lines read alike, the plan may differ)
+    z = np.load(path)
+    return (z["step_gen_time_s"] - z["first_move_print_time_s"])[:-2]
+
+
+def klipper_steps(lines, m, flush_times=None) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """{stepper: (times s, dirs)} through the pipeline and the step sink, Klipper's names and filter;
+    ``flush_times``: the step-generation windows (:func:`batch_schedule`; default every 0.25 s)."""
     from gcodeplan import pipeline
     from gcodeplan.kinematics import rails_for
     from gcodeplan.stepper.source import StepSink
@@ -84,7 +99,10 @@ def klipper_steps(lines, m) -> dict[str, tuple[np.ndarray, np.ndarray]]:
     def sink(si, t, d):
         parts.setdefault(si, []).append((t.copy(), d.copy()))
 
-    pipeline.run(lines, m, sinks=[StepSink(rails, sink, sds_filter_t=KLIPPER_SDS_FILTER_T, machine=m)])
+    step_sink = StepSink(rails, sink, sds_filter_t=KLIPPER_SDS_FILTER_T, machine=m)
+    if flush_times is not None:
+        step_sink.generator.flush_times = np.asarray(flush_times, np.float64)
+    pipeline.run(lines, m, sinks=[step_sink])
     return {r.name: (np.concatenate([c[0] for c in parts[i]]) if parts.get(i) else np.empty(0),
                      np.concatenate([c[1] for c in parts[i]]) if parts.get(i) else np.empty(0, np.int8))
             for i, r in enumerate(rails)}
@@ -108,6 +126,7 @@ def compare_steps(ours, ref, figures):
     pairwise over the npz prefix (the cube's are the first n_steps_in_npz steps)."""
     counts_ok = True
     worst = 0.0
+    per_motor = {}
     for name, (t, d) in ours.items():
         full = figures[name]
         if len(t) != full["n_steps"] or int(d.sum(dtype=np.int64)) != full["net_steps"]:
@@ -119,7 +138,10 @@ def compare_steps(ours, ref, figures):
             counts_ok = False
             continue
         if k:
-            worst = max(worst, float(np.max(np.abs(t[:k] - rt))))
+            per_motor[name] = float(np.max(np.abs(t[:k] - rt)))
+            worst = max(worst, per_motor[name])
+    if figures is not None and "--per-motor" in sys.argv:
+        print("    " + ", ".join(f"{n} {w * 1e9:.1f} ns" for n, w in per_motor.items()), file=sys.stderr)
     return counts_ok, worst
 
 
@@ -136,7 +158,8 @@ def main() -> int:
             m = machine(config)
             lines = source_lines(name, config)
             ours = total(lines, m)
-            ok, worst = compare_steps(klipper_steps(lines, m), ref, info["steps"]["steppers"])
+            sched = batch_schedule(name) if "--schedule" in sys.argv else None
+            ok, worst = compare_steps(klipper_steps(lines, m, sched), ref, info["steps"]["steppers"])
             rel = (ours - info["total_time_s"]) / info["total_time_s"]
             print(f"| {name} | {config} | {info['total_time_s']:.9f} | {ours:.9f} | {rel:.1e} | "
                   f"{'equal' if ok else 'DIFFER'} | {worst * 1e9:.1f} |", flush=True)

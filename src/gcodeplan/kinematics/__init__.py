@@ -17,8 +17,8 @@ the delta kernel on the x, y, z pieces; the step convention and the output
 layout stay the same.
 
 Every other kinematics is a plug-in (:mod:`.plugin`, ``gcodeplan.kinematics.register``): motors given by a
-compiled inverse-kinematics function ``ik(x, y, z, params)`` (rails with ``ik`` set, stepped by the one
-generic engine :func:`gcodeplan.stepper.kernel.gen_steps_ik`) or by linear weights, plus an optional limits
+compiled inverse-kinematics function ``ik(x, y, z, params)`` (rails with ``ik`` set, stepped by Klipper's
+search :func:`gcodeplan.stepper.kernel.itersolve_steps` with ``ik`` as its position callback) or by linear weights, plus an optional limits
 hook the planner applies to every move. Klipper's polar, rotary_delta, winch, deltesian, hybrid_corexy,
 hybrid_corexz and generic_cartesian are built in that way. :mod:`.rail` holds :class:`Rail` and the table of
 built-in modules (imported by the modules without importing this package: no import cycle).

@@ -6,8 +6,8 @@ itersolve.c shared between them):
 * its motors: name, steps per unit of motor position (mm, or rad for a rotary joint) and how the motor
   position follows from the toolhead (x, y, z): either fixed weights over (x, y, z[, e]) (a linear motor,
   stepped by the exact polynomial kernel) or an **inverse-kinematics function** ``ik(x, y, z, params) ->
-  motor position``, compiled with numba, which the one generic step engine
-  (:func:`gcodeplan.stepper.kernel.gen_steps_ik`) is specialised for;
+  motor position``, compiled with numba: the position callback of the one step search
+  (:func:`gcodeplan.stepper.kernel.itersolve_steps`, Klipper's itersolve.c with its calc_position callback);
 * an optional **limits hook** ``check_move(move, params) -> (speed cap mm/s, accel cap mm/s², error code)``,
   compiled with numba: Klipper's ``check_move``, applied by the planner to every move as it streams
   (``move`` is a float64 vector indexed by the ``MV_*`` constants below; ``inf`` = no cap; a non-zero error

@@ -35,7 +35,7 @@ class Rail:
     ``tower``: a delta tower's (arm length² mm², tower x mm, tower y mm): the position is the carriage
     height z + √(arm² − (x − tower x)² − (y − tower y)²) (:mod:`.delta`); None otherwise.
     ``ik``: a plug-in's compiled inverse kinematics ``ik(x, y, z, params)`` → motor position (mm or rad),
-    stepped by the generic engine with ``ik_params`` (:mod:`.plugin`); ``period``: the period of a cyclic
+    stepped by Klipper's search (stepper.kernel.itersolve_steps) with ``ik_params`` (:mod:`.plugin`); ``period``: the period of a cyclic
     motor position (2π for a turntable), 0 for none. ``steps_per_mm`` is then steps per unit of that position.
     """
 

@@ -8,9 +8,10 @@ height of the x, y, z pieces itself). A full buffer is handed to ``sink(stepper_
 reused, so memory stays bounded whatever the file size. The optional
 step+dir+step filter and the per-stepper statistics run on the way out.
 
-Motors whose position is shaped or pressure-advanced (linear kinematics) take Klipper's own search instead
-(:func:`kernel.itersolve_steps`, docs/design.md §11): its trapq (:class:`_Trapq`) and step-generation
-windows decide where the search restarts, and it skips the excursions Klipper's probes miss.
+Motors whose position is shaped or pressure-advanced (linear kinematics), and every plug-in motor (an
+inverse-kinematics function as the search's position callback, as Klipper's calc_position), take Klipper's own
+search instead (:func:`kernel.itersolve_steps`, docs/design.md §11): its trapq (:class:`_Trapq`) and
+step-generation windows decide where the search restarts, and it skips the excursions Klipper's probes miss.
 """
 from __future__ import annotations
 
@@ -52,8 +53,9 @@ class StepGenerator:
     (:mod:`.shaping`) turns the pieces of the motors that move with X or Y; pressure
     advance (:mod:`.pressure_advance`) those of a motor that drives E alone; Z and pure
     extruder motors without pressure advance see the planner's pieces untouched. A linear motor while
-    shaped or smoothed is stepped by Klipper's own search (:class:`_Itersolve`), which applies the
-    step+dir+step filter the way Klipper's stepcompress does (when ``sds_filter_t`` is set).
+    shaped or smoothed, and a plug-in motor (its ``ik``) always, is stepped by Klipper's own search
+    (:class:`_Itersolve`), which applies the step+dir+step filter the way Klipper's stepcompress does (when
+    ``sds_filter_t`` is set).
     """
 
     def __init__(self, rails: list[Rail], sink: Sink, *, chunk_steps: int = DEFAULT_CHUNK_STEPS,
@@ -81,7 +83,8 @@ class StepGenerator:
         self._xy_rails = [i for i, r in enumerate(self.rails)
                           if r.tower is not None or r.ik is not None
                           or (r.weights is not None and (r.weights[0] or r.weights[1]))]
-        # a plug-in motor's compiled inverse kinematics and its parameters (kernel.gen_steps_ik)
+        # a plug-in motor's compiled inverse kinematics and its parameters: the position callback of Klipper's
+        # search (kernel.itersolve_steps), which steps every plug-in motor
         self._ik_params = [None if r.ik is None else np.ascontiguousarray(r.ik_params or (0.0,), np.float64)
                            for r in self.rails]
         self._ik_fn = [None] * n      # the cfunc of each, made on first use (kinematics.plugin.ik_cfunc)
@@ -95,11 +98,11 @@ class StepGenerator:
         self._pending: list[tuple] = []
         self._pending_rows = 0
         self._last_settings = None
-        # Klipper's own search on the shaped / pressure-advanced motors (linear rails; delta towers keep the
-        # exact kernel): one trapq per motion queue, one search state per motor
+        # Klipper's own search on the shaped / pressure-advanced linear motors and on every plug-in motor (delta
+        # towers keep the exact kernel): one trapq per motion queue, one search state per motor
+        self._ik_rails = [i for i, r in enumerate(self.rails) if r.ik is not None]
         self._trapq_xy = _Trapq(BIT_KIN, lambda bits: bits,
-                                sum(self.rails[i].tower is None and self.rails[i].ik is None
-                                    for i in self._xy_rails))
+                                sum(self.rails[i].tower is None for i in self._xy_rails))
         self._trapq_e = _Trapq(BIT_E, lambda bits: np.where(bits & BIT_E, BIT_E, 0), len(self._e_rails))
         self._its: dict[int, _Itersolve] = {}
         self._its_mode = [False] * n         # rail currently stepped by the search (else the exact kernels)
@@ -159,6 +162,8 @@ class StepGenerator:
         st = self._piece_settings(segments, moves, limits, first_move)
         if st is None and self._plain:
             cols = None
+            if self._ik_rails:
+                self._trapq_xy.add(segments["t0"], segments["dt"], _row_bits(segments, moves, first_move))
             for si, rail in enumerate(self.rails):
                 if rail.tower is not None or rail.ik is not None:
                     cols = cols or _xyz_columns(segments)
@@ -257,7 +262,10 @@ class StepGenerator:
                 if cols is None:
                     cols = _xyz_columns(out) if isinstance(out, np.ndarray) else (out.t0, out.dt, out.p, out.v,
                                                                                   out.a, out.j)
-                (self._run_delta if rail.ik is None else self._run_ik)(si, *cols, rs)
+                if rail.ik is None:
+                    self._run_delta(si, *cols, rs)
+                else:
+                    self._run_ik(si, *cols, rs, reach=_reach(cur.stream, rail, False), horizon=horizon)
                 continue
             reach = _reach(cur.stream, rail, si in self._e_rails)
             if reach != (0.0, 0.0) and not isinstance(out, np.ndarray):
@@ -289,10 +297,18 @@ class StepGenerator:
         rail = self.rails[si]
         if its is None:
             trapq = self._trapq_e if si in self._e_rails else self._trapq_xy
-            mask = BIT_E if si in self._e_rails else (BIT_X * (rail.weights[0] != 0) | BIT_Y * (rail.weights[1] != 0)
-                                                      | BIT_Z * (rail.weights[2] != 0))
+            if rail.ik is not None:
+                # a plug-in motor may move with any of X, Y, Z (Klipper's rotary delta, winch: AF_X | AF_Y | AF_Z;
+                # a move that leaves it still gives no step either way)
+                mask = BIT_X | BIT_Y | BIT_Z
+            elif si in self._e_rails:
+                mask = BIT_E
+            else:
+                mask = BIT_X * (rail.weights[0] != 0) | BIT_Y * (rail.weights[1] != 0) | BIT_Z * (rail.weights[2] != 0)
             its = self._its[si] = _Itersolve(trapq, int(mask), rail.step_dist, self.sds_filter_t or 0.0,
                                              self.flush_times)
+            if rail.ik is not None:
+                its.set_ik(self._ik_callback(si), self._ik_params[si], rail.period)
         if flag == kernel.RESET_ANCHOR and self._its_mode[si]:
             self._close_its(si, t_from)
             its.restart(t_from)
@@ -439,24 +455,57 @@ class StepGenerator:
                                   f"(outside the delta's reach)")
             start = self._after_kernel(si, t0, nxt, fill, need, n_pieces)
 
-    def _run_ik(self, si, t0, dt, p, v, a, j, reset):
-        """Steps of plug-in motor ``si`` (its compiled inverse kinematics) from pieces with (n, ≥3) x, y, z
-        coefficient columns: the generic engine, :func:`kernel.gen_steps_ik`."""
-        start = 0
-        n_pieces = len(t0)
-        rail = self.rails[si]
+    def _ik_callback(self, si):
+        """Plug-in motor ``si``'s compiled inverse kinematics (made on first use)."""
         if self._ik_fn[si] is None:
             from ..kinematics.plugin import ik_cfunc
 
-            self._ik_fn[si] = ik_cfunc(rail.ik)
-        while start < n_pieces:
-            nxt, fill, need = kernel.gen_steps_ik(t0, dt, p, v, a, j, reset, self._ik_fn[si], self._ik_params[si],
-                                                  rail.period, rail.step_dist, self.states[si], start,
-                                                  self._buf_t[si], self._buf_d[si], self._fill[si])
-            if need == -2:
-                raise ConfigError(f"{rail.name}: the kinematics cannot reach the position at t = {t0[nxt]!r} s "
-                                  f"(its inverse kinematics gives no motor position there)")
-            start = self._after_kernel(si, t0, nxt, fill, need, n_pieces)
+            self._ik_fn[si] = ik_cfunc(self.rails[si].ik)
+        return self._ik_fn[si]
+
+    def _run_ik(self, si, t0, dt, p, v, a, j, reset, reach=(0.0, 0.0), horizon=None):
+        """Steps of plug-in motor ``si`` from pieces with (n, ≥3) x, y, z coefficient columns: Klipper's search
+        (:func:`kernel.itersolve_steps`) with the motor's inverse kinematics as its position callback, as
+        Klipper's itersolve.c takes each kinematics' calc_position. ``reach``: the shaper's (pre, post) s;
+        ``horizon``: where the pieces known so far end (None: the pieces' end). A position set at a row
+        (RESET_ANCHOR) ends a step-generation window there and restarts the search (itersolve_set_position)."""
+        n_pieces = len(t0)
+        if n_pieces == 0:
+            if horizon is not None and self._its_mode[si]:
+                self._run_its(si, horizon)
+            return
+        finite = np.isfinite(dt)
+        for col in (p, v, a, j):
+            finite &= np.isfinite(col[:, :3]).all(axis=1)
+        if not finite.all():
+            bad = int(np.flatnonzero(~finite)[0])
+            raise RuntimeError(f"{self.rails[si].name}: plan piece at t = {float(t0[bad])!r} s has a non-finite "
+                               f"coefficient (a planner bug)")
+        fn = self._ik_callback(si)
+        rail = self.rails[si]
+        coef = np.empty((n_pieces, kernel.IK_NCOEF))
+        for q in range(3):
+            coef[:, 4 * q] = p[:, q]
+            coef[:, 4 * q + 1] = v[:, q]
+            coef[:, 4 * q + 2] = 0.5 * a[:, q]
+            coef[:, 4 * q + 3] = j[:, q] * (1.0 / 6.0)
+        # every motor position the search may ask for must exist (a NaN would pass for a step): the function at
+        # IK_CHECK_SAMPLES + 1 points of each piece, as the earlier sampling engine checked it
+        s = dt[:, None] * np.linspace(0.0, 1.0, kernel.IK_CHECK_SAMPLES + 1)[None, :]
+        xyz = [coef[:, 4 * q, None] + s * (coef[:, 4 * q + 1, None] + s * (coef[:, 4 * q + 2, None]
+                                                                          + s * coef[:, 4 * q + 3, None]))
+               for q in range(3)]
+        pos = kernel.ik_positions(fn, self._ik_params[si], xyz[0].ravel(), xyz[1].ravel(), xyz[2].ravel())
+        if not np.all(np.isfinite(pos)):
+            k = int(np.flatnonzero(~np.isfinite(pos))[0]) // (kernel.IK_CHECK_SAMPLES + 1)
+            raise ConfigError(f"{rail.name}: the kinematics cannot reach the position at t = {float(t0[k])!r} s "
+                              f"(its inverse kinematics gives no motor position there)")
+        cuts = [0] + (np.flatnonzero(reset[1:] == kernel.RESET_ANCHOR) + 1).tolist() + [n_pieces]
+        for i0, i1 in zip(cuts[:-1], cuts[1:]):
+            its = self._enter_its(si, reach, float(t0[i0]), int(reset[i0]))
+            its.add_coef(t0[i0:i1], dt[i0:i1], coef[i0:i1])
+            end = float(t0[i1 - 1] + dt[i1 - 1])
+            self._run_its(si, end if horizon is None or i1 < n_pieces else horizon)
 
     def _run_poly(self, si, t0, dt, coef, reset):
         start = 0
@@ -603,7 +652,7 @@ def _reach(stream, rail: Rail, is_e: bool) -> tuple[float, float]:
         return float(stream.h), float(stream.h)
     pre = post = 0.0
     for q in (0, 1):
-        if rail.weights[q] == 0.0:
+        if rail.weights is not None and rail.weights[q] == 0.0:
             continue
         sel = (stream.ch_axis == q) & (stream.ch_tau != 0.0)
         if np.any(sel):
@@ -699,6 +748,17 @@ class _Itersolve:
         self.coef = np.zeros((0, kernel.POLY_NCOEF))
         self.pre_t = 0.0
         self.post_t = 0.0
+        self.ik = None              # a plug-in motor's position callback (set_ik)
+        self.ik_params = None
+        self.period = 0.0
+
+    def set_ik(self, ik, params, period) -> None:
+        """Position from a plug-in's inverse kinematics ``ik`` (cfunc) of x, y, z pieces (kernel.IK_NCOEF columns)
+        instead of polynomial pieces."""
+        self.ik = ik
+        self.ik_params = params
+        self.period = float(period or 0.0)
+        self.coef = np.zeros((0, kernel.IK_NCOEF))
 
     def add_pieces(self, t0, dt, p, v, a, j) -> None:
         c = np.zeros((len(t0), kernel.POLY_NCOEF))
@@ -740,7 +800,7 @@ class _Itersolve:
             self.next_flush = max(int(np.floor((t + KLIPPER_FIRST_MOVE_T) / KLIPPER_FLUSH_STEP_T + 1e-9)) + 1, 0)
         self.pt0 = np.zeros(0)
         self.pdt = np.zeros(0)
-        self.coef = np.zeros((0, kernel.POLY_NCOEF))
+        self.coef = np.zeros((0, self.coef.shape[1]))
         st[kernel.I_PIECE] = 0.0
         st[kernel.I_MOVE] = 0.0
         self.move_base = max(self.move_base, min(self.trapq.index_after(t - TRAPQ_KEEP_S),
@@ -748,7 +808,7 @@ class _Itersolve:
         self.running = True
 
     def end_position(self) -> float:
-        """The position (mm) at the end of the pieces received."""
+        """The position (mm) at the end of the pieces received (polynomial pieces)."""
         c = self.coef[-1]
         s = self.pdt[-1]
         return float(c[0] + s * (c[1] + s * (c[2] + s * (c[3] + s * (c[4] + s * c[5])))))
@@ -796,8 +856,14 @@ class _Itersolve:
         m_start = np.concatenate((tq.start[k0:], [tq.end]))
         m_len = np.concatenate((tq.length[k0:], [kernel.ITS_NEVER_S]))
         m_act = np.concatenate(((tq.bits[k0:] & self.mask) != 0, [False]))
-        done, out_n = kernel.itersolve_steps(w, m_start, m_len, m_act, self.pre_t, self.post_t, self.pt0, self.pdt,
-                                             self.coef, self.step_dist, self.sds_t, self.state, out_t, out_dir, out_n)
+        if self.ik is None:
+            done, out_n = kernel.itersolve_steps(w, m_start, m_len, m_act, self.pre_t, self.post_t, self.pt0,
+                                                 self.pdt, self.coef, self.step_dist, self.sds_t, self.state, out_t,
+                                                 out_dir, out_n)
+        else:
+            done, out_n = kernel.itersolve_steps(w, m_start, m_len, m_act, self.pre_t, self.post_t, self.pt0,
+                                                 self.pdt, self.coef, self.step_dist, self.sds_t, self.state, out_t,
+                                                 out_dir, out_n, self.ik, self.ik_params, self.period)
         if done:
             last = w[done - 1]
             if self.flush_times is not None:

@@ -1127,10 +1127,67 @@ def _its_position(pt0, pdt, coef, k, t):
     return coef[k, 0] + s * (coef[k, 1] + s * (coef[k, 2] + s * (coef[k, 3] + s * (coef[k, 4] + s * coef[k, 5])))), k
 
 
+IK_NCOEF = 12           # x, y, z pieces for the search's inverse-kinematics callback: p, v, a/2, j/6 per axis
+IK_CHECK_SAMPLES = 8    # points per piece where a plug-in motor's position is checked to exist before the search
+
+
+@njit(cache=True)
+def ik_positions(ik, params, x, y, z):
+    """``ik(x[i], y[i], z[i], params)`` for every i (motor positions; NaN where the kinematics cannot reach)."""
+    out = np.empty(x.shape[0])
+    for i in range(x.shape[0]):
+        out[i] = ik(x[i], y[i], z[i], params)
+    return out
+
+
+@njit(cache=True, inline="always")
+def _its_ik_position(pt0, pdt, coef, ik, params, period, ref, k, base, t):
+    """(motor position, piece index) at absolute time base + t through a plug-in's inverse kinematics ``ik`` (Klipper's
+    calc_position callback): x, y, z of piece k are coef[k, 4q:4q + 4] (p, v, a/2, j/6 of axis q), clamped to the
+    piece as in :func:`_its_position`. ``period`` > 0: a cyclic position taken on the branch within half a period of
+    ``ref`` (Klipper's polar bed compares atan2 with the commanded angle). The time into the piece is
+    (base − pt0[k]) + t, exactly t on the piece that starts the trapq move at ``base`` (Klipper evaluates a move
+    at its own time): the search's secant through two guesses a fraction of a nanometre apart would feel the
+    rounding of an absolute time."""
+    n = pt0.shape[0]
+    ta = base + t
+    while k > 0 and ta < pt0[k]:
+        k -= 1
+    while k + 1 < n and ta >= pt0[k + 1]:
+        k += 1
+    s = (base - pt0[k]) + t
+    if s < 0.0:
+        s = 0.0
+    elif s > pdt[k]:
+        s = pdt[k]
+    x = coef[k, 0] + s * (coef[k, 1] + s * (coef[k, 2] + s * coef[k, 3]))
+    y = coef[k, 4] + s * (coef[k, 5] + s * (coef[k, 6] + s * coef[k, 7]))
+    z = coef[k, 8] + s * (coef[k, 9] + s * (coef[k, 10] + s * coef[k, 11]))
+    m = ik(x, y, z, params)
+    if period > 0.0:
+        if m - ref > 0.5 * period:
+            m -= period
+        elif m - ref < -0.5 * period:
+            m += period
+    return m, k
+
+
+@njit(cache=True, inline="always")
+def _its_eval(pt0, pdt, coef, ik, params, period, ref, k, base, t):
+    """The search's position callback at time base + t (s): the polynomial pieces (``ik`` None:
+    :func:`_its_position`, compiled away) or a plug-in's inverse kinematics of the x, y, z pieces
+    (:func:`_its_ik_position`)."""
+    if ik is None:
+        return _its_position(pt0, pdt, coef, k, base + t)
+    return _its_ik_position(pt0, pdt, coef, ik, params, period, ref, k, base, t)
+
+
 @njit(cache=True, error_model="numpy", inline="always")
-def _its_range(m_start, m_len, abs_start, abs_end, pt0, pdt, coef, half, sds_t, st, out_t, out_dir, out_n):
+def _its_range(m_start, m_len, abs_start, abs_end, pt0, pdt, coef, half, sds_t, st, out_t, out_dir, out_n,
+               ik, params, period):
     """One itersolve_gen_steps_range call: the steps of trapq move [m_start, m_start + m_len] inside
-    [abs_start, abs_end]. Updates the state ``st``; returns the new out_n, or −1 when ``out_t`` is full."""
+    [abs_start, abs_end]. Updates the state ``st``; returns the new out_n, or −1 when ``out_t`` is full.
+    The position comes from :func:`_its_eval` (``ik``, ``params``, ``period``: see there)."""
     cap = out_t.shape[0]
     start = abs_start - m_start
     if start < 0.0:
@@ -1176,7 +1233,7 @@ def _its_range(m_start, m_len, abs_start, abs_end, pt0, pdt, coef, half, sds_t, 
         og_t = g_t
         og_p = g_p
         g_t = nxt
-        g_p, k = _its_position(pt0, pdt, coef, k, m_start + nxt)
+        g_p, k = _its_eval(pt0, pdt, coef, ik, params, period, commanded, k, m_start, nxt)
         g_d = g_p - target
         if abs(g_d) > ITS_CLOSE_MM:
             rel = g_d if sdir else -g_d
@@ -1249,6 +1306,8 @@ def _its_range(m_start, m_len, abs_start, abs_end, pt0, pdt, coef, half, sds_t, 
         is_dir_change = False
         have_bracket = False
         check_osc = False
+        if ik is not None:
+            continue
         # Fast path. While the next step is the crossing of a monotone run of quadratic pieces (trapezoid phases,
         # shaped or not) that Klipper's probes for it cannot leave — they stay below last + 2·max(interval, seek)
         # — its search finds exactly that crossing: take it in closed form, then hand the search the state
@@ -1350,7 +1409,14 @@ def _its_range(m_start, m_len, abs_start, abs_end, pt0, pdt, coef, half, sds_t, 
             high_t = g_t + seek
             if high_t > end:
                 high_t = end
-    st[I_COMMANDED] = target - half if sdir else target + half
+    commanded = target - half if sdir else target + half
+    if ik is not None and period > 0.0:
+        # Klipper's polar_stepper_angle_post_fixup: the commanded angle back within half a period of 0
+        if commanded < -0.5 * period:
+            commanded += period
+        elif commanded > 0.5 * period:
+            commanded -= period
+    st[I_COMMANDED] = commanded
     st[I_PIECE] = k
     st[I_PENDING] = 1.0 if pend else 0.0
     st[I_PEND_T] = pend_t
@@ -1359,7 +1425,7 @@ def _its_range(m_start, m_len, abs_start, abs_end, pt0, pdt, coef, half, sds_t, 
 
 @njit(cache=True, error_model="numpy")
 def itersolve_steps(flush_t, m_start, m_len, m_active, pre_t, post_t, pt0, pdt, coef, step_dist, sds_t, state,
-                    out_t, out_dir, out_n):
+                    out_t, out_dir, out_n, ik=None, params=None, period=0.0):
     """Klipper's steps for the step-generation windows ending at ``flush_t`` (s, increasing), itersolve_generate_steps
     call by call.
 
@@ -1367,7 +1433,9 @@ def itersolve_steps(flush_t, m_start, m_len, m_active, pre_t, post_t, pt0, pdt, 
     ``m_active`` (Klipper's check_active: the move has motion on an axis this stepper follows). ``pre_t``/``post_t``:
     how long before/after its active moves the stepper moves (the shaper's or pressure advance's reach; Klipper's
     gen_steps_pre_active / post_active). Position: Σ coef[k, i]·(t − pt0[k])^i on piece k (degree ≤ 5, mm), at rest
-    outside the pieces. ``sds_t`` > 0: hold each step back and drop it with an opposite step less than sds_t later
+    outside the pieces; with ``ik`` (a plug-in's inverse kinematics cfunc, :func:`_its_ik_position`) the motor
+    position is ``ik(x, y, z, params)`` of the x, y, z pieces in ``coef`` (12 columns) instead, Klipper's
+    calc_position callback (``period`` > 0: a cyclic motor, e.g. polar's bed, rad). ``sds_t`` > 0: hold each step back and drop it with an opposite step less than sds_t later
     (stepcompress.c); 0: no filter. ``state`` (I_*) carries everything between calls; the commanded position
     starts at the position of the first piece.
 
@@ -1378,7 +1446,7 @@ def itersolve_steps(flush_t, m_start, m_len, m_active, pre_t, post_t, pt0, pdt, 
     half = 0.5 * step_dist
     saved = np.empty(ITS_LEN)
     if state[I_STARTED] == 0.0:
-        p0, k0 = _its_position(pt0, pdt, coef, 0, state[I_START_T])
+        p0, k0 = _its_eval(pt0, pdt, coef, ik, params, period, 0.0, 0, state[I_START_T], 0.0)
         state[I_PIECE] = k0
         state[I_COMMANDED] = p0
         state[I_STARTED] = 1.0
@@ -1415,14 +1483,15 @@ def itersolve_steps(flush_t, m_start, m_len, m_active, pre_t, post_t, pt0, pdt, 
                         skip -= 1
                     while pm != mi:
                         out_n = _its_range(m_start[pm], m_len[pm], a0, F, pt0, pdt, coef, half, sds_t, state,
-                                           out_t, out_dir, out_n)
+                                           out_t, out_dir, out_n, ik, params, period)
                         if out_n < 0:
                             break
                         pm += 1
                     if out_n < 0:
                         full = True
                         break
-                out_n = _its_range(ms, m_len[mi], lft, F, pt0, pdt, coef, half, sds_t, state, out_t, out_dir, out_n)
+                out_n = _its_range(ms, m_len[mi], lft, F, pt0, pdt, coef, half, sds_t, state, out_t, out_dir, out_n,
+                                   ik, params, period)
                 if out_n < 0:
                     full = True
                     break
@@ -1437,7 +1506,7 @@ def itersolve_steps(flush_t, m_start, m_len, m_active, pre_t, post_t, pt0, pdt, 
                     # steps just past the activity (the shaper / smoothing lags behind)
                     a1 = force if force < F else F
                     out_n = _its_range(ms, m_len[mi], lft, a1, pt0, pdt, coef, half, sds_t, state, out_t, out_dir,
-                                       out_n)
+                                       out_n, ik, params, period)
                     if out_n < 0:
                         full = True
                         break
@@ -1461,265 +1530,3 @@ def itersolve_flush_pending(state: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         return np.empty(0, np.float64), np.empty(0, np.int8)
     state[I_PENDING] = 0.0
     return np.array([state[I_PEND_T]], np.float64), np.array([1 if state[I_DIR] != 0.0 else -1], np.int8)
-
-
-# ------------------------------------------------------------------ any kinematics: a guarded root search
-#
-# The motor position of a non-linear machine is a function m(x, y, z) of the toolhead position (a plug-in's
-# inverse kinematics, :mod:`gcodeplan.kinematics.plugin`), handed to :func:`gen_steps_ik` as a compiled function
-# the kernel is specialised for, as Klipper's itersolve.c takes each kinematics' calc_position callback. Where
-# the position is no polynomial in time the half-step crossings are found by a guarded search instead of a
-# formula: each piece is sampled (IK_SAMPLES points), a turning point (the motor reverses while the head moves
-# on, e.g. a polar arm passing the centre's nearest point) is bracketed by three samples whose middle one is an
-# extremum and located by golden-section search, and every crossing of each monotone stretch is bracketed and
-# solved by the Illinois variant of regula falsi to IK_TOL_S. Same grid, hysteresis, reset flags, state and
-# output protocol as :func:`gen_steps`.
-
-IK_SAMPLES = 16          # samples per piece that guard against turning points between two of them
-IK_TOL_S = 1e-9          # s: a secant step below this ends a search (Klipper's stops at 1 ns); the error is far smaller then
-IK_MAX_CUTS = IK_SAMPLES  # at most one turning point per sample interval
-
-
-@njit(cache=True, inline="always")
-def _axis_at(p, v, a, j, s):
-    """q(τ = s) = p + v·s + a·s²/2 + j·s³/6 (mm), the SEGMENT convention."""
-    return p + s * (v + s * (0.5 * a + s * j / 6.0))
-
-
-@njit(cache=True, inline="always")
-def _motor_at(ik, params, period, ref, pc, vc, ac, jc, i, s):
-    """Motor position at τ = s of piece i through ``ik``; a periodic motor (``period`` > 0, e.g. 2π rad for a
-    turntable) is taken on the branch nearest ``ref`` (Klipper's polar bed keeps its angle continuous)."""
-    x = _axis_at(pc[i, 0], vc[i, 0], ac[i, 0], jc[i, 0], s)
-    y = _axis_at(pc[i, 1], vc[i, 1], ac[i, 1], jc[i, 1], s)
-    z = _axis_at(pc[i, 2], vc[i, 2], ac[i, 2], jc[i, 2], s)
-    m = ik(x, y, z, params)
-    if period > 0.0:
-        m += period * math.floor((ref - m) / period + 0.5)
-    return m
-
-
-@njit(cache=True, inline="always")
-def _ik_extremum(ik, params, period, ref, pc, vc, ac, jc, i, lo, hi, is_max):
-    """τ in [lo, hi] where the motor position has its extremum (golden-section search to IK_TOL_S)."""
-    g = 0.6180339887498949
-    a = lo
-    b = hi
-    c = b - g * (b - a)
-    d = a + g * (b - a)
-    fc = _motor_at(ik, params, period, ref, pc, vc, ac, jc, i, c)
-    fd = _motor_at(ik, params, period, ref, pc, vc, ac, jc, i, d)
-    for _ in range(200):
-        if b - a <= IK_TOL_S:
-            break
-        if (fc > fd) == is_max:
-            b = d
-            d = c
-            fd = fc
-            c = b - g * (b - a)
-            fc = _motor_at(ik, params, period, ref, pc, vc, ac, jc, i, c)
-        else:
-            a = c
-            c = d
-            fc = fd
-            d = a + g * (b - a)
-            fd = _motor_at(ik, params, period, ref, pc, vc, ac, jc, i, d)
-    return 0.5 * (a + b)
-
-
-@njit(cache=True, inline="always")
-def _ik_crossing(ik, params, period, ref, pc, vc, ac, jc, i, target, lo, hi, f_lo, f_hi, guess):
-    """τ in [lo, hi] where the motor position equals ``target`` (monotone on the bracket, f_lo and f_hi of
-    opposite signs): the secant method from ``guess`` (or the bracket's secant) and the nearer bracket end,
-    kept inside a bracket that shrinks with every evaluation (bisection when a secant step leaves it). A step
-    below IK_TOL_S ends it: the secant converges superlinearly, so the error is far below that then."""
-    x = guess
-    if not (lo < x < hi):
-        x = lo - f_lo * (hi - lo) / (f_hi - f_lo)
-        if not (lo < x < hi):
-            x = 0.5 * (lo + hi)
-    if guess == x or abs(f_lo) <= abs(f_hi):
-        x_prev = lo
-        f_prev = f_lo
-    else:
-        x_prev = hi
-        f_prev = f_hi
-    lo_pos = f_lo > 0.0
-    for _ in range(100):
-        fx = _motor_at(ik, params, period, ref, pc, vc, ac, jc, i, x) - target
-        if fx == 0.0:
-            return x
-        if (fx > 0.0) == lo_pos:
-            lo = x
-        else:
-            hi = x
-        nxt = x - fx * (x - x_prev) / (fx - f_prev) if fx != f_prev else 0.5 * (lo + hi)
-        if not (lo < nxt < hi):
-            nxt = 0.5 * (lo + hi)
-        if abs(nxt - x) <= IK_TOL_S or hi - lo <= IK_TOL_S:
-            return nxt
-        x_prev = x
-        f_prev = fx
-        x = nxt
-    return x
-
-
-@njit(cache=True)
-def gen_steps_ik(t0, dt, pc, vc, ac, jc, reset, ik, params, period, step_dist, state, start, out_t, out_dir,
-                 out_n):
-    """:func:`gen_steps` for a motor whose position is ``ik(x, y, z, params)`` (a numba cfunc,
-    :func:`gcodeplan.kinematics.plugin.ik_cfunc`) of the pieces' x, y, z (columns 0, 1, 2 of the (n, ≥3) arrays
-    ``pc vc ac jc``, SEGMENT convention). ``period`` > 0: a periodic motor position (rad per turn), followed
-    continuously. Returns (next piece index, new out_n, need); need = −1 for a non-finite coefficient,
-    −2 for a position the function cannot give (NaN: out of the machine's reach)."""
-    n_pieces = t0.shape[0]
-    cap = out_t.shape[0]
-    inv_d = 1.0 / step_dist
-    jump_tol = 1e-4 * step_dist
-    anchor = state[S_ANCHOR]
-    n = state[S_N]
-    last_pos = state[S_LAST_POS]
-    anchored = state[S_ANCHORED] != 0.0
-    samp_t = np.empty(IK_SAMPLES + 1)
-    samp_f = np.empty(IK_SAMPLES + 1)
-    bnd = np.empty(IK_MAX_CUTS + 2)
-    bnd_f = np.empty(IK_MAX_CUTS + 2)
-    cnt = np.empty(IK_MAX_CUTS + 1, np.int64)
-    sgn = np.empty(IK_MAX_CUTS + 1)
-    i = start
-    need = 0
-    while i < n_pieces:
-        span = dt[i]
-        finite = math.isfinite(span)
-        still = True
-        for q in range(3):
-            if not (math.isfinite(pc[i, q]) and math.isfinite(vc[i, q]) and math.isfinite(ac[i, q])
-                    and math.isfinite(jc[i, q])):
-                finite = False
-            if vc[i, q] != 0.0 or ac[i, q] != 0.0 or jc[i, q] != 0.0:
-                still = False
-        if not finite:
-            need = -1
-            break
-        ref = last_pos if anchored else 0.0
-        p = _motor_at(ik, params, period, ref, pc, vc, ac, jc, i, 0.0)
-        if not math.isfinite(p):
-            need = -2
-            break
-        if (not anchored) or reset[i] == RESET_ANCHOR or (reset[i] != RESET_CONTINUE
-                                                          and abs(p - last_pos) > jump_tol):
-            anchor = p
-            n = 0.0
-            anchored = True
-        if still or not (span > 0.0):
-            last_pos = p
-            i += 1
-            continue
-        # samples, and the turning points they bracket: cuts into monotone stretches
-        samp_t[0] = 0.0
-        samp_f[0] = p
-        bad = False
-        for k in range(1, IK_SAMPLES + 1):
-            s = span * k / IK_SAMPLES
-            samp_t[k] = s
-            samp_f[k] = _motor_at(ik, params, period, samp_f[k - 1], pc, vc, ac, jc, i, s)
-            if not math.isfinite(samp_f[k]):
-                bad = True
-                break
-        if bad:
-            need = -2
-            break
-        nb = 1
-        bnd[0] = 0.0
-        bnd_f[0] = p
-        for k in range(1, IK_SAMPLES):
-            d0 = samp_f[k] - samp_f[k - 1]
-            d1 = samp_f[k + 1] - samp_f[k]
-            if (d0 > 0.0 and d1 < 0.0) or (d0 < 0.0 and d1 > 0.0):
-                tc = _ik_extremum(ik, params, period, samp_f[k], pc, vc, ac, jc, i, samp_t[k - 1],
-                                  samp_t[k + 1], d0 > 0.0)
-                if tc > bnd[nb - 1]:
-                    bnd[nb] = tc
-                    bnd_f[nb] = _motor_at(ik, params, period, samp_f[k], pc, vc, ac, jc, i, tc)
-                    nb += 1
-        bnd[nb] = span
-        bnd_f[nb] = samp_f[IK_SAMPLES]
-        n_str = nb
-        # pass 1: how many steps, per stretch
-        nn = n
-        total = 0
-        u_prev = (p - anchor) * inv_d
-        for k in range(n_str):
-            u_end = (bnd_f[k + 1] - anchor) * inv_d
-            c, nn = _stretch_steps(nn, u_prev, u_end, k, sgn, cnt)
-            total += c
-            u_prev = u_end
-        if out_n + total > cap:
-            need = total
-            break
-        # pass 2: solve each crossing
-        base_t = t0[i]
-        for k in range(n_str):
-            c = cnt[k]
-            if c == 0:
-                continue
-            sigma = sgn[k]
-            left = bnd[k]
-            hi = bnd[k + 1]
-            f_left = bnd_f[k]
-            f_hi_pos = bnd_f[k + 1]
-            dirv = np.int8(1) if sigma > 0.0 else np.int8(-1)
-            t_prev = -1.0
-            t_prev2 = -1.0
-            t_prev3 = -1.0
-            q = 1
-            for m in range(c):
-                target = anchor + (n + 0.5 * sigma) * step_dist
-                f_lo = f_left - target
-                f_hi = f_hi_pos - target
-                if f_lo == 0.0:
-                    tau = left
-                elif f_hi == 0.0 or (f_lo > 0.0) == (f_hi > 0.0):
-                    # rounding at the stretch's end: the crossing is at the nearer end
-                    tau = hi if abs(f_hi) <= abs(f_lo) else left
-                else:
-                    # a tight bracket from the samples: the first one past the target (the stretch is monotone)
-                    top = hi
-                    f_top = f_hi
-                    while q < IK_SAMPLES and samp_t[q] <= left:
-                        q += 1
-                    qq = q
-                    while qq < IK_SAMPLES and samp_t[qq] < hi:
-                        fq = samp_f[qq] - target
-                        if (fq > 0.0) != (f_lo > 0.0):
-                            if fq != 0.0:
-                                top = samp_t[qq]
-                                f_top = fq
-                            break
-                        qq += 1
-                    # the next crossing one step on: extrapolate the last crossings (quadratic in the step index:
-                    # a guess within IK_TOL_S often ends the search after one evaluation)
-                    if t_prev3 >= 0.0:
-                        guess = 3.0 * (t_prev - t_prev2) + t_prev3
-                    elif t_prev2 >= 0.0:
-                        guess = 2.0 * t_prev - t_prev2
-                    else:
-                        guess = -1.0
-                    tau = _ik_crossing(ik, params, period, f_left, pc, vc, ac, jc, i, target, left, top, f_lo, f_top,
-                                       guess)
-                out_t[out_n] = base_t + tau
-                out_dir[out_n] = dirv
-                out_n += 1
-                n += sigma
-                t_prev3 = t_prev2
-                t_prev2 = t_prev
-                t_prev = tau
-                left = tau
-                f_left = target
-        last_pos = bnd_f[n_str]
-        i += 1
-    state[S_ANCHOR] = anchor
-    state[S_N] = n
-    state[S_LAST_POS] = last_pos
-    state[S_ANCHORED] = 1.0 if anchored else 0.0
-    return i, out_n, need
