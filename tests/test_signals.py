@@ -299,3 +299,25 @@ def test_a_dead_jobs_worker_is_reported_not_waited_for(tmp_path, long_file):
     assert len(lines) == 1 and long_file in lines[0] and "died" in lines[0] and "SIGKILL" in lines[0], err
     time.sleep(0.5)
     assert not any(os.path.exists(f"/proc/{pid}") for pid in workers)     # the other one was stopped
+
+
+def test_a_signal_wrapped_by_an_import_is_still_the_signal(monkeypatch, capsys):
+    """The fuzzer's SIGHUP at 0.65 s landed while `plot` imported matplotlib: Python wrapped the handler's
+    exception into a RuntimeError (raised in a class body's __set_name__) before the command ran, and the process
+    died with a traceback and status 1. It is the signal: one line, 128 + 1."""
+    import signal as sig
+    import time as _time
+
+    from gcodeplan import cli
+
+    def build_parser(argv):
+        try:
+            os.kill(os.getpid(), sig.SIGHUP)
+            _time.sleep(5)                     # the handler raises in here
+        except KeyboardInterrupt as err:
+            raise RuntimeError("Error calling __set_name__ on '_axis_method_wrapper' instance") from err
+        raise AssertionError("no signal arrived")
+
+    monkeypatch.setattr(cli, "build_parser", build_parser)
+    assert cli.main(["plot", "layers", "x.gcode"]) == 128 + sig.SIGHUP
+    assert capsys.readouterr().err.strip() == "gcodeplan: terminated by SIGHUP"

@@ -83,6 +83,18 @@ def main(argv: list[str] | None = None) -> int:
         caught()
         print(f"gcodeplan: {getattr(err, 'reason', 'interrupted')}", file=sys.stderr)
         return exit_status(err)
+    except Exception:
+        # raised before _main's own handling (building the parser imports the commands' modules): a signal's
+        # exception raised inside an import can come back as another error (Python wraps it when it lands in a
+        # class body's __set_name__); after a signal it is the signal's doing
+        from .signals import Terminated, taken
+
+        if not taken():
+            raise
+        caught()
+        term = Terminated(taken())
+        print(f"gcodeplan: {term.reason}", file=sys.stderr)
+        return exit_status(term)
     finally:
         warnings.showwarning = shown
         if isinstance(sys.stdout, _GuardedStdout):
