@@ -263,9 +263,9 @@ def _klipper_travel_limits(cfg: KlipperCfg, section: str, axis: Axis) -> None:
     axis.position_min, axis.position_max = lo, hi
 
 
-def _klipper_steps_per_mm(cfg: KlipperCfg, section: str) -> float:
-    """Klipper stepper.py: step_distance = rotation_distance / (full_steps · microsteps · gear_ratio)."""
-    rotation_distance = cfg.get_float(section, "rotation_distance", required=True, above=0.0)
+def _steps_per_rotation(cfg: KlipperCfg, section: str) -> tuple[int, int, float]:
+    """(microsteps, full_steps_per_rotation, gear_ratio) of a stepper section, checked as Klipper's stepper.py
+    ``parse_step_distance`` checks them (full steps a multiple of 4)."""
     microsteps = cfg.get_int(section, "microsteps", required=True, minval=1)
     full_steps = cfg.get_int(section, "full_steps_per_rotation", 200, minval=1)
     if full_steps % 4:
@@ -279,6 +279,13 @@ def _klipper_steps_per_mm(cfg: KlipperCfg, section: str) -> float:
             ratio = parse_gear_ratio(v.text)
         except ValueError as err:
             raise ConfigError(f"[{section}] gear_ratio: {err}", v.file, v.line) from None
+    return microsteps, full_steps, ratio
+
+
+def _klipper_steps_per_mm(cfg: KlipperCfg, section: str) -> float:
+    """Klipper stepper.py: step_distance = rotation_distance / (full_steps · microsteps · gear_ratio)."""
+    rotation_distance = cfg.get_float(section, "rotation_distance", required=True, above=0.0)
+    microsteps, full_steps, ratio = _steps_per_rotation(cfg, section)
     return steps_per_mm_from_rotation(rotation_distance, microsteps, full_steps, ratio)
 
 
@@ -376,19 +383,7 @@ def klipper_steps_per_rad(cfg: KlipperCfg, section: str) -> float:
     full_steps · microsteps · gear_ratio steps (rotation_distance is not read)."""
     if not cfg.has(section):
         raise ConfigError(f"[{section}] section is required", cfg.main)
-    microsteps = cfg.get_int(section, "microsteps", required=True, minval=1)
-    full_steps = cfg.get_int(section, "full_steps_per_rotation", 200, minval=1)
-    if full_steps % 4:
-        v = cfg.raw(section, "full_steps_per_rotation")
-        raise ConfigError(f"[{section}] full_steps_per_rotation: must be a multiple of 4, got {full_steps}",
-                          v.file, v.line)
-    ratio = 1.0
-    v = cfg.raw(section, "gear_ratio")
-    if v is not None and v.text.strip():
-        try:
-            ratio = parse_gear_ratio(v.text)
-        except ValueError as err:
-            raise ConfigError(f"[{section}] gear_ratio: {err}", v.file, v.line) from None
+    microsteps, full_steps, ratio = _steps_per_rotation(cfg, section)
     return full_steps * microsteps * ratio / (2.0 * math.pi)
 
 
