@@ -435,3 +435,24 @@ def test_klipper_configs_have_a_toml_twin_with_the_same_steps(config, tmp_path):
     twin = load_machine(str(p))
     assert twin.kinematics == config and twin.kinematics_params == m.kinematics_params
     assert rails_for(twin, klipper_names=True) == rails_for(m, klipper_names=True)
+
+
+@pytest.mark.parametrize("policy,firmware,match", [
+    ("blend", None, "kinematics 'polar': its speed limits .* not by the blend planner"),
+    ("linuxcnc", None, "kinematics 'polar': its speed limits .* not by the linuxcnc planner"),
+    ("junction-deviation", "grbl-1.1", "grbl-1.1 firmware model steps a cartesian machine, not 'polar'"),
+    ("classic-jerk", "marlin-2.1.2", "kinematics 'polar': its speed limits .* not by marlin-2.1.2")])
+def test_a_planner_that_would_skip_the_limits_hook_refuses(policy, firmware, match):
+    """Polar's centre rule is applied by the shared preparation; the blend and LinuxCNC planners and the firmware
+    models prepare their own rows: on a polar machine they are an error naming the kinematics, not a plan
+    without its limits. The look-ahead policies plan it (the hand-worked cap above)."""
+    from gcodeplan import api as gp
+
+    m = polar_machine()
+    if firmware:
+        m.firmware = firmware
+    lines = ["G1 X30 Y30 F9000", "G1 X120 Y120"]
+    with pytest.raises(ConfigError, match=match):
+        gp.estimate(lines, m, policy)      # a firmware model runs with a policy it has
+    m.firmware = "generic"
+    assert gp.estimate(lines, m, "junction-deviation").time.total_time_s > 0

@@ -241,6 +241,7 @@ class StreamPlanner:
             return []
         if self._mode is None:
             self._mode = self._choose_mode(moves_chunk, limits)
+            self._check_kinematics_limits_apply()
         self._prep = self._mode.window_prep(moves_chunk, limits)
         self._moves = prepend_rows(self._moves, moves_chunk)    # the reader's batch is not copied
         return self._emit(final=False)
@@ -332,6 +333,17 @@ class StreamPlanner:
         return prep
 
     # ------------------------------------------------------------------ internals
+    def _check_kinematics_limits_apply(self) -> None:
+        """A plug-in kinematics' speed limits (its check_move hook) are applied by the shared preparation; a mode
+        that prepares its own rows (blend, LinuxCNC, the firmware models) would plan without them: an error, not
+        a plan the machine cannot run."""
+        if self._kin_hook is None or not getattr(self._mode, "own_prepare", False):
+            return
+        what = self.firmware if self.firmware != "generic" else f"the {self._mode.name} planner"
+        raise ConfigError(f"kinematics {self.machine.kinematics!r}: its speed limits (Klipper's check_move) are "
+                          f"applied by the look-ahead policies (klipper, junction-deviation, classic-jerk, "
+                          f"exact-stop, S-curves), not by {what} yet: plan with one of those")
+
     def _choose_mode(self, moves: np.ndarray, limits: np.ndarray) -> _Mode:
         """plan_moves' dispatch: a jerk (argument, else the limits in force) selects S-curves, then 'blend'."""
         from .scurve import scurve_jerk
