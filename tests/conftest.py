@@ -312,3 +312,51 @@ def _user_kinematics_unregistered():
     for name in set(plugin._REGISTRY) - before:
         if name not in plugin.KINEMATICS_MODULES:
             del plugin._REGISTRY[name]
+
+
+# ----------------------------------------------------------------------------- numba's kernels, once
+#: what the warm-up runs, two groups in two processes at once: the estimate and step paths every stage's tests use
+_WARM_UP = (
+    [["estimate", "-q", "--json", "{cube}"], ["estimate", "-q", "--json", "--policy", "blend", "{cube}"],
+     ["estimate", "-q", "--json", "--jerk", "20000", "{cube}"], ["steps", "-q", "-o", "{tmp}/a.npz", "{cube}"],
+     ["steps", "-q", "--compress", "-o", "{tmp}/b.npz", "--klipper-config", "{corexy}", "{square}"]],
+    [["estimate", "-q", "--json", "--machine", "marlin", "{cube}"],
+     ["steps", "-q", "-o", "{tmp}/c.npz", "--machine", "marlin", "{square}"],
+     ["estimate", "-q", "--json", "--no-bounds", "--machine", "grbl", "{plasma}"],
+     ["steps", "-q", "-o", "{tmp}/d.npz", "--no-bounds", "--machine", "grbl", "{plasma}"],
+     ["estimate", "-q", "--json", "--linuxcnc-ini", "{mill}", "{plasma}"]],
+)
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_sessionstart(session):
+    """With pytest-xdist's workers (``pytest -n auto``), compile the kernels most tests use once, before the
+    workers start: numba's cache is shared, its compiling is not, so on a fresh clone every worker would compile
+    the same kernels itself (about 4 of a fresh run's 12 minutes here). Two processes, one group each; a warm
+    cache makes this a few seconds. Nothing here can fail the session: a test that needs a kernel compiles it."""
+    import subprocess
+    import sys
+    import tempfile
+
+    config = session.config
+    if hasattr(config, "workerinput") or not getattr(config.option, "numprocesses", None) \
+            or config.getoption("collectonly"):
+        return
+    ref = REPO / "tests" / "data" / "reference"
+    names = {"cube": SAMPLES / "prusaslicer25_cube20_marlin2.gcode", "square": SAMPLES / "b_square.gcode",
+             "plasma": SAMPLES / "linuxcnc_plasmatest.ngc", "mill": ref / "linuxcnc" / "config" / "mill.ini",
+             "corexy": ref / "klipper" / "corexy_corpus.cfg"}
+    with tempfile.TemporaryDirectory() as tmp:
+        procs = []
+        for group in _WARM_UP:
+            argvs = [[a.format(tmp=tmp, **{k: str(v) for k, v in names.items()}) for a in argv] for argv in group]
+            code = ("import sys\nfrom gcodeplan.cli import main\n"
+                    f"for argv in {argvs!r}:\n    main(argv)\n")
+            procs.append(subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.DEVNULL,
+                                          stderr=subprocess.DEVNULL, cwd=str(REPO)))
+        for p in procs:
+            try:
+                p.wait(timeout=900)
+            except subprocess.TimeoutExpired:
+                p.kill()
+                p.wait()
