@@ -360,3 +360,20 @@ def pytest_sessionstart(session):
             except subprocess.TimeoutExpired:
                 p.kill()
                 p.wait()
+
+
+def toolhead_steps_line_by_line(machine, text: str) -> dict:
+    """{stepper: (times, dirs)} a ``Toolhead(machine, steps=True, block_lines=1)`` hands out when fed ``text``
+    one line at a time and then closed: every ``th.steps()`` concatenated, as a firmware loop would collect them."""
+    import gcodeplan as gp
+
+    th = gp.Toolhead(machine, steps=True, block_lines=1)
+    parts: dict = {}
+    for line in text.splitlines(keepends=True):
+        th.gcode(line)
+        for k, (t, d) in th.steps().items():
+            parts.setdefault(k, []).append((t, d))
+    th.close()
+    for k, (t, d) in th.steps().items():
+        parts.setdefault(k, []).append((t, d))
+    return {k: (np.concatenate([p[0] for p in v]), np.concatenate([p[1] for p in v])) for k, v in parts.items()}

@@ -17,7 +17,7 @@ from gcodeplan.planner.marlin import advance_fields, advance_lead
 from gcodeplan.stepper.marlin_la import (LA_ADVANCE_STEPS, LA_DIR_BITS, isr_ticks, la_blocks_pulses_kernel,
                                          new_state)
 from gcodeplan.stepper.source import StepSink, rails_from
-from conftest import shared_path, steps_window
+from conftest import shared_path, steps_window, toolhead_steps_line_by_line
 
 CUBE = "prusaslicer25_cube20_marlin2"
 HZ = 25_000_000
@@ -246,18 +246,9 @@ def test_toolhead_line_by_line_gives_gp_steps_pulses_under_advance(tmp_path):
     g.write_text(PROGRAM)
     machine = gp.load_machine("marlin-2.1.2")
     ref = gp.steps(str(g), machine)
-    th = gp.Toolhead(machine, steps=True, block_lines=1)
-    parts = {}
-    for line in PROGRAM.splitlines(keepends=True):
-        th.gcode(line)
-        for k, (t, d) in th.steps().items():
-            parts.setdefault(k, []).append((t, d))
-    th.close()
-    for k, (t, d) in th.steps().items():
-        parts.setdefault(k, []).append((t, d))
+    mine = toolhead_steps_line_by_line(machine, PROGRAM)
     for k, (t, d) in ref.items():
-        assert np.array_equal(np.concatenate([p[0] for p in parts[k]]), t), k
-        assert np.array_equal(np.concatenate([p[1] for p in parts[k]]), d), k
+        assert np.array_equal(mine[k][0], t) and np.array_equal(mine[k][1], d), k
     g0 = tmp_path / "k0.gcode"
     g0.write_text(PROGRAM.replace("M900 K0.05", "M900 K0"))
     plain = gp.steps(str(g0), machine)

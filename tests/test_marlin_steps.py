@@ -16,7 +16,7 @@ from gcodeplan.errors import ConfigError
 from gcodeplan.stepper.marlin_isr import (MARLIN_TIMER_HZ, N_ISR, block_phase_isr, block_pickup,
                                           blocks_pulses_kernel, block_step_times_kernel)
 from gcodeplan.stepper.source import StepSink, rails_from
-from conftest import shared_path, steps_window
+from conftest import shared_path, steps_window, toolhead_steps_line_by_line
 
 CUBE = "prusaslicer25_cube20_marlin2"
 #: the reference's stepper names, in X, Y, Z, E order, and gcodeplan's (cartesian short names)
@@ -242,17 +242,7 @@ def test_toolhead_line_by_line_gives_the_pulses_of_gp_steps(tmp_path):
     g.write_text(text)
     machine = gp.load_machine("marlin-2.1.2")
     ref = gp.steps(str(g), machine)
-    th = gp.Toolhead(machine, steps=True, block_lines=1)
-    parts = {}
-    for line in text.splitlines(keepends=True):
-        th.gcode(line)
-        for k, (t, d) in th.steps().items():
-            parts.setdefault(k, []).append((t, d))
-    th.close()
-    for k, (t, d) in th.steps().items():
-        parts.setdefault(k, []).append((t, d))
+    mine = toolhead_steps_line_by_line(machine, text)
     for k, (t, d) in ref.items():
-        mine_t = np.concatenate([p[0] for p in parts[k]])
-        mine_d = np.concatenate([p[1] for p in parts[k]])
-        assert np.array_equal(mine_t, t) and np.array_equal(mine_d, d), k
+        assert np.array_equal(mine[k][0], t) and np.array_equal(mine[k][1], d), k
     assert len(ref["z"][0]) == 160 and len(ref["x"][0]) == 2400 + 500 + 500
