@@ -128,3 +128,51 @@ def test_cube_angle_motors_within_100ns(config, motors):
     assert max(worst.values()) < 100e-9, {k: f"{v * 1e9:.1f} ns" for k, v in worst.items()}
     regular = _cube_steps(config, False)
     assert max(regular[mo] for mo in motors) > 100e-9
+
+
+def test_steps_command_klipper_batch(tmp_path):
+    """``gcodeplan steps --klipper-batch`` is ``klippy -i -o``'s output: d_slicer_like on rotary_delta, every step
+    of the arm motors within one tick and a half of Klipper's (30 ns); with the regular windows arm b is 74 ns off
+    (batch mode jumps from 25.25 s to 33.25 s there)."""
+    from gcodeplan.cli import main
+
+    ck.KIN = shared_path("reference", "klipper", "kinematics")
+    ck.SHARED = ck.KIN.parents[2]
+    info, ref = ck.reference("d_slicer_like", "rotary_delta")     # skips without the kinematics reference
+    gcode = shared_path("reference", "klipper", "synthetic", "d_slicer_like.gcode")
+    cfg = str(ck.KIN / "rotary_delta.cfg")
+    worst = {}
+    for opt in ([], ["--klipper-batch"]):
+        out = tmp_path / f"s{len(opt)}.npz"
+        assert main(["steps", str(gcode), "--klipper-config", cfg, "--sds-filter", "-q", "-o", str(out)] + opt) == 0
+        z = np.load(out)
+        worst[bool(opt)] = max(float(np.max(np.abs(z[k] - ref[k]))) for k in ("stepper_a", "stepper_b", "stepper_c"))
+    assert worst[True] < 30e-9 < 60e-9 < worst[False], worst
+
+
+def test_steps_command_klipper_batch_refusals(tmp_path, capsys):
+    """Windows that follow another plan, or a file it cannot read byte for byte, are refused, not guessed."""
+    from gcodeplan.cli import main
+
+    gcode = tmp_path / "a.gcode"
+    gcode.write_text("G28\nG1 X10 F3000\n")
+    cfg = str(shared_path("reference", "klipper", "corexy_corpus.cfg"))
+    assert main(["steps", str(gcode), "--klipper-config", cfg, "--klipper-batch", "--policy", "junction-deviation",
+                 "-q", "-o", str(tmp_path / "o.npz")]) != 0
+    assert "policy klipper" in capsys.readouterr().err
+    assert main(["steps", str(gcode), "--klipper-config", cfg, "--klipper-batch", "--jerk", "1000",
+                 "-q", "-o", str(tmp_path / "o.npz")]) != 0
+    assert "--klipper-batch" in capsys.readouterr().err
+
+
+def test_shaping_refused_without_its_scan_window():
+    """Input shaping widens Klipper's scan window (kin_flush_delay), which moves every window: refused unless
+    given to batch_flush_times."""
+    import dataclasses
+
+    from gcodeplan.errors import ConfigError
+
+    m = dataclasses.replace(corexy(), shaper_freq_x=40.0, shaper_freq_y=40.0)
+    with pytest.raises(ConfigError, match="kin_flush_delay"):
+        klipper_batch_flush_times(b"G28\nG1 X10 F3000\n", m)
+    assert len(klipper_batch_flush_times(b"G28\nG1 X10 F3000\n", corexy())) == 1     # the window at G28

@@ -302,9 +302,18 @@ def _reactor(line_ends: np.ndarray, read_size: int, run_line, mq: _MotionQueuing
 def klipper_batch_flush_times(source, machine, *, read_size: int = KLIPPER_READ_BYTES,
                               kin_flush_delay: float = KLIPPER_SDS_CHECK_T) -> np.ndarray:
     """:func:`batch_flush_times` of a G-code file (path) or text (str / bytes), planned for ``machine``
-    (Klipper's policy): the windows ``klippy.py -i file -o out`` uses for exactly these bytes."""
+    (Klipper's policy): the windows ``klippy.py -i file -o out`` uses for exactly these bytes.
+
+    Refused (ConfigError) for a machine that does not plan as Klipper does, and for input shaping or pressure
+    advance at any point of the program: Klipper then widens its scan window (kin_flush_delay) by the shaper's
+    or the smoothing's reach, which this model does not compute (give ``kin_flush_delay`` to
+    :func:`batch_flush_times` instead)."""
     import gcodeplan.api as gp
+    from ..errors import ConfigError
     from ..planner.prepare import prepare
+
+    if getattr(machine, "junction_policy", None) != "klipper":
+        raise ConfigError("Klipper's batch windows need Klipper's planner (a printer.cfg machine, policy klipper)")
 
     if isinstance(source, (bytes, bytearray)):
         data = bytes(source)
@@ -317,7 +326,12 @@ def klipper_batch_flush_times(source, machine, *, read_size: int = KLIPPER_READ_
     if text and text[-1] == "":
         text.pop()
     p = gp.plan(text, machine)
-    prep = prepare(p.moves, p.limits, machine)
+    lim = p.limits
+    if kin_flush_delay == KLIPPER_SDS_CHECK_T and len(lim) and (
+            np.any(lim["shaper_freq_x"] > 0) or np.any(lim["shaper_freq_y"] > 0) or np.any(lim["pa_k"] > 0)):
+        raise ConfigError("Klipper's batch windows with input shaping or pressure advance depend on their scan "
+                          "window (kin_flush_delay), which is not modelled: give it to batch_flush_times")
+    prep = prepare(p.moves, lim, machine)
     return batch_flush_times(line_end_offsets(data), p.moves, prep, p.plan, position_set_lines(text),
                              read_size=read_size, kin_flush_delay=kin_flush_delay)
 
