@@ -19,7 +19,8 @@ extras/motion_queuing.py; names below are Klipper's):
 * The flush timer makes windows ``batch_t`` = 0.700 − 0.450 s long (BGFLUSH_SG_HIGH_TIME − BGFLUSH_SG_LOW_TIME,
   a hair under 0.25 s in binary) from the last window end while that end is below need_flush_time − 1.5 s;
   after 100 windows in one timer call it jumps to the last whole batch below that bound. A file whose 4096-byte
-  reads hold more than ~25 s of motion therefore skips windows (the cube's first layer: from 25.25 s to 85.5 s).
+  reads hold more than ~25 s of motion therefore skips windows (on the PrusaSlicer cube: from print time 25.25 s
+  to 85.5 s, then a few seconds every ~30 s).
 * SET_KINEMATIC_POSITION (and G28) flush the look-ahead and end a window at the last move's end plus
   kin_flush_delay (ToolHead.flush_step_generation); G4, M400 and waits flush the look-ahead only.
 * While the print time is at most 1 s (the first moves) the toolhead yields to the reactor after each lazy flush
