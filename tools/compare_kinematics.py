@@ -1,15 +1,24 @@
 #!/usr/bin/env python3
 """Compare gcodeplan's plug-in kinematics with real Klipper (../shared/reference/klipper/kinematics/).
 
-``python tools/compare_kinematics.py [--cube] [--per-motor] [--schedule]`` prints a Markdown table: for each of Klipper's polar,
-rotary_delta, winch, deltesian, hybrid_corexy, hybrid_corexz and generic_cartesian and each reference file
-(b_square, c_circle200, d_slicer_like; with ``--cube`` also the PrusaSlicer cube's first 2032 lines), our total
-next to Klipper's, the relative difference, whether every motor has Klipper's step count and net steps, and the
-worst step-time difference (``--per-motor``: each motor's too, on stderr; ``--schedule``: with Klipper's
-recorded batch windows where the compression reference has them, :func:`batch_schedule`). The inputs are prepared as the reference README says: the cube's G28 becomes
-``SET_KINEMATIC_POSITION X=0 Y=0 Z=0``; for polar every X/Y coordinate is shifted by (+30, +30) mm (decimal
-arithmetic) so that no move passes the polar centre. The tests (tests/test_kinematics_plugins.py) use the same
-functions.
+``python tools/compare_kinematics.py [--cube] [--per-motor] [--regular | --schedule]`` prints a Markdown table: for
+each of Klipper's polar, rotary_delta, winch, deltesian, hybrid_corexy, hybrid_corexz and generic_cartesian and each
+reference file (b_square, c_circle200, d_slicer_like; with ``--cube`` also the PrusaSlicer cube's first 2032 lines),
+our total next to Klipper's, the relative difference, whether every motor has Klipper's step count and net steps, and
+the worst step-time difference (``--per-motor``: each motor's too, on stderr).
+
+Step generation runs in the windows Klipper's batch mode made for that input (:func:`batch_windows`, from the
+input's bytes and the plan: gcodeplan.stepper.klipper_batch), since the reference was made with ``klippy -i -o``
+and Klipper's search restarts at every window; ``--regular``: every 0.25 s instead (a printer that keeps up);
+``--schedule``: the windows recorded by the compression reference (its corexy run of the same file, where it has
+one, :func:`batch_schedule`), and whether the model's windows for that run are the recorded ones.
+
+The inputs are prepared as the reference README says (:func:`source_lines`, byte for byte, since the windows
+depend on where Klipper's 4096-byte reads end): heater, fan and motor-off lines become
+``; [dropped for Klipper] <line>``, G28 becomes ``SET_KINEMATIC_POSITION X=0 Y=0 Z=0``; for polar every X/Y
+coordinate is shifted by (+30, +30) mm (decimal arithmetic) so that no move passes the polar centre, and G28 becomes
+``SET_KINEMATIC_POSITION X=30 Y=30 Z=0``. The tests (tests/test_kinematics_plugins.py, tests/test_klipper_batch.py)
+use the same functions.
 """
 from __future__ import annotations
 
@@ -31,6 +40,9 @@ CUBE = "prusaslicer25_cube20_marlin2"
 CUBE_KEY = "prusaslicer25_cube20_marlin2_lines1-2032"
 CUBE_LINES = 2032
 POLAR_SHIFT = Decimal(30)
+# the reference's preprocessing: these commands' lines become comments (line numbers kept)
+KLIPPER_DROPPED = frozenset(("M104", "M109", "M140", "M190", "M106", "M107", "M84", "M3", "M5", "M18", "M73"))
+DROPPED_PREFIX = "; [dropped for Klipper] "
 KLIPPER_SDS_FILTER_T = 750e-6   # s, Klipper's step+dir+step filter (stepcompress.c)
 
 _MOVE = re.compile(r"^\s*G0*[0-3](?![0-9.])", re.I)
@@ -42,8 +54,6 @@ _XY_PARAM = re.compile(r"\b([XY])=([-+]?(?:\d+\.?\d*|\.\d+))", re.I)
 def _shift_line(line: str) -> str:
     """One line with its X/Y coordinates moved by POLAR_SHIFT (comments untouched)."""
     code, sep, comment = line.partition(";")
-    if code.split() == ["G28"]:
-        return "SET_KINEMATIC_POSITION X=30 Y=30 Z=0" + (sep + comment if sep else "")
     if _MOVE.match(code):
         head = re.match(r"^\s*G0*[0-3]", code, re.I).group(0)
         rest = _XY_WORD.sub(lambda m: f"{m.group(1)}{m.group(2)}{Decimal(m.group(3)) + POLAR_SHIFT}", code[len(head):])
@@ -53,23 +63,42 @@ def _shift_line(line: str) -> str:
     return code + sep + comment
 
 
+def _klipper_line(line: str, config: str) -> str:
+    """One line as the reference's preprocessing left it for ``config``."""
+    words = line.partition(";")[0].split()
+    if words and words[0].upper() in KLIPPER_DROPPED:
+        return DROPPED_PREFIX + line
+    if words and words[0].upper() == "G28":
+        return "SET_KINEMATIC_POSITION X=30 Y=30 Z=0" if config == "polar" else "SET_KINEMATIC_POSITION X=0 Y=0 Z=0"
+    return _shift_line(line) if config == "polar" else line
+
+
 def source_lines(name: str, config: str) -> list[str]:
-    """The G-code as Klipper ran it for ``config`` (module docstring), line numbers kept."""
+    """The G-code as Klipper ran it for ``config`` (module docstring), line numbers kept: joined with newlines (and
+    one at the end) these are the bytes Klipper read."""
     if name in (CUBE, CUBE_KEY):
         lines = (SHARED / "gcode" / f"{CUBE}.gcode").read_text().splitlines()[:CUBE_LINES]
-        lines = ["SET_KINEMATIC_POSITION X=0 Y=0 Z=0" if ln.split(";")[0].strip() == "G28" and config != "polar"
-                 else ln for ln in lines]
     else:
         lines = (SHARED / "reference" / "klipper" / "synthetic" / f"{name}.gcode").read_text().splitlines()
-    if config == "polar":
-        lines = [_shift_line(ln) for ln in lines]
-    return lines
+    return [_klipper_line(ln, config) for ln in lines]
+
+
+def batch_windows(lines, m) -> np.ndarray:
+    """The step-generation windows of Klipper's batch mode for ``lines`` (:func:`source_lines`) on machine ``m``
+    (s from the first move's start; gcodeplan.stepper.klipper_batch.klipper_batch_flush_times)."""
+    from gcodeplan.stepper.klipper_batch import klipper_batch_flush_times
+
+    return klipper_batch_flush_times(("\n".join(lines) + "\n").encode(), m)
+
+
+def load_klipper_config(path: str):
+    from gcodeplan.config import load_klipper_config as load
+
+    return load(path)
 
 
 def machine(config: str):
     """The reference config read as a Klipper printer.cfg."""
-    from gcodeplan.config import load_klipper_config
-
     return load_klipper_config(str(KIN / f"{config}.cfg"))
 
 
@@ -158,7 +187,19 @@ def main() -> int:
             m = machine(config)
             lines = source_lines(name, config)
             ours = total(lines, m)
-            sched = batch_schedule(name) if "--schedule" in sys.argv else None
+            if "--regular" in sys.argv:
+                sched = None
+            else:
+                sched = batch_windows(lines, m)
+                if "--schedule" in sys.argv:
+                    rec = batch_schedule(name)
+                    if rec is not None:
+                        if name != CUBE:     # the recorded run is corexy's; the cube's is of the whole file
+                            corexy = load_klipper_config(str(KIN.parent / "corexy_corpus.cfg"))
+                            same = np.array_equal(batch_windows(source_lines(name, "corexy"), corexy), rec)
+                            print(f"    model windows {'=' if same else '!='} recorded ({name}, corexy)",
+                                  file=sys.stderr)
+                        sched = rec
             ok, worst = compare_steps(klipper_steps(lines, m, sched), ref, info["steps"]["steppers"])
             rel = (ours - info["total_time_s"]) / info["total_time_s"]
             print(f"| {name} | {config} | {info['total_time_s']:.9f} | {ours:.9f} | {rel:.1e} | "

@@ -48,6 +48,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                      metavar="S",
                      help="drop a step and its immediate reversal when closer than S "
                           f"(Klipper's step+dir+step filter; default S = {KLIPPER_SDS_FILTER_T * 1e6:g} µs)")
+    out.add_argument("--klipper-batch", action="store_true",
+                     help="generate the steps in the windows of Klipper's batch mode (klippy.py -i FILE -o OUT) "
+                          "for exactly this file's bytes, as Klipper's reference step files were made; default: "
+                          "a window every 0.25 s, as a printer whose host keeps up (Klipper policy only)")
     out.add_argument("--max-step-rate", type=float, metavar="STEPS_PER_S",
                      help="warn when a stepper exceeds this rate (default: the machine's max_step_rate)")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bar, no summary")
@@ -65,6 +69,20 @@ def _check_args(args) -> None:
         raise GcodeplanError("--csv takes a directory (one file per stepper), not standard output")
     if args.max_step_rate is not None and not (args.max_step_rate > 0):
         raise GcodeplanError(f"--max-step-rate must be > 0, got {args.max_step_rate:g}")
+
+
+def _klipper_batch_windows(args, machine) -> np.ndarray:
+    """--klipper-batch: Klipper's batch-mode step-generation windows for the file (stepper.klipper_batch)."""
+    from ..stepper.klipper_batch import klipper_batch_flush_times
+
+    if args.file in ("-", ""):
+        raise GcodeplanError("--klipper-batch reads the file's bytes: give a file, not standard input")
+    if (args.policy or machine.junction_policy) != "klipper" or args.jerk is not None:
+        raise GcodeplanError("--klipper-batch: Klipper's windows follow Klipper's plan (policy klipper, no --jerk)")
+    try:
+        return klipper_batch_flush_times(args.file, machine)
+    except OSError as err:
+        raise GcodeplanError(f"cannot read {args.file}: {err.strerror or err}") from None
 
 
 def summary_line(name: str, st: np.ndarray) -> str:
@@ -174,6 +192,8 @@ def run(args) -> int:
                 writer.append(name + "_runs", compressors[si].feed(times, dirs))
 
         gen = StepSink(rails, sink, sds_filter_t=args.sds_filter, machine=machine)
+        if getattr(args, "klipper_batch", False):
+            gen.generator.flush_times = _klipper_batch_windows(args, machine)
         bar, progress = progress_bar(args.file, args.quiet)
         pipeline.run(args.file, machine, policy=args.policy, jerk=args.jerk, strict=args.strict, sinks=[gen],
                      progress=progress)

@@ -62,9 +62,12 @@ class StepGenerator:
                  sds_filter_t: float | None = None, settings: np.ndarray | None = None,
                  flush_times: np.ndarray | None = None):
         """``flush_times``: the ends (s from the first move's start, increasing) of Klipper's step-generation
-        windows, where its search restarts (shaped and pressure-advanced motors; see :class:`_Itersolve`).
-        Default: every 0.25 s, as Klipper batches while the printer keeps up; Klipper's batch mode skips
-        some (its recorded schedule can be given here)."""
+        windows, where its search restarts (shaped and pressure-advanced motors, plug-in kinematics; see
+        :class:`_Itersolve`). Default: every 0.25 s, as Klipper batches while the printer keeps up (a printer's
+        windows follow its host's timing, so no other default is more right). Klipper's batch mode
+        (``klippy.py -i -o``, how its reference step files are made) skips some where a 4096-byte read holds
+        more than ~25 s of motion: :func:`gcodeplan.stepper.klipper_batch.klipper_batch_flush_times` gives its
+        windows (``gcodeplan steps --klipper-batch``)."""
         self.rails = list(rails)
         self.flush_times = None if flush_times is None else np.asarray(flush_times, np.float64)
         self.sink = sink
