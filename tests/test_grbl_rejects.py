@@ -76,12 +76,13 @@ def test_every_code_or_word_grbl_lacks_rejects_the_line(tmp_path, line, what):
 
 
 def test_g10_with_an_l_grbl_lacks_sets_no_offset(tmp_path):
-    # grbl's G10 takes L2 and L20 only, and L2 without R (gcode.c): G10 L1 and G10 L2 R0 are rejected, so
-    # the G0 X0 of line 4 is machine X0; the accepted G10 L2 P1 X5 of line 5 makes X0 machine X5
-    got, s = run(tmp_path, "G21 G90 G54\nG10 L1 P1 Z3\nG10 L2 P1 X5 R0\nG0 X0\nG10 L2 P1 X5\nG0 X0\n")
-    assert [g[3] for g in got] == [5.0]           # line 4 from machine 0 to 0: no move; line 6 to X5
-    assert got[0][0] == 6
-    assert rejected(s, 2, "G10 L1") and rejected(s, 3, "G10 L2 R")
+    # grbl's G10 takes L2 and L20 only, and L2 without R (gcode.c): G10 L1, G10 L2 R0 and G10 without L (read
+    # as L0) are rejected, so the G0 X0 of line 5 is machine X0; the accepted G10 L2 P1 X5 of line 6 makes X0
+    # machine X5
+    got, s = run(tmp_path, "G21 G90 G54\nG10 L1 P1 Z3\nG10 L2 P1 X5 R0\nG10 P1 X7\nG0 X0\nG10 L2 P1 X5\nG0 X0\n")
+    assert [g[3] for g in got] == [5.0]           # line 5 from machine 0 to 0: no move; line 7 to X5
+    assert got[0][0] == 7
+    assert rejected(s, 2, "G10 L1") and rejected(s, 3, "G10 L2 R") and rejected(s, 4, "G10 without L")
 
 
 def test_spindle_and_coolant_on_a_rejected_line_do_nothing(tmp_path):

@@ -256,14 +256,17 @@ class Rs274Commands:
     # ------------------------------------------------------------------ checks
     def _grbl_check_block(self, gs: list[float], ms: list[int], params: dict[str, Word]) -> bool:
         """grbl's gc_execute_line checks every word of a line before it executes any (gcode.c, steps 1-3): a
-        G or M code or a word letter grbl does not have (and G10 with an L other than 2 / 20, G10 L2 with R)
-        is its error:20, and nothing of the line happens, as a sender shows ``error:20`` and sends the next
-        line. Such a line is skipped with one warning naming the line, grbl's error and what it rejected (an
-        error under ``--strict``); returns True then. E words are left to the grbl model, which names them."""
+        G or M code or a word letter grbl does not have (and G10 with an L other than 2 / 20 or none, G10 L2
+        with R) is its error:20, and nothing of the line happens, as a sender shows ``error:20`` and sends the
+        next line. Such a line is skipped with one warning naming the line, grbl's error and what it rejected
+        (an error under ``--strict``); returns True then. E words are left to the grbl model, which names
+        them. grbl's other errors stay gcodeplan errors (the file and line named), as before."""
         bad = [_gname(g) for g in gs if g not in GRBL_G] + [f"M{mc}" for mc in ms if mc not in GRBL_M]
-        if 10.0 in gs and "L" in params and params["L"].value is not None:
-            ell = params["L"].value
-            if ell not in (2, 20):
+        if 10.0 in gs:
+            ell = params["L"].value if "L" in params else None
+            if ell is None and "L" not in params and "P" in params:
+                bad.append("G10 without L")      # gcode.c reads a missing L as 0: no L0
+            elif ell is not None and ell not in (2, 20):
                 bad.append(f"G10 L{ell:g}")
             elif ell == 2 and "R" in params:
                 bad.append("G10 L2 R")
