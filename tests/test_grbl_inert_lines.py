@@ -45,21 +45,27 @@ def test_fast_path_equals_the_full_path(tmp_path, monkeypatch, force_python):
     fast = _read(tmp_path, text, g, force_python=force_python)
     _full_path(monkeypatch)
     full = _read(tmp_path, text, g, force_python=force_python)
-    # the same rows, field for field (nan equal to nan): G0 X1 Y2, M204 X5 (a G0), G1 X3, the syncs of M3 M5 M8 M9
-    assert len(fast[0]) == len(full[0]) == 7
+    # the same rows, field for field (nan equal to nan): G0 X1 Y2, G1 X3, the syncs of M3 M5 M8 M9; grbl rejects
+    # "M204 X5" whole (error:20 before anything of the line runs), so it moves nowhere
+    assert len(fast[0]) == len(full[0]) == 6
     for name in full[0].dtype.names:
         np.testing.assert_array_equal(fast[0][name], full[0][name], err_msg=name)
     assert fast[1:] == full[1:]
-    # grbl's meaning, by hand: each M204 line is one error:20, its P one word read by nothing
+    # grbl's meaning, by hand: each M204 line is one error:20 that rejects the whole line (its P not read)
     assert fast[3]["M204"] == sum(1 for line in LINES if "M204" in line.upper() or "M0204" in line.upper())
-    assert "p.nc:2: word(s) P ignored" in " ".join(fast[1])
-    assert any(w.endswith("p.nc:9: word(s) I J K R L Q H D ignored") for w in fast[1])
+    assert any(w.endswith("p.nc:2: M204: grbl rejects it (error:20, unsupported command); the line is skipped")
+               for w in fast[1])
+    assert not any("ignored" in w for w in fast[1])
+    # grbl has no D, H or Q word: each is an error:20 of its own, named with the M code
+    assert any(w.endswith("p.nc:9: M999 word Q word H word D: grbl rejects it (error:20, unsupported command); "
+                          "the line is skipped") for w in fast[1])
 
 
 def test_fast_path_takes_only_inert_lines():
     inert = rs274.Rs274Commands._grbl_inert_effect
-    assert inert(b"M204 P1000") == ("M204", "word(s) P ignored")
-    assert inert(b"M204") == ("M204", "")
+    assert inert(b"M204 P1000") == ("M204",
+                                    "M204: grbl rejects it (error:20, unsupported command); the line is skipped")
+    assert inert(b"M204 Q1")[1].startswith("M204 word Q: grbl rejects it (error:20")
     for line in (b"M3 P1", b"M204 S1", b"M204 F1", b"M204 T1", b"M204 X1", b"M204 P1 P2", b"M117 P1",
                  b"M486 P1", b"M204 P1 ;c", b"G4 P1", b"M204 P1e3", b"M204.5 P1", b"M204 N1"):
         assert inert(line) is False, line

@@ -306,9 +306,43 @@ def load_marlin_config(path: str, adv_path: str | None = None):
     """The :class:`~gcodeplan.machine.Machine` of a Marlin ``Configuration.h`` and ``Configuration_adv.h``
     (see the module docstring). ``path`` may be either file; the other is found beside it unless ``adv_path``
     names it."""
-    from ..gcode.arcs_marlin import MarlinArcSettings
     from .fields import validate
-    from .toml import load_preset, read_text
+    from .toml import load_preset
+
+    notes: list[str] = []       # warnings, given (in order) when the reading ends, also on an error
+    try:
+        pre, main_path, adv, has_adv = _read_configs(path, adv_path, notes)
+        machine = load_preset("marlin")
+        axes = dict(machine.axes)
+        top: dict = {"firmware": "marlin-2.1.2"}
+        _movement_settings(pre, axes, top, notes, main_path)
+        _junction_settings(pre, axes, top, notes, main_path)
+        _lin_advance_settings(pre, top, notes, main_path)
+        top["marlin_arcs"] = _arc_settings(pre, top, notes, main_path)
+        _fixed_and_unmodelled(pre, notes, main_path)
+        _software_endstops(pre, axes)
+    finally:
+        for msg in notes:
+            warnings.warn(msg, stacklevel=2)
+    name = os.path.basename(main_path) + (" + " + os.path.basename(adv) if has_adv else "")
+    machine = replace(machine, axes=axes, name=f"marlin config ({name})", **top)
+    validate(machine, main_path)
+    return machine
+
+
+def _note(pre: _Pre, notes: list[str], main_path: str, msg: str, name: str | None = None) -> None:
+    """A warning about ``name``'s setting, located at its #define (or its disabled line), else the file."""
+    where = pre.where.get(name) or pre.off.get(name) if name else None
+    loc = f"{where[0]}:{where[1]}: " if where else f"{main_path}: "
+    notes.append(loc + msg)
+
+
+def _read_configs(path: str, adv_path: str | None, notes: list[str]):
+    """Both files' #defines read (the main one first): (pre, main path, adv path, adv read). Without a
+    Configuration_adv.h, Marlin 2.1.2's shipped values for the ones the model reads. Also the refusals and
+    warnings of what cannot be read as written: settings under a condition not evaluated, kinematics other
+    than cartesian."""
+    from .toml import read_text
 
     text = read_text(path)
     is_adv = _defines_name(text, _ADV_KEY) and not any(_defines_name(text, k) for k in _MAIN_KEYS)
@@ -327,151 +361,177 @@ def load_marlin_config(path: str, adv_path: str | None = None):
             raise ConfigError("no such file", adv_path)
     pre = _Pre()
     pre.read(main_text, main_path)
-
-    def warn(msg: str, name: str | None = None) -> None:
-        where = pre.where.get(name) or pre.off.get(name) if name else None
-        loc = f"{where[0]}:{where[1]}: " if where else f"{main_path}: "
-        warnings.warn(loc + msg, stacklevel=3)
-
     if adv_text is not None:
         pre.read(adv_text, adv)
     else:
         for k, v in ADV_DEFAULTS.items():
             pre.values.setdefault(k, v)
-        warnings.warn(f"{main_path}: no Configuration_adv.h beside it: Marlin 2.1.2's shipped values taken for "
-                      "ARC_SUPPORT, MINIMUM_PLANNER_SPEED, DEFAULT_MINSEGMENTTIME, MIN_STEPS_PER_SEGMENT, "
-                      "BLOCK_BUFFER_SIZE; LIN_ADVANCE off", stacklevel=2)
+        notes.append(f"{main_path}: no Configuration_adv.h beside it: Marlin 2.1.2's shipped values taken for "
+                     "ARC_SUPPORT, MINIMUM_PLANNER_SPEED, DEFAULT_MINSEGMENTTIME, MIN_STEPS_PER_SEGMENT, "
+                     "BLOCK_BUFFER_SIZE; LIN_ADVANCE off")
 
     for name, (f, no, cond) in sorted(pre.unsure.items()):
         if name in FIXED and _number(pre, name) == FIXED[name][0]:
             continue                    # the value the model runs anyway (BLOCK_BUFFER_SIZE under #if HAS_MEDIA)
         if name in READ:
-            warnings.warn(f"{f}:{no}: {name} is defined under '{cond}', a condition gcodeplan does not evaluate: "
-                          "taken as if the condition held", stacklevel=2)
+            notes.append(f"{f}:{no}: {name} is defined under '{cond}', a condition gcodeplan does not evaluate: "
+                         "taken as if the condition held")
 
     for k in KINEMATICS:
         if pre.enabled(k):
             f, no = pre.where[k]
             raise ConfigError(f"{k}: gcodeplan's Marlin model runs cartesian machines only", f, no)
+    return pre, main_path, adv, adv_text is not None
 
-    machine = load_preset("marlin")
-    axes = dict(machine.axes)
-    top: dict = {"firmware": "marlin-2.1.2"}
 
-    def per_axis(name, attr, what):
-        if name not in pre.values:
-            warn(f"{name} not defined: the marlin preset's {what} kept")
-            return
-        vals = _array(pre, name)
+def _scalar(pre: _Pre, name: str, lo_ok: bool = False) -> float:
+    """``name``'s value, > 0 (>= 0 with ``lo_ok``)."""
+    v = _number(pre, name)
+    if not (v >= 0 if lo_ok else v > 0):
         f, no = pre.where[name]
-        for a, v in zip("xyze", vals[:4]):
-            if not v > 0:
-                raise ConfigError(f"{name} ({what}) {a.upper()} must be > 0, got {v:g}", f, no)
-            axes[a] = replace(axes[a], **{attr: v})
-        if len(vals) > 4 and any(v != vals[3] for v in vals[4:]):
-            warn(f"{name}: values for {len(vals) - 3} extruders; gcodeplan models one, E0's {vals[3]:g} taken", name)
+        raise ConfigError(f"{name} must be {'>= 0' if lo_ok else '> 0'}, got {v:g}", f, no)
+    return v
 
-    per_axis("DEFAULT_AXIS_STEPS_PER_UNIT", "steps_per_mm", "steps/mm")
-    per_axis("DEFAULT_MAX_FEEDRATE", "max_velocity", "max feedrate mm/s")
-    per_axis("DEFAULT_MAX_ACCELERATION", "max_accel", "max acceleration mm/s²")
 
-    def scalar(name, lo_ok=False):
-        v = _number(pre, name)
-        if not (v >= 0 if lo_ok else v > 0):
-            f, no = pre.where[name]
-            raise ConfigError(f"{name} must be {'>= 0' if lo_ok else '> 0'}, got {v:g}", f, no)
-        return v
+def _per_axis(pre: _Pre, axes: dict, notes: list[str], main_path: str, name: str, attr: str, what: str) -> None:
+    """A brace list { X, Y, Z, E… } into each axis's ``attr``; the preset's values kept when it is not
+    defined; one extruder modelled (E0's value)."""
+    if name not in pre.values:
+        _note(pre, notes, main_path, f"{name} not defined: the marlin preset's {what} kept")
+        return
+    vals = _array(pre, name)
+    f, no = pre.where[name]
+    for a, v in zip("xyze", vals[:4]):
+        if not v > 0:
+            raise ConfigError(f"{name} ({what}) {a.upper()} must be > 0, got {v:g}", f, no)
+        axes[a] = replace(axes[a], **{attr: v})
+    if len(vals) > 4 and any(v != vals[3] for v in vals[4:]):
+        _note(pre, notes, main_path,
+              f"{name}: values for {len(vals) - 3} extruders; gcodeplan models one, E0's {vals[3]:g} taken", name)
 
+
+def _movement_settings(pre: _Pre, axes: dict, top: dict, notes: list[str], main_path: str) -> None:
+    """Configuration.h's "Movement Settings": steps/mm, max feedrates (mm/s), max accelerations (mm/s²) per
+    axis; the print, retract and travel accelerations (mm/s², M204 P/R/T)."""
+    _per_axis(pre, axes, notes, main_path, "DEFAULT_AXIS_STEPS_PER_UNIT", "steps_per_mm", "steps/mm")
+    _per_axis(pre, axes, notes, main_path, "DEFAULT_MAX_FEEDRATE", "max_velocity", "max feedrate mm/s")
+    _per_axis(pre, axes, notes, main_path, "DEFAULT_MAX_ACCELERATION", "max_accel", "max acceleration mm/s²")
     for name, key in (("DEFAULT_ACCELERATION", "accel_print"), ("DEFAULT_RETRACT_ACCELERATION", "accel_retract"),
                       ("DEFAULT_TRAVEL_ACCELERATION", "accel_travel")):
         if name in pre.values:
-            top[key] = scalar(name)
+            top[key] = _scalar(pre, name)
     if "accel_print" in top:
         top["max_accel"] = top["accel_print"]          # the preset's rule: max_accel is M204 P
 
+
+def _junction_settings(pre: _Pre, axes: dict, top: dict, notes: list[str], main_path: str) -> None:
+    """CLASSIC_JERK's per-axis jerks (mm/s) or junction deviation (mm), E's jerk; S_CURVE_ACCELERATION."""
     if pre.enabled("CLASSIC_JERK"):
         top["junction_policy"] = "classic-jerk"
         for a in "XYZ":
             name = f"DEFAULT_{a}JERK"
             if name in pre.values:
-                axes[a.lower()] = replace(axes[a.lower()], jerk=scalar(name, lo_ok=True))
+                axes[a.lower()] = replace(axes[a.lower()], jerk=_scalar(pre, name, lo_ok=True))
             else:
-                warn(f"CLASSIC_JERK on without {name}: the preset's {axes[a.lower()].jerk:g} mm/s kept", "CLASSIC_JERK")
+                _note(pre, notes, main_path,
+                      f"CLASSIC_JERK on without {name}: the preset's {axes[a.lower()].jerk:g} mm/s kept", "CLASSIC_JERK")
     else:
         top["junction_policy"] = "junction-deviation"
-        top["junction_deviation"] = scalar("JUNCTION_DEVIATION_MM", lo_ok=True) \
+        top["junction_deviation"] = _scalar(pre, "JUNCTION_DEVIATION_MM", lo_ok=True) \
             if "JUNCTION_DEVIATION_MM" in pre.values else 0.013
         if not pre.enabled("JD_HANDLE_SMALL_SEGMENTS"):
-            warn("JD_HANDLE_SMALL_SEGMENTS off: the model runs junction deviation with it on (Marlin's default); "
-                 "junctions of short segments on curves may differ", "JD_HANDLE_SMALL_SEGMENTS")
+            _note(pre, notes, main_path,
+                  "JD_HANDLE_SMALL_SEGMENTS off: the model runs junction deviation with it on (Marlin's default); "
+                  "junctions of short segments on curves may differ", "JD_HANDLE_SMALL_SEGMENTS")
     if "DEFAULT_EJERK" in pre.values:
-        axes["e"] = replace(axes["e"], jerk=scalar("DEFAULT_EJERK", lo_ok=True))
-
+        axes["e"] = replace(axes["e"], jerk=_scalar(pre, "DEFAULT_EJERK", lo_ok=True))
     top["acceleration_profile"] = "s-curve" if pre.enabled("S_CURVE_ACCELERATION") else "trapezoid"
 
+
+def _lin_advance_settings(pre: _Pre, top: dict, notes: list[str], main_path: str) -> None:
+    """LIN_ADVANCE's K (s; 0 when off or not given)."""
     if pre.enabled("LIN_ADVANCE"):
         kname = "ADVANCE_K" if "ADVANCE_K" in pre.values else "LIN_ADVANCE_K"
         if kname not in pre.values:
-            warn("LIN_ADVANCE on without ADVANCE_K: K = 0 (no advance until M900 K)", "LIN_ADVANCE")
+            _note(pre, notes, main_path, "LIN_ADVANCE on without ADVANCE_K: K = 0 (no advance until M900 K)",
+                  "LIN_ADVANCE")
             top["pressure_advance"] = 0.0
         else:
             src = pre.values[kname].strip()
-            k = _array(pre, kname)[0] if src.startswith("{") else scalar(kname, lo_ok=True)
+            k = _array(pre, kname)[0] if src.startswith("{") else _scalar(pre, kname, lo_ok=True)
             top["pressure_advance"] = k
     else:
         top["pressure_advance"] = 0.0
 
-    # ARC_SUPPORT
-    if pre.enabled("ARC_SUPPORT"):
-        mx = mn = None
-        if "MAX_ARC_SEGMENT_MM" in pre.values:
-            mx = scalar("MAX_ARC_SEGMENT_MM")
-        if "MIN_ARC_SEGMENT_MM" in pre.values:
-            mn = scalar("MIN_ARC_SEGMENT_MM")
-        if mx is None and mn is None and "MM_PER_ARC_SEGMENT" in pre.values:
-            mx = mn = scalar("MM_PER_ARC_SEGMENT")     # Marlin before 2.0.9: one segment length
-        # G2_G3.cpp: a missing bound takes the other's value
-        mx = mx if mx is not None else (mn if mn is not None else 1.0)
-        mn = mn if mn is not None else mx
-        arcs = MarlinArcSettings(
-            min_segment_mm=mn, max_segment_mm=mx,
-            min_circle_segments=int(scalar("MIN_CIRCLE_SEGMENTS")) if "MIN_CIRCLE_SEGMENTS" in pre.values else 72,
-            segments_per_sec=scalar("ARC_SEGMENTS_PER_SEC", lo_ok=True) if pre.enabled("ARC_SEGMENTS_PER_SEC") else 0.0,
-            n_arc_correction=max(1, int(_number(pre, "N_ARC_CORRECTION"))) if "N_ARC_CORRECTION" in pre.values else 25,
-            p_circles=pre.enabled("ARC_P_CIRCLES"))
-        top["arc_resolution"] = mx
-        if "ARC_SEGMENTS_PER_R" in pre.values:
-            warn("ARC_SEGMENTS_PER_R: not a Marlin 2.1.2 setting; the segment length rule is MIN/MAX_ARC_SEGMENT_MM",
-                 "ARC_SEGMENTS_PER_R")
-    else:
-        arcs = MarlinArcSettings(enabled=False)
-        warn("ARC_SUPPORT off: this build ignores G2/G3 (unknown command); gcodeplan refuses a program that has "
-             "them", "ARC_SUPPORT")
-    top["marlin_arcs"] = arcs
 
-    # settings the model runs at one value
+def _arc_settings(pre: _Pre, top: dict, notes: list[str], main_path: str):
+    """ARC_SUPPORT's segment rule (G2_G3.cpp's settings, mm and segments/s) as MarlinArcSettings."""
+    from ..gcode.arcs_marlin import MarlinArcSettings
+
+    if not pre.enabled("ARC_SUPPORT"):
+        _note(pre, notes, main_path,
+              "ARC_SUPPORT off: this build ignores G2/G3 (unknown command); gcodeplan refuses a program that has "
+              "them", "ARC_SUPPORT")
+        return MarlinArcSettings(enabled=False)
+    mx = mn = None
+    if "MAX_ARC_SEGMENT_MM" in pre.values:
+        mx = _scalar(pre, "MAX_ARC_SEGMENT_MM")
+    if "MIN_ARC_SEGMENT_MM" in pre.values:
+        mn = _scalar(pre, "MIN_ARC_SEGMENT_MM")
+    if mx is None and mn is None and "MM_PER_ARC_SEGMENT" in pre.values:
+        mx = mn = _scalar(pre, "MM_PER_ARC_SEGMENT")     # Marlin before 2.0.9: one segment length
+    # G2_G3.cpp: a missing bound takes the other's value
+    mx = mx if mx is not None else (mn if mn is not None else 1.0)
+    mn = mn if mn is not None else mx
+    arcs = MarlinArcSettings(
+        min_segment_mm=mn, max_segment_mm=mx,
+        min_circle_segments=(int(_scalar(pre, "MIN_CIRCLE_SEGMENTS")) if "MIN_CIRCLE_SEGMENTS" in pre.values
+                             else 72),
+        segments_per_sec=(_scalar(pre, "ARC_SEGMENTS_PER_SEC", lo_ok=True) if pre.enabled("ARC_SEGMENTS_PER_SEC")
+                          else 0.0),
+        n_arc_correction=(max(1, int(_number(pre, "N_ARC_CORRECTION"))) if "N_ARC_CORRECTION" in pre.values
+                          else 25),
+        p_circles=pre.enabled("ARC_P_CIRCLES"))
+    top["arc_resolution"] = mx
+    if "ARC_SEGMENTS_PER_R" in pre.values:
+        _note(pre, notes, main_path,
+              "ARC_SEGMENTS_PER_R: not a Marlin 2.1.2 setting; the segment length rule is MIN/MAX_ARC_SEGMENT_MM",
+              "ARC_SEGMENTS_PER_R")
+    return arcs
+
+
+def _fixed_and_unmodelled(pre: _Pre, notes: list[str], main_path: str) -> None:
+    """Warnings for the settings the model runs at one value (FIXED, SLOWDOWN), the minimum feedrates (M205
+    S/T, program settings here) and the features it does not model (UNMODELLED)."""
     for name, (want, what) in FIXED.items():
         if name in pre.values:
             v = _number(pre, name)
             if v != want:
-                warn(f"{name} {v:g} ({what}): the marlin-2.1.2 model runs Marlin's default {want:g}; the times "
-                     "are those of a build with the default", name)
+                _note(pre, notes, main_path,
+                      f"{name} {v:g} ({what}): the marlin-2.1.2 model runs Marlin's default {want:g}; the times "
+                      "are those of a build with the default", name)
     if not pre.enabled("SLOWDOWN"):
-        warn("SLOWDOWN off: the marlin-2.1.2 model slows short segments when the buffer runs low (Marlin's "
-             "default); a build without it plans those faster", "SLOWDOWN")
+        _note(pre, notes, main_path,
+              "SLOWDOWN off: the marlin-2.1.2 model slows short segments when the buffer runs low (Marlin's "
+              "default); a build without it plans those faster", "SLOWDOWN")
     for name, what in (("DEFAULT_MINIMUMFEEDRATE", "minimum print feedrate, M205 S"),
                        ("DEFAULT_MINTRAVELFEEDRATE", "minimum travel feedrate, M205 T")):
         if name in pre.values and _number(pre, name) > 0:
             v = _number(pre, name)
             letter = "S" if "MINIMUMFEED" in name else "T"
-            warn(f"{name} {v:g} ({what}) is not a machine setting in gcodeplan: put 'M205 {letter}{v:g}' at the "
-                 "top of the program for it to count", name)
+            _note(pre, notes, main_path,
+                  f"{name} {v:g} ({what}) is not a machine setting in gcodeplan: put 'M205 {letter}{v:g}' at the "
+                  "top of the program for it to count", name)
     for name, what in UNMODELLED.items():
         if what and pre.enabled(name):
-            warn(f"{name} on: {what} is not modelled by the marlin-2.1.2 model; its times are those of a build "
-                 "without it", name)
+            _note(pre, notes, main_path,
+                  f"{name} on: {what} is not modelled by the marlin-2.1.2 model; its times are those of a build "
+                  "without it", name)
 
-    # travel: the software endstops bound a move (gcodeplan refuses a move beyond them)
+
+def _software_endstops(pre: _Pre, axes: dict) -> None:
+    """X/Y/Z_MIN_POS / _MAX_POS (mm) as each axis's travel when the software endstops are on (gcodeplan
+    refuses a move beyond them)."""
     for a in "xyz":
         lo_name, hi_name = f"{a.upper()}_MIN_POS", f"{a.upper()}_MAX_POS"
         lo = hi = None
@@ -486,8 +546,3 @@ def load_marlin_config(path: str, adv_path: str | None = None):
                           position_max=math.inf if hi is None else hi)
         if not axes[a].position_max > axes[a].position_min:
             axes[a] = replace(axes[a], position_min=-math.inf, position_max=math.inf)
-
-    name = os.path.basename(main_path) + (" + " + os.path.basename(adv) if adv_text is not None else "")
-    machine = replace(machine, axes=axes, name=f"marlin config ({name})", **top)
-    validate(machine, main_path)
-    return machine

@@ -564,6 +564,10 @@ class Interpreter(StateCommands, MotionCommands, Rs274Commands):
                 if w.value is None:
                     self.error("M needs a number")
                 if w.value != int(w.value):
+                    if self.dialect == S.DIALECT_CNC and self.machine.flavor != "linuxcnc":
+                        # gcode.c: an M code with a fraction is error:23 and the line is rejected whole
+                        self.warn(f"M{w.text}: grbl rejects it (error:23, command value not integer); "
+                                  f"the line is skipped")
                     self.unknown_command(f"M{w.text}")
                     return
                 ms.append(int(w.value))

@@ -846,57 +846,20 @@ class Expander:
 
     # ---------------------------------------------------------------- O-words
     def _control(self, f: _Frame, line: _Line, o: _OLine, r: _Reader, s: str):
+        """One O-word line, dispatched by its keyword as LinuxCNC's convert_control_functions
+        (interp_o_word.cc) does: sub, endsub / return (execute_return), call (execute_call), if, elseif /
+        else / endif, do, while, repeat, break / continue, endwhile / endrepeat. A generator: a call runs the
+        subroutine's lines."""
         kw = o.kw
-        i = o.pos
-        labels = f.labels
         if kw == "sub":
-            if len(self.stack) > 1 or f is not self.main:
-                self._err("a subroutine cannot be defined inside a subroutine", line, o)
-            if f.skipping is not None:
-                return
-            old = self.subs.get(o.name)
-            if old is not None:
-                if old.file == line.file and old.lineno == line.lineno:
-                    self._err("defined a second time at the same place (LinuxCNC: 'sub found in illegal "
-                              "location'): a definition inside a loop, or a sub called before its definition "
-                              "and reached afterwards (put it before the call, or after M2)", line, o)
-                self._err(f"already defined at {old.file}:{old.lineno}", line, o)
-            self._rest_only_comments(s, i, line, o)
-            sub = _Sub(o.name, line.file, line.lineno)
-            self.subs[o.name] = sub
-            f.defining = sub
+            self._o_sub(f, line, o, s)
             return
         if kw in ("endsub", "return"):
-            value = None
-            if s.startswith("[", i):
-                value, i = r.expression(i)
-            self._rest_only_comments(s, i, line, o)
-            if f.sub is None:
-                self._err("not inside a subroutine", line, o)
-            if f.sub.fanuc:
-                self._err(f"a Fanuc-style subprogram (O{f.sub.name}, line {f.sub.lineno}) ends with M99", line, o)
-            if kw == "endsub" and o.name != f.sub.name:
-                # ('return' may carry any label: LinuxCNC's own examples use an enclosing if's, o1010 return)
-                self._err(f"does not match the subroutine o{f.sub.name} being executed "
-                          f"(defined at line {f.sub.lineno})", line, o)
-            g = self.params.globals
-            g["_value"] = value if value is not None else 0.0
-            g["_value_returned"] = 1.0 if value is not None else 0.0
-            f.pc = f.base + len(f.lines)          # leave the frame
-            raise _Return()
+            self._o_return(f, line, o, r, s)
         if kw == "call":
-            args = []
-            while i < len(s) and s[i] in "[(":
-                if s[i] == "(":
-                    i = s.index(")", i) + 1
-                    continue
-                if len(args) >= SUB_PARAMS:
-                    self._err(f"more than {SUB_PARAMS} arguments", line, o)
-                v, i = r.expression(i)
-                args.append(v)
-            self._rest_only_comments(s, i, line, o)
-            yield from self._call(f, line, o, args)
+            yield from self._o_call(f, line, o, r, s)
             return
+        i = o.pos
         if kw in ("if", "elseif", "while", "repeat"):
             if not s.startswith("[", i):
                 self._err(f"'[' missing after '{kw}'", line, o)
@@ -905,112 +868,183 @@ class Expander:
         else:
             test = 0.0
             self._rest_only_comments(s, i, line, o)
-        key = o.name
-        lab = labels.get(key)
+        handler = _O_HANDLERS.get(kw)
+        if handler is None:
+            self._err(f"'{kw}' not handled", line, o)
+        handler(self, f, line, o, f.labels.get(o.name), test)
+
+    def _o_sub(self, f: _Frame, line: _Line, o: _OLine, s: str) -> None:
+        """``o<name> sub``: the definition starts (its lines are read, not run, until its endsub)."""
+        if len(self.stack) > 1 or f is not self.main:
+            self._err("a subroutine cannot be defined inside a subroutine", line, o)
+        if f.skipping is not None:
+            return
+        old = self.subs.get(o.name)
+        if old is not None:
+            if old.file == line.file and old.lineno == line.lineno:
+                self._err("defined a second time at the same place (LinuxCNC: 'sub found in illegal "
+                          "location'): a definition inside a loop, or a sub called before its definition "
+                          "and reached afterwards (put it before the call, or after M2)", line, o)
+            self._err(f"already defined at {old.file}:{old.lineno}", line, o)
+        self._rest_only_comments(s, o.pos, line, o)
+        sub = _Sub(o.name, line.file, line.lineno)
+        self.subs[o.name] = sub
+        f.defining = sub
+
+    def _o_return(self, f: _Frame, line: _Line, o: _OLine, r: _Reader, s: str) -> None:
+        """``endsub`` / ``return`` [value] (execute_return): #<_value> and #<_value_returned> are set and the
+        frame is left (raises _Return)."""
+        value = None
+        i = o.pos
+        if s.startswith("[", i):
+            value, i = r.expression(i)
+        self._rest_only_comments(s, i, line, o)
+        if f.sub is None:
+            self._err("not inside a subroutine", line, o)
+        if f.sub.fanuc:
+            self._err(f"a Fanuc-style subprogram (O{f.sub.name}, line {f.sub.lineno}) ends with M99", line, o)
+        if o.kw == "endsub" and o.name != f.sub.name:
+            # ('return' may carry any label: LinuxCNC's own examples use an enclosing if's, o1010 return)
+            self._err(f"does not match the subroutine o{f.sub.name} being executed "
+                      f"(defined at line {f.sub.lineno})", line, o)
+        g = self.params.globals
+        g["_value"] = value if value is not None else 0.0
+        g["_value_returned"] = 1.0 if value is not None else 0.0
+        f.pc = f.base + len(f.lines)          # leave the frame
+        raise _Return()
+
+    def _o_call(self, f: _Frame, line: _Line, o: _OLine, r: _Reader, s: str):
+        """``o<name> call [a] [b] …`` (execute_call): the arguments, then the subroutine's lines."""
+        args = []
+        i = o.pos
+        while i < len(s) and s[i] in "[(":
+            if s[i] == "(":
+                i = s.index(")", i) + 1
+                continue
+            if len(args) >= SUB_PARAMS:
+                self._err(f"more than {SUB_PARAMS} arguments", line, o)
+            v, i = r.expression(i)
+            args.append(v)
+        self._rest_only_comments(s, i, line, o)
+        yield from self._call(f, line, o, args)
+
+    def _o_if(self, f: _Frame, line: _Line, o: _OLine, lab: _Label | None, test: float) -> None:
+        """``if [test]``: the block runs when the test is non-zero, else it is skipped to its next branch."""
         here = f.pc - 1
-        if kw == "if":
-            if lab is not None and lab.pc != here:
-                self._err(f"duplicate O-word label, already used at line {lab.lineno}", line, o)
-            if lab is None:
-                lab = labels[key] = _Label("if", here, line.lineno)
-            lab.executed = test != 0.0
-            if lab.executed:
-                f.skipping = None
-            else:
-                self._skip(f, key, line)
-            return
-        if kw in ("elseif", "else", "endif"):
-            if lab is None:
-                self._err("no matching 'if' (undefined O-word label)", line, o)
-            if lab.kind != "if":
-                self._err(f"no matching 'if' label (found '{lab.kind}' at line {lab.lineno})", line, o)
-            if kw == "endif":
-                f.skipping = None
-                return
-            if lab.executed:
-                self._skip(f, key, line)
-                return
-            if kw == "else" or test != 0.0:
-                f.skipping = None
-                lab.executed = True
-            return
-        if kw == "do":
+        if lab is not None and lab.pc != here:
+            self._err(f"duplicate O-word label, already used at line {lab.lineno}", line, o)
+        if lab is None:
+            lab = f.labels[o.name] = _Label("if", here, line.lineno)
+        lab.executed = test != 0.0
+        if lab.executed:
             f.skipping = None
-            if lab is None:
-                lab = labels[key] = _Label("do", here, line.lineno)
-            elif lab.pc != here:
-                self._err(f"duplicate O-word label, already used at line {lab.lineno}", line, o)
-            f.open_loops[key] = lab.pc
-            return
-        if kw == "while":
-            if lab is not None and lab.kind == "do":
-                # the end of a do-while loop
-                self._check_open(f, key, lab, line, o)
-                f.skipping = None
-                if test != 0.0 and not f.doing_break:
-                    self._loop_back(f, lab, line, o)
-                else:
-                    self._loop_done(f, key, lab)
-                return
-            if lab is not None and lab.pc != here:
-                self._err(f"duplicate O-word label, already used at line {lab.lineno}", line, o)
+        else:
+            self._skip(f, o.name, line)
+
+    def _o_elseif(self, f: _Frame, line: _Line, o: _OLine, lab: _Label | None, test: float) -> None:
+        """``elseif [test]`` / ``else`` / ``endif``: the first branch whose test holds runs, once."""
+        kw = o.kw
+        if lab is None:
+            self._err("no matching 'if' (undefined O-word label)", line, o)
+        if lab.kind != "if":
+            self._err(f"no matching 'if' label (found '{lab.kind}' at line {lab.lineno})", line, o)
+        if kw == "endif":
             f.skipping = None
-            if lab is None:
-                lab = labels[key] = _Label("while", here, line.lineno)
-            f.open_loops[key] = lab.pc
-            if test == 0.0:
-                self._skip(f, key, line)
             return
-        if kw == "repeat":
-            if lab is not None and lab.pc != here:
-                self._err(f"duplicate O-word label, already used at line {lab.lineno}", line, o)
+        if lab.executed:
+            self._skip(f, o.name, line)
+            return
+        if kw == "else" or test != 0.0:
             f.skipping = None
-            if lab is None:
-                lab = labels[key] = _Label("repeat", here, line.lineno)
-            f.open_loops[key] = lab.pc
-            if lab.count == -1:
-                lab.count = int(round(test))      # LinuxCNC round_to_int: nearbyint, halves to even
-            if lab.count > 0:
-                lab.count -= 1
-            else:
-                lab.count = -1
-                self._skip(f, key, line)
-            return
-        if kw in ("break", "continue"):
-            if lab is None:
-                self._err("no matching while/do (undefined O-word label)", line, o)
-            if lab.kind not in ("while", "do"):
-                self._err(f"no matching while/do label (found '{lab.kind}' at line {lab.lineno})", line, o)
+            lab.executed = True
+
+    def _o_do(self, f: _Frame, line: _Line, o: _OLine, lab: _Label | None, test: float) -> None:
+        """``do``: a do-while loop opens (its ``while`` decides)."""
+        here = f.pc - 1
+        f.skipping = None
+        if lab is None:
+            lab = f.labels[o.name] = _Label("do", here, line.lineno)
+        elif lab.pc != here:
+            self._err(f"duplicate O-word label, already used at line {lab.lineno}", line, o)
+        f.open_loops[o.name] = lab.pc
+
+    def _o_while(self, f: _Frame, line: _Line, o: _OLine, lab: _Label | None, test: float) -> None:
+        """``while [test]``: the end of a do-while loop (back to its ``do`` while the test holds), or a
+        while loop's head (its body skipped when the test is zero)."""
+        key = o.name
+        here = f.pc - 1
+        if lab is not None and lab.kind == "do":
             self._check_open(f, key, lab, line, o)
-            if kw == "continue" and f.skipping == key:
-                return
+            f.skipping = None
+            if test != 0.0 and not f.doing_break:
+                self._loop_back(f, lab, line, o)
+            else:
+                self._loop_done(f, key, lab)
+            return
+        if lab is not None and lab.pc != here:
+            self._err(f"duplicate O-word label, already used at line {lab.lineno}", line, o)
+        f.skipping = None
+        if lab is None:
+            lab = f.labels[key] = _Label("while", here, line.lineno)
+        f.open_loops[key] = lab.pc
+        if test == 0.0:
             self._skip(f, key, line)
-            if kw == "break":
-                f.doing_break = True
+
+    def _o_repeat(self, f: _Frame, line: _Line, o: _OLine, lab: _Label | None, test: float) -> None:
+        """``repeat [count]``: the body runs count times (the count read once, rounded as LinuxCNC does)."""
+        key = o.name
+        here = f.pc - 1
+        if lab is not None and lab.pc != here:
+            self._err(f"duplicate O-word label, already used at line {lab.lineno}", line, o)
+        f.skipping = None
+        if lab is None:
+            lab = f.labels[key] = _Label("repeat", here, line.lineno)
+        f.open_loops[key] = lab.pc
+        if lab.count == -1:
+            lab.count = int(round(test))      # LinuxCNC round_to_int: nearbyint, halves to even
+        if lab.count > 0:
+            lab.count -= 1
+        else:
+            lab.count = -1
+            self._skip(f, key, line)
+
+    def _o_break(self, f: _Frame, line: _Line, o: _OLine, lab: _Label | None, test: float) -> None:
+        """``break`` / ``continue``: the rest of the loop body is skipped, then the loop ends / goes on."""
+        key = o.name
+        if lab is None:
+            self._err("no matching while/do (undefined O-word label)", line, o)
+        if lab.kind not in ("while", "do"):
+            self._err(f"no matching while/do label (found '{lab.kind}' at line {lab.lineno})", line, o)
+        self._check_open(f, key, lab, line, o)
+        if o.kw == "continue" and f.skipping == key:
+            return
+        self._skip(f, key, line)
+        if o.kw == "break":
+            f.doing_break = True
+        else:
+            f.doing_continue = True
+
+    def _o_endwhile(self, f: _Frame, line: _Line, o: _OLine, lab: _Label | None, test: float) -> None:
+        """``endwhile`` / ``endrepeat``: back to the loop's head, or out of it after a break."""
+        key = o.name
+        want = "while" if o.kw == "endwhile" else "repeat"
+        if lab is None:
+            self._err(f"no matching '{want}' (undefined O-word label)", line, o)
+        if lab.kind != want:
+            self._err(f"no matching '{want}' label (found '{lab.kind}' at line {lab.lineno})", line, o)
+        self._check_open(f, key, lab, line, o)
+        if f.skipping == key:
+            f.skipping = None
+            if f.doing_continue:
+                f.doing_continue = False
+                self._loop_back(f, lab, line, o)
             else:
-                f.doing_continue = True
+                f.doing_break = False
+                if lab.kind == "repeat":
+                    lab.count = -1
+                self._loop_done(f, key, lab)
             return
-        if kw in ("endwhile", "endrepeat"):
-            want = "while" if kw == "endwhile" else "repeat"
-            if lab is None:
-                self._err(f"no matching '{want}' (undefined O-word label)", line, o)
-            if lab.kind != want:
-                self._err(f"no matching '{want}' label (found '{lab.kind}' at line {lab.lineno})", line, o)
-            self._check_open(f, key, lab, line, o)
-            if f.skipping == key:
-                f.skipping = None
-                if f.doing_continue:
-                    f.doing_continue = False
-                    self._loop_back(f, lab, line, o)
-                else:
-                    f.doing_break = False
-                    if lab.kind == "repeat":
-                        lab.count = -1
-                    self._loop_done(f, key, lab)
-                return
-            self._loop_back(f, lab, line, o)
-            return
-        self._err(f"'{kw}' not handled", line, o)
+        self._loop_back(f, lab, line, o)
 
     def _check_open(self, f: _Frame, key: str, lab: _Label, line: _Line, o: _OLine) -> None:
         if key not in f.open_loops:
@@ -1362,6 +1396,13 @@ class Expander:
 
 class _Return(Exception):
     """endsub / return: leave the current frame."""
+
+
+# the O-word keywords that take a test (or none) and their handlers: convert_control_functions' cases
+_O_HANDLERS = {"if": Expander._o_if, "elseif": Expander._o_elseif, "else": Expander._o_elseif,
+               "endif": Expander._o_elseif, "do": Expander._o_do, "while": Expander._o_while,
+               "repeat": Expander._o_repeat, "break": Expander._o_break, "continue": Expander._o_break,
+               "endwhile": Expander._o_endwhile, "endrepeat": Expander._o_endwhile}
 
 
 # ---------------------------------------------------------------------- the interpreter's hook

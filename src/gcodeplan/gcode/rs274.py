@@ -7,8 +7,9 @@ units, cutter compensation, tool length offset, coordinate system, path mode, di
 G28/G30/G10/G92, motion, stop. Axis words on a line with a non-motion G or M code move in the modal motion
 mode unless a G10/G28/G30/G43.1/G92 on the line uses them; nothing is dropped. Two codes of one modal group
 on a line are refused as LinuxCNC ("Two G codes used from same modal group") and grbl (error:21) refuse
-them. A word grbl does not accept is named with grbl's own error (error:20) and ignored (an error under
-``--strict``).
+them. A line with a code or word grbl does not have is rejected whole, as grbl's gc_execute_line rejects
+it before executing any of it: nothing of the line happens, and one warning names the line and grbl's
+error:20 (an error under ``--strict``).
 
 LinuxCNC specifics kept: F is read before G20/G21 on the same line, so ``G20 F10`` keeps the old units
 for its feed (interp_convert.cc convert_feed_rate runs before convert_length_units; grbl converts F
@@ -76,6 +77,9 @@ GRBL_G = {0.0, 1.0, 2.0, 3.0, 4.0, 10.0, 17.0, 18.0, 19.0, 20.0, 21.0, 28.0, 28.
           38.5, 40.0, 43.1, 49.0, 53.0, 54.0, 55.0, 56.0, 57.0, 58.0, 59.0, 61.0, 80.0, 90.0, 91.0, 91.1, 92.0,
           92.1, 93.0, 94.0}
 GRBL_M = {0, 1, 2, 3, 4, 5, 7, 8, 9, 30, 56}
+# the value words grbl 1.1 reads (gcode.c); any other letter is its error:20. E is kept for the grbl model,
+# which refuses an E move by name (planner/grbl.py)
+GRBL_WORDS = frozenset("EFIJKLNPRSTXYZ")
 # modal motion codes with a fraction are kept in I_MOTION as ten times the code (G38.2 -> 382, G33.1 -> 331)
 MOTION_CODE = {38.2: 382, 38.3: 383, 38.4: 384, 38.5: 385, 33.1: 331}
 PROBE_MOTION = (382, 383, 384, 385)
@@ -92,6 +96,11 @@ _INERT_MEMO_MAX = 256        # distinct inert lines remembered (a program has a 
 
 def _gname(g: float) -> str:
     return f"G{g:g}"
+
+
+def _grbl_reject_warning(bad: list[str]) -> str:
+    """The warning of a line grbl rejects with error:20 (``bad``: the codes and words it does not have)."""
+    return f"{' '.join(bad)}: grbl rejects it (error:20, unsupported command); the line is skipped"
 
 
 class Rs274Commands:
@@ -205,10 +214,11 @@ class Rs274Commands:
     def grbl_inert_line(self, raw: bytes, lineno: int) -> bool:
         """Interpret line ``lineno`` (``raw``: its bytes, no newline) at once if it is a grbl line of one M code
         grbl does not have and words that only a G or M code would read (no G code, no F, S, T or axis word):
-        a printer's ``M204 P1000`` in a program run on grbl. Such a line changes nothing; what the full path
-        (:meth:`_execute_cnc`) makes of it, its error:20 and its ignored words, is replayed from a memo of the
-        line's text. False (nothing done) for any other line, under ``--strict`` (the line is an error there),
-        on LinuxCNC and before the machine's start time is counted: those go the full path."""
+        a printer's ``M204 P1000`` in a program run on grbl. grbl rejects such a line whole (error:20); what
+        the full path (:meth:`_grbl_check_block`) makes of it, one warning and the code counted, is replayed
+        from a memo of the line's text. False (nothing done) for any other line, under ``--strict`` (the line
+        is an error there), on LinuxCNC and before the machine's start time is counted: those go the full
+        path."""
         memo = self.__dict__.get("_inert_memo")
         if memo is None:
             memo = self._inert_memo = {}
@@ -220,18 +230,15 @@ class Rs274Commands:
         if not got or self.strict or self._start_pending or self.dialect != S.DIALECT_CNC or \
                 self.machine.flavor == "linuxcnc" or self.ist[S.I_STOPPED]:
             return False
-        name, unused = got
+        name, warning = got
         self.line = lineno
-        # as _grbl_unsupported, then the unused words' warning of _execute_cnc
-        self.warn(f"{name}: grbl rejects it (error:20, unsupported command); ignored")
+        self.warn(warning)           # as _grbl_check_block
         self.unknown[name] = self.unknown.get(name, 0) + 1
-        if unused:
-            self.warn(unused)
         return True
 
     @staticmethod
     def _grbl_inert_effect(raw: bytes):
-        """(M code name, its unused-words warning or "") when ``raw`` is an inert grbl line
+        """(M code name, the warning of its rejected line) when ``raw`` is an inert grbl line
         (:meth:`grbl_inert_line`), else False."""
         m = _INERT_LINE.fullmatch(raw)
         if m is None:
@@ -243,15 +250,36 @@ class Rs274Commands:
         letters = [w[:1].decode().upper() for w in m.group(2).split()]
         if len(set(letters)) != len(letters):
             return False              # a repeated word is an error: the full path names it
-        return f"M{mc}", ("word(s) " + " ".join(letters) + " ignored" if letters else "")
+        bad = [f"M{mc}"] + [f"word {k}" for k in letters if k not in GRBL_WORDS]
+        return f"M{mc}", _grbl_reject_warning(bad)
 
     # ------------------------------------------------------------------ checks
-    def _grbl_unsupported(self, name: str) -> None:
-        msg = f"{name}: grbl rejects it (error:20, unsupported command); ignored"
+    def _grbl_check_block(self, gs: list[float], ms: list[int], params: dict[str, Word]) -> bool:
+        """grbl's gc_execute_line checks every word of a line before it executes any (gcode.c, steps 1-3): a
+        G or M code or a word letter grbl does not have (and G10 with an L other than 2 / 20 or none, G10 L2
+        with R) is its error:20, and nothing of the line happens, as a sender shows ``error:20`` and sends the
+        next line. Such a line is skipped with one warning naming the line, grbl's error and what it rejected
+        (an error under ``--strict``); returns True then. E words are left to the grbl model, which names
+        them. grbl's other errors stay gcodeplan errors (the file and line named), as before."""
+        bad = [_gname(g) for g in gs if g not in GRBL_G] + [f"M{mc}" for mc in ms if mc not in GRBL_M]
+        if 10.0 in gs:
+            ell = params["L"].value if "L" in params else None
+            if ell is None and "L" not in params and "P" in params:
+                bad.append("G10 without L")      # gcode.c reads a missing L as 0: no L0
+            elif ell is not None and ell not in (2, 20):
+                bad.append(f"G10 L{ell:g}")
+            elif ell == 2 and "R" in params:
+                bad.append("G10 L2 R")
+        codes = len(bad)
+        bad += [f"word {k}" for k in params if k not in GRBL_WORDS]
+        if not bad:
+            return False
         if self.strict:
-            self.error(f"{name}: grbl error:20 (unsupported command)")
-        self.warn(msg)
-        self.unknown[name] = self.unknown.get(name, 0) + 1
+            self.error(f"{bad[0]}: grbl error:20 (unsupported command)")
+        self.warn(_grbl_reject_warning(bad))
+        for name in bad[:codes]:
+            self.unknown[name] = self.unknown.get(name, 0) + 1
+        return True
 
     def _check_groups(self, gs: list[float], ms: list[int], lcnc: bool) -> None:
         for name, codes in G_GROUPS.items():
@@ -281,65 +309,92 @@ class Rs274Commands:
 
     # ------------------------------------------------------------------ the line
     def _execute_cnc(self, gs: list[float], ms: list[int], params: dict[str, Word]) -> None:
-        st, ist = self.st, self.ist
+        """One line of a CNC program: on grbl, a line with a code or word grbl does not have is rejected
+        whole (:meth:`_grbl_check_block`); then LinuxCNC's checks and execute_block's order."""
         lcnc = self.machine.flavor == "linuxcnc"
-        used: set[str] = set()
+        if not lcnc and self._grbl_check_block(gs, ms, params):
+            return
         g_ok: list[float] = []
         for g in gs:
-            if not lcnc and g not in GRBL_G:
-                self._grbl_unsupported(_gname(g))
-                continue
             if g not in KNOWN_G:
                 self._unknown_or_macro(_gname(g))
                 continue
             g_ok.append(g)
-        m_ok: list[int] = []
-        for mc in ms:
-            if not lcnc and mc not in GRBL_M:
-                self._grbl_unsupported(f"M{mc}")
-                continue
-            m_ok.append(mc)
-        self._check_groups(g_ok, m_ok, lcnc)
-        gset = set(g_ok)
-        mset = set(m_ok)
-        motion_codes = [g for g in g_ok if g in MOTION_G]
+        self._check_groups(g_ok, ms, lcnc)
+        self._execute_block(g_ok, ms, params, lcnc)
 
-        # 1. feed rate mode
+    def _execute_block(self, gs: list[float], ms: list[int], params: dict[str, Word], lcnc: bool) -> None:
+        """Every word of a checked line in RS274NGC's order (interp_execute.cc execute_block): feed mode, F,
+        S, T, the M codes (convert_m), the G codes (convert_g, motion last), then the stops (convert_stop)."""
+        used: set[str] = set()
+        gset = set(gs)
+        mset = set(ms)
+        self._convert_feed_mode(gset)
+        self._convert_feed_rate(gset, params, used, lcnc)
+        # grbl: a speed change while the spindle turns, a spindle or a coolant change stop the motion, in
+        # this order: gc_execute's steps 4, 7, 8 (commands_state._grbl_syncs)
+        if not lcnc:
+            self._grbl_syncs(sorted(mset), params)
+        self._convert_speed(mset, params, used, lcnc)
+        self._convert_tool_select(params, used)
+        self._convert_m(ms, mset, params, used, lcnc)
+        self._convert_g(gs, gset, params, used, lcnc)
+        for k in ("A", "B", "C", "U", "V", "W"):
+            if k in params:
+                used.add(k)
+                self.warn(f"axis {k} is not modelled: ignored")
+        unused = [k for k in params if k not in used and k not in "XYZEFN"]
+        if unused and not ms:
+            self.warn("word(s) " + " ".join(unused) + " ignored")
+        self._convert_stop(ms, params, used)
+
+    def _convert_feed_mode(self, gset: set) -> None:
+        """G93 / G95 are refused by name; G94 (units per minute) is the only mode modelled."""
         if 93 in gset:
             self.error("G93 inverse-time feed is not supported")
         if 95 in gset:
             self.error("G95 feed per revolution is not supported")
-        # 2. F (LinuxCNC: in the units in force before this line's G20/G21; grbl: in the line's units)
+
+    def _convert_feed_rate(self, gset: set, params: dict[str, Word], used: set[str], lcnc: bool) -> None:
+        """F (mm/s kept): LinuxCNC reads it in the units in force before this line's G20/G21, grbl in the
+        line's own units."""
+        st = self.st
         f = self._value(params, "F")
-        if f is not None:
-            used.add("F")
-            if not f > 0.0:
-                self.error(f"feed rate F must be > 0, got {params['F'].text}")
+        if f is None:
+            return
+        used.add("F")
+        if not f > 0.0:
+            self.error(f"feed rate F must be > 0, got {params['F'].text}")
         unit_before = float(st[S.S_UNIT])
         unit_line = 25.4 if 20 in gset else (1.0 if 21 in gset else unit_before)
-        if f is not None:
-            st[S.S_FEED] = f * (unit_before if lcnc else unit_line) / 60.0
-        # 3. S (grbl: a speed change while the spindle turns, a spindle or a coolant change stop the motion,
-        # in this order: gc_execute's steps 4, 7, 8; commands_state._grbl_syncs)
-        if not lcnc:
-            self._grbl_syncs(sorted(mset), params)
-        if "S" in params:
-            used.add("S")
-            rpm = self._value(params, "S")
-            if rpm < 0.0:
-                self.error("S must be >= 0 " + ("(LinuxCNC: 'Negative spindle speed used')" if lcnc
-                                                else "(grbl error:4, negative value)"))
-            self.spindle_rpm = rpm
-            if not mset & {3, 4}:
-                self.spindle_commands += 1
-        # 4. T (select: the tool the next M6 loads)
-        if "T" in params:
-            used.add("T")
-            t = params["T"].value
-            if t is None or t != int(t) or t < 0:
-                self.error("T needs a tool number")
-            self.pending_tool = int(t)
-        # 5. M6 / M61
+        st[S.S_FEED] = f * (unit_before if lcnc else unit_line) / 60.0
+
+    def _convert_speed(self, mset: set, params: dict[str, Word], used: set[str], lcnc: bool) -> None:
+        """S (rpm): the spindle speed; an S without M3/M4 on its line counts as a spindle command."""
+        if "S" not in params:
+            return
+        used.add("S")
+        rpm = self._value(params, "S")
+        if rpm < 0.0:
+            self.error("S must be >= 0 " + ("(LinuxCNC: 'Negative spindle speed used')" if lcnc
+                                            else "(grbl error:4, negative value)"))
+        self.spindle_rpm = rpm
+        if not mset & {3, 4}:
+            self.spindle_commands += 1
+
+    def _convert_tool_select(self, params: dict[str, Word], used: set[str]) -> None:
+        """T: the tool the next M6 loads."""
+        if "T" not in params:
+            return
+        used.add("T")
+        t = params["T"].value
+        if t is None or t != int(t) or t < 0:
+            self.error("T needs a tool number")
+        self.pending_tool = int(t)
+
+    def _convert_m(self, ms: list[int], mset: set, params: dict[str, Word], used: set[str], lcnc: bool) -> None:
+        """The M codes but the stops, in convert_m's order: M6 / M61, spindle, coolant, overrides (no
+        effect at 100 %), then the other M codes (user M100-M199 and the rest)."""
         if 6 in mset:
             self._cnc_tool_change(lcnc)
         if 61 in mset:
@@ -348,41 +403,42 @@ class Rs274Commands:
             if q is None or q != int(q) or q < 0:
                 self.error("M61 needs Q<tool number>")
             self.tool = int(q)
-        # 6. spindle
         for mc in (3, 4, 5):
             if mc in mset:
                 self.spindle_commands += 1
                 self.spindle_dir = mc
                 if lcnc:
                     self._wait(f"M{mc}")   # LinuxCNC's task waits for the motion queue to empty
-        # 7. coolant
         for mc in (7, 8, 9):
             if mc in mset and lcnc:
                 self._wait(f"M{mc}")
-        # 8. overrides (no effect at 100 %), 9. other M codes (user M100-M199 and the rest)
-        for mc in m_ok:
+        for mc in ms:
             if mc in (0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 30, 48, 49, 50, 51, 52, 53, 60, 61):
                 continue
             self._m_command(mc, params, used)
-        # 10. dwell
+
+    def _convert_g(self, gs: list[float], gset: set, params: dict[str, Word], used: set[str], lcnc: bool) -> None:
+        """The G codes in convert_g's order: dwell, plane, units, cutter compensation, tool length offset,
+        coordinate system, path control, distance and retract modes, the non-modal group (convert_modal_0),
+        motion."""
+        st = self.st
         if 4 in gset:
             self._dwell(params, used)
-        # 11. plane
         self._set_plane(gset)
-        # 12. units
-        st[S.S_UNIT] = unit_line
-        # 13. cutter compensation
+        st[S.S_UNIT] = 25.4 if 20 in gset else (1.0 if 21 in gset else float(st[S.S_UNIT]))
         for g in (41.0, 42.0, 41.1, 42.1):
             if g in gset:
                 used.update(("D",))
                 self.warn(f"{_gname(g)} cutter radius compensation is not modelled: the path is planned "
                           f"uncompensated")
-        # 14. tool length offset
         axis_consumed = self._tool_length(gset, params, used, lcnc)
-        # 15. coordinate system, 16. path control, 17. distance mode, 18. retract mode
         self._modal_modes(gset, params, used, lcnc)
-        # 19. G10 / G28 / G30 / G92
-        machine_coords = 53 in gset
+        axis_consumed = self._convert_modal_0(gset, params, used, lcnc) or axis_consumed
+        self._convert_motion([g for g in gs if g in MOTION_G], 53 in gset, axis_consumed, params, used, lcnc)
+
+    def _convert_modal_0(self, gset: set, params: dict[str, Word], used: set[str], lcnc: bool) -> bool:
+        """G10, G28 / G30, G28.1 / G30.1, G92 and G92.1-G92.3; True when one of them took the axis words."""
+        axis_consumed = False
         if 10 in gset:
             self._cnc_g10(params, used, lcnc)
             axis_consumed = True
@@ -393,16 +449,21 @@ class Rs274Commands:
             # convert_savehome: the machine position (tool length and offsets included) in user units
             base = 5161 if 28.1 in gset else 5181
             for a in range(3):
-                self._set_param_mm(base + a, float(st[S.S_X + a]))
+                self._set_param_mm(base + a, float(self.st[S.S_X + a]))
         if 92 in gset:
             self._g92(params, used)
             self._store_g92()
             axis_consumed = True
         self._g92_family(gset)
-        # 20. motion
+        return axis_consumed
+
+    def _convert_motion(self, motion_codes: list[float], machine_coords: bool, axis_consumed: bool,
+                        params: dict[str, Word], used: set[str], lcnc: bool) -> None:
+        """The line's motion code sets the modal motion mode; axis words not taken by a non-modal code move
+        in it (a canned cycle runs without them)."""
         for g in motion_codes:
             self._set_motion(g)
-        motion = int(ist[S.I_MOTION])
+        motion = int(self.ist[S.I_MOTION])
         if machine_coords and motion not in (0, 1):
             self.error("G53 needs G0 or G1" + ("" if lcnc else " (grbl error:30)"))
         has_axes = any(k in params for k in "XYZE") and not axis_consumed
@@ -423,20 +484,15 @@ class Rs274Commands:
                        + (" (grbl error:26)" if not lcnc else ""))
         elif motion_codes and motion_codes[0] == 76.0 and not axis_consumed:
             self._cnc_special_motion(MOTION_G76, params, used, lcnc)
-        for k in ("A", "B", "C", "U", "V", "W"):
-            if k in params:
-                used.add(k)
-                self.warn(f"axis {k} is not modelled: ignored")
-        unused = [k for k in params if k not in used and k not in "XYZEFN"]
-        if unused and not m_ok:
-            self.warn("word(s) " + " ".join(unused) + " ignored")
-        # 21. stop
-        for mc in m_ok:
+
+    def _convert_stop(self, ms: list[int], params: dict[str, Word], used: set[str]) -> None:
+        """M0 / M1 / M60 pause (each named, commands_state); M2 / M30 end the program."""
+        for mc in ms:
             if mc in (0, 1, 60):
-                self._m_command(mc, params, used)     # pauses, each named (commands_state)
+                self._m_command(mc, params, used)
             elif mc in (2, 30):
                 self.event(f"M{mc} program end")
-                ist[S.I_STOPPED] = 1
+                self.ist[S.I_STOPPED] = 1
 
     # ------------------------------------------------------------------ tool length offset
     def _tool_length(self, gset: set, params: dict[str, Word], used: set[str], lcnc: bool) -> bool:
@@ -516,9 +572,7 @@ class Rs274Commands:
             self._g10_origin(int(ell), params, lcnc)
         elif ell in (1, 10, 11) and lcnc:
             self._g10_tool(int(ell), params)
-        elif not lcnc:
-            self._grbl_unsupported(f"G10 L{ell:g}")
-        else:
+        else:               # grbl: rejected before the line runs (_grbl_check_block)
             self.error(f"G10 L{ell:g} is not supported (L1, L2, L10, L11, L20 are)")
 
     def _g10_origin(self, ell: int, params: dict[str, Word], lcnc: bool) -> None:

@@ -121,6 +121,124 @@ def _limit_speed(speed_v: float, accel: float, code: int, move_d: float,
     return max_cruise_v2, cur_accel, delta_v2, mcr_delta_v2, limit
 
 
+@njit(cache=True, _nrt=False, inline="always")
+def _clear_prep_row(out) -> None:
+    """A PREP row with nothing in it (a dwell, a wait, a zero-length move)."""
+    out.is_move = False
+    out.kinematic = False
+    out.stop_before = False
+    out.limit = LIMIT_NONE
+    out.move_d = 0.0
+    out.axes_r_x = 0.0
+    out.axes_r_y = 0.0
+    out.axes_r_z = 0.0
+    out.axes_r_e = 0.0
+    out.max_cruise_v2 = 0.0
+    out.accel = 0.0
+    out.delta_v2 = 0.0
+    out.mcr_delta_v2 = 0.0
+    out.max_start_v2 = 0.0
+    out.max_mcr_start_v2 = 0.0
+    out.junction_dev = 0.0
+    out.stop_v2 = 0.0
+    out.kin_cruise_v2 = 0.0
+    out.kin_accel = 0.0
+
+
+@njit(cache=True, _nrt=False, inline="always")
+def _requested_speed(policy: int, L, feed: float, accel: float, d, move_d: float):
+    """The move's requested speed before the axis rules (Klipper Move.__init__): the feed (with Marlin's
+    M205 S/T floor) capped by the machine's max velocity; a move under KLIPPER_MIN_MOVE_D (mm) is
+    extrude-only (``d``'s x, y, z zeroed, its length |E|), at the requested speed and a huge accel on Klipper.
+    Returns (kinematic, velocity mm/s, limit code, accel mm/s², move_d mm)."""
+    if policy != POLICY_KLIPPER:
+        # Marlin M205 S/T: a floor on the requested feed, S for every move that steps E (retractions
+        # too: planner.cpp tests the E step count, not its sign), T for the others.
+        floor_v = L[L_MIN_FEED] if d[3] != 0.0 else L[L_MIN_TRAVEL]
+        if feed < floor_v:
+            feed = floor_v
+    kinematic = move_d >= KLIPPER_MIN_MOVE_D
+    if kinematic:
+        velocity = min(feed, L[L_MAX_V])
+        limit = LIMIT_MAX_V if L[L_MAX_V] < feed else LIMIT_FEED
+    else:
+        d[0] = 0.0
+        d[1] = 0.0
+        d[2] = 0.0
+        move_d = abs(d[3])
+        if policy == POLICY_KLIPPER:
+            # Klipper: extrude-only keeps the requested speed, huge accel, then extruder limits.
+            velocity = feed
+            limit = LIMIT_FEED
+            accel = KLIPPER_EXTRUDE_ONLY_ACCEL
+        else:
+            velocity = min(feed, L[L_MAX_V])
+            limit = LIMIT_MAX_V if L[L_MAX_V] < feed else LIMIT_FEED
+    return kinematic, velocity, limit, accel, move_d
+
+
+@njit(cache=True, _nrt=False, inline="always")
+def _axis_limits(L, d, kinematic: bool, move_d: float, max_cruise_v2: float, accel: float, delta_v2: float,
+                 mcr_delta_v2: float, limit: int):
+    """Per-axis limits, v ≤ V_i·d/|d_i|, a ≤ A_i·d/|d_i| (Klipper's z_ratio form, exact; E's on an
+    extrude-only move too). Returns the updated (max_cruise_v2, accel, delta_v2, mcr_delta_v2, limit)."""
+    for a in range(4):
+        if d[a] != 0.0 and (kinematic or a == 3):
+            av = L[L_AXV0 + a]
+            aa = L[L_AXA0 + a]
+            if av < math.inf or aa < math.inf:
+                ratio = move_d / abs(d[a])
+                code = LIMIT_AXIS if a < 3 else LIMIT_EXTRUDER
+                max_cruise_v2, accel, delta_v2, mcr_delta_v2, limit = _limit_speed(
+                    av * ratio, aa * ratio, code, move_d, max_cruise_v2, accel, mcr_delta_v2, limit)
+    return max_cruise_v2, accel, delta_v2, mcr_delta_v2, limit
+
+
+@njit(cache=True, _nrt=False, inline="always")
+def _delta_limits(mv, L, move_d: float, max_cruise_v2: float, accel: float, delta_v2: float,
+                  mcr_delta_v2: float, limit: int):
+    """Klipper's delta.py check_move: towers run fast far from the centre, so a move reaching past
+    ratio_to_xy(3) gets half the config's max velocity / accel, past ratio_to_xy(6) a quarter
+    (docs/design.md, "Delta"). Z is limited by the per-axis rule, as in Klipper. Returns the updated
+    (max_cruise_v2, accel, delta_v2, mcr_delta_v2, limit)."""
+    extreme_xy2 = max(mv.x1 * mv.x1 + mv.y1 * mv.y1, mv.x0 * mv.x0 + mv.y0 * mv.y0)
+    if extreme_xy2 > L[L_DELTA_SLOW_XY2]:
+        r = 0.25 if extreme_xy2 > L[L_DELTA_VSLOW_XY2] else 0.5
+        max_cruise_v2, accel, delta_v2, mcr_delta_v2, limit = _limit_speed(
+            L[L_DELTA_V] * r, L[L_DELTA_A] * r, LIMIT_MAX_V, move_d, max_cruise_v2, accel, mcr_delta_v2, limit)
+    return max_cruise_v2, accel, delta_v2, mcr_delta_v2, limit
+
+
+@njit(cache=True, _nrt=False, inline="always")
+def _extruder_limits(L, d, axes_r_e: float, move_d: float, max_cruise_v2: float, accel: float, delta_v2: float,
+                     mcr_delta_v2: float, limit: int):
+    """Klipper extruder.check_move: an extrude-only move (no X/Y motion) or a retraction takes the
+    extrude-only limits. Returns the updated (max_cruise_v2, accel, delta_v2, mcr_delta_v2, limit)."""
+    if d[3] != 0.0 and ((d[0] == 0.0 and d[1] == 0.0) or axes_r_e < 0.0):
+        if L[L_EO_V] < math.inf or L[L_EO_A] < math.inf:
+            inv_extrude_r = 1.0 / abs(axes_r_e)
+            max_cruise_v2, accel, delta_v2, mcr_delta_v2, limit = _limit_speed(
+                L[L_EO_V] * inv_extrude_r, L[L_EO_A] * inv_extrude_r, LIMIT_EXTRUDER, move_d,
+                max_cruise_v2, accel, mcr_delta_v2, limit)
+    return max_cruise_v2, accel, delta_v2, mcr_delta_v2, limit
+
+
+@njit(cache=True, _nrt=False, inline="always")
+def _junction_settings(out, L, policy: int, req_accel: float) -> None:
+    """The row's junction deviation (mm: Klipper's from square_corner_velocity and the requested accel, else
+    the machine's) and, for classic jerk, Marlin's safe speed² (mm²/s²) to start and stop at."""
+    if policy == POLICY_KLIPPER:
+        out.junction_dev = klipper_junction_deviation(L[L_SCV], req_accel)
+    else:
+        out.junction_dev = L[L_JD]
+    if policy == POLICY_CLASSIC_JERK:
+        cruise_v = math.sqrt(out.max_cruise_v2)
+        safe_v = marlin_safe_v(cruise_v, out.axes_r_x * cruise_v, out.axes_r_y * cruise_v,
+                               out.axes_r_z * cruise_v, out.axes_r_e * cruise_v,
+                               L[L_JERK0], L[L_JERK0 + 1], L[L_JERK0 + 2], L[L_JERK0 + 3])
+        out.stop_v2 = safe_v * safe_v
+
+
 # _nrt=False: the kernel allocates nothing (``d`` is the caller's scratch), and without numba's reference
 # counting the limits row taken per move costs no atomic incref/decref (25 -> 14 ns per move)
 @njit(cache=True, _nrt=False)
@@ -135,25 +253,7 @@ def _move_limits_kernel(moves, lim, policy, prep, d):
     for i in range(n):
         mv = moves[i]
         out = prep[i]
-        out.is_move = False
-        out.kinematic = False
-        out.stop_before = False
-        out.limit = LIMIT_NONE
-        out.move_d = 0.0
-        out.axes_r_x = 0.0
-        out.axes_r_y = 0.0
-        out.axes_r_z = 0.0
-        out.axes_r_e = 0.0
-        out.max_cruise_v2 = 0.0
-        out.accel = 0.0
-        out.delta_v2 = 0.0
-        out.mcr_delta_v2 = 0.0
-        out.max_start_v2 = 0.0
-        out.max_mcr_start_v2 = 0.0
-        out.junction_dev = 0.0
-        out.stop_v2 = 0.0
-        out.kin_cruise_v2 = 0.0
-        out.kin_accel = 0.0
+        _clear_prep_row(out)
         k = mv.kind
         if k == KIND_DWELL or k == KIND_WAIT:
             if not mv.dwell_t >= 0.0:
@@ -176,31 +276,7 @@ def _move_limits_kernel(moves, lim, policy, prep, d):
                 return ERR_COORD, i
         # Klipper: sum of squares in x, y, z order, then sqrt (bit-identical move_d).
         move_d = math.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
-        accel = mv.accel
-        feed = mv.feed_v
-        if policy != POLICY_KLIPPER:
-            # Marlin M205 S/T: a floor on the requested feed, S for every move that steps E (retractions
-            # too: planner.cpp tests the E step count, not its sign), T for the others.
-            floor_v = L[L_MIN_FEED] if d[3] != 0.0 else L[L_MIN_TRAVEL]
-            if feed < floor_v:
-                feed = floor_v
-        kinematic = move_d >= KLIPPER_MIN_MOVE_D
-        if kinematic:
-            velocity = min(feed, L[L_MAX_V])
-            limit = LIMIT_MAX_V if L[L_MAX_V] < feed else LIMIT_FEED
-        else:
-            d[0] = 0.0
-            d[1] = 0.0
-            d[2] = 0.0
-            move_d = abs(d[3])
-            if policy == POLICY_KLIPPER:
-                # Klipper: extrude-only keeps the requested speed, huge accel, then extruder limits.
-                velocity = feed
-                limit = LIMIT_FEED
-                accel = KLIPPER_EXTRUDE_ONLY_ACCEL
-            else:
-                velocity = min(feed, L[L_MAX_V])
-                limit = LIMIT_MAX_V if L[L_MAX_V] < feed else LIMIT_FEED
+        kinematic, velocity, limit, accel, move_d = _requested_speed(policy, L, mv.feed_v, mv.accel, d, move_d)
         if move_d == 0.0:
             continue  # zero-length: dropped, as Klipper's toolhead.move does
         inv_move_d = 1.0 / move_d
@@ -208,36 +284,16 @@ def _move_limits_kernel(moves, lim, policy, prep, d):
         delta_v2 = 2.0 * move_d * accel
         mcr_pseudo_accel = mv.accel * (1.0 - L[L_MCR])
         mcr_delta_v2 = 2.0 * move_d * mcr_pseudo_accel
-        # Per-axis limits, v ≤ V_i·d/|d_i|, a ≤ A_i·d/|d_i| (Klipper's z_ratio form, exact).
-        for a in range(4):
-            if d[a] != 0.0 and (kinematic or a == 3):
-                av = L[L_AXV0 + a]
-                aa = L[L_AXA0 + a]
-                if av < math.inf or aa < math.inf:
-                    ratio = move_d / abs(d[a])
-                    code = LIMIT_AXIS if a < 3 else LIMIT_EXTRUDER
-                    max_cruise_v2, accel, delta_v2, mcr_delta_v2, limit = _limit_speed(
-                        av * ratio, aa * ratio, code, move_d, max_cruise_v2, accel, mcr_delta_v2, limit)
-        # Klipper's delta.py check_move: towers run fast far from the centre, so a move reaching past
-        # ratio_to_xy(3) gets half the config's max velocity / accel, past ratio_to_xy(6) a quarter
-        # (docs/design.md, "Delta"). Z is limited by the per-axis rule above, as in Klipper.
+        max_cruise_v2, accel, delta_v2, mcr_delta_v2, limit = _axis_limits(
+            L, d, kinematic, move_d, max_cruise_v2, accel, delta_v2, mcr_delta_v2, limit)
         if kinematic and L[L_DELTA_V] > 0.0:
-            extreme_xy2 = max(mv.x1 * mv.x1 + mv.y1 * mv.y1, mv.x0 * mv.x0 + mv.y0 * mv.y0)
-            if extreme_xy2 > L[L_DELTA_SLOW_XY2]:
-                r = 0.25 if extreme_xy2 > L[L_DELTA_VSLOW_XY2] else 0.5
-                max_cruise_v2, accel, delta_v2, mcr_delta_v2, limit = _limit_speed(
-                    L[L_DELTA_V] * r, L[L_DELTA_A] * r, LIMIT_MAX_V, move_d, max_cruise_v2, accel, mcr_delta_v2,
-                    limit)
+            max_cruise_v2, accel, delta_v2, mcr_delta_v2, limit = _delta_limits(
+                mv, L, move_d, max_cruise_v2, accel, delta_v2, mcr_delta_v2, limit)
         out.kin_cruise_v2 = max_cruise_v2
         out.kin_accel = accel
         axes_r_e = d[3] * inv_move_d
-        # Klipper extruder.check_move: extrude-only (no X/Y motion) or retraction → extrude-only limits.
-        if d[3] != 0.0 and ((d[0] == 0.0 and d[1] == 0.0) or axes_r_e < 0.0):
-            if L[L_EO_V] < math.inf or L[L_EO_A] < math.inf:
-                inv_extrude_r = 1.0 / abs(axes_r_e)
-                max_cruise_v2, accel, delta_v2, mcr_delta_v2, limit = _limit_speed(
-                    L[L_EO_V] * inv_extrude_r, L[L_EO_A] * inv_extrude_r, LIMIT_EXTRUDER, move_d,
-                    max_cruise_v2, accel, mcr_delta_v2, limit)
+        max_cruise_v2, accel, delta_v2, mcr_delta_v2, limit = _extruder_limits(
+            L, d, axes_r_e, move_d, max_cruise_v2, accel, delta_v2, mcr_delta_v2, limit)
         if not accel < math.inf:
             return ERR_NO_ACCEL, i
         if not max_cruise_v2 < math.inf:
@@ -256,16 +312,7 @@ def _move_limits_kernel(moves, lim, policy, prep, d):
         out.delta_v2 = delta_v2
         out.mcr_delta_v2 = mcr_delta_v2
         out.limit = limit
-        if policy == POLICY_KLIPPER:
-            out.junction_dev = klipper_junction_deviation(L[L_SCV], mv.accel)
-        else:
-            out.junction_dev = L[L_JD]
-        if policy == POLICY_CLASSIC_JERK:
-            cruise_v = math.sqrt(max_cruise_v2)
-            safe_v = marlin_safe_v(cruise_v, out.axes_r_x * cruise_v, out.axes_r_y * cruise_v,
-                                   out.axes_r_z * cruise_v, axes_r_e * cruise_v,
-                                   L[L_JERK0], L[L_JERK0 + 1], L[L_JERK0 + 2], L[L_JERK0 + 3])
-            out.stop_v2 = safe_v * safe_v
+        _junction_settings(out, L, policy, mv.accel)
     if tiny_row >= 0:
         return ERR_TINY_ACCEL, tiny_row
     return ERR_NONE, -1
