@@ -76,16 +76,18 @@ def test_linuxcnc_firmware_plans_as_linuxcnc_does(stem):
 
 
 def test_firmware_option_and_load_machine_equal_the_policy(capsys):
-    """``--firmware linuxcnc`` / ``load_machine(firmware="linuxcnc")`` on the klipper preset plan as ``--policy
-    linuxcnc`` does (bit for bit), and say so; ``--firmware klipper`` on the marlin machine plans as ``--policy
-    klipper``."""
+    """``--firmware linuxcnc`` / ``load_machine(firmware="linuxcnc")`` plan as ``--policy linuxcnc`` does (bit for
+    bit) and say so; ``--firmware klipper`` on the marlin machine plans as ``--policy klipper`` there."""
     from gcodeplan.cli import main
 
     program = ["G21 G90", "G1 X10 Y0 F3000", "G1 X10 Y10", "G1 X0 Y10", "G1 X0 Y0", "G0 Z5"]
-    m = gp.load_machine(firmware="linuxcnc")
-    assert (m.firmware, m.junction_policy) == ("linuxcnc", "linuxcnc")
-    model = gp.estimate(program, m)
-    policy = gp.estimate(program, gp.load_machine(), "linuxcnc")
+    ini = str(shared_path(*LINUXCNC, "config", "mill.ini"))
+    m = gp.load_machine(linuxcnc_ini=ini, firmware="generic")
+    assert (m.firmware, m.junction_policy) == ("generic", "linuxcnc")
+    back = gp.load_machine(linuxcnc_ini=ini, firmware="linuxcnc")
+    assert (back.firmware, back.junction_policy) == ("linuxcnc", "linuxcnc")
+    model = gp.estimate(program, back)
+    policy = gp.estimate(program, replace(m, junction_policy="klipper"), "linuxcnc")
     _same_plan(model, policy)
     assert model.firmware == "linuxcnc" and policy.firmware == ""
     mk = gp.load_machine("marlin", firmware="klipper")
@@ -94,13 +96,15 @@ def test_firmware_option_and_load_machine_equal_the_policy(capsys):
 
     shared = str(shared_path(*KLIPPER, "synthetic", "b_square.gcode"))
     out = {}
-    for args in (["--firmware", "linuxcnc"], ["--policy", "linuxcnc"], ["--firmware", "klipper"], []):
+    for args in (["--machine", "marlin", "--firmware", "klipper"], ["--machine", "marlin", "--firmware", "generic",
+                                                                   "--policy", "klipper"], []):
         assert main(["estimate", shared, "--json", "-q", *args]) == 0
-        out[" ".join(args)] = json.loads(capsys.readouterr().out)
-    assert out["--firmware linuxcnc"]["total_time_s"] == out["--policy linuxcnc"]["total_time_s"]
-    assert out["--firmware linuxcnc"]["firmware"] == "linuxcnc" and out["--policy linuxcnc"]["firmware"] == ""
-    assert out["--firmware klipper"]["total_time_s"] == out[""]["total_time_s"]
+        out[" ".join(args[3:])] = json.loads(capsys.readouterr().out)
+    assert out["klipper"]["total_time_s"] == out["generic --policy klipper"]["total_time_s"]
+    assert out["klipper"]["firmware"] == "klipper" and out["generic --policy klipper"]["firmware"] == ""
     assert out[""]["firmware"] == "klipper"          # the default machine, the klipper preset
+    assert main(["estimate", shared, "--json", "-q", "--firmware", "linuxcnc", "--linuxcnc-ini", ini]) == 0
+    assert json.loads(capsys.readouterr().out)["firmware"] == "linuxcnc"
 
 
 # ----------------------------------------------------------------------------- conflicts
@@ -155,8 +159,8 @@ def test_summary_names_model_and_version():
     d = est.to_json()
     assert (d["firmware"], d["firmware_version"], d["policy"]) == ("klipper", f"Klipper {describe}, git {git}",
                                                                     "klipper")
-    assert gp.estimate(program, gp.load_machine(firmware="linuxcnc")).to_text().splitlines()[1].endswith(
-        ", firmware linuxcnc (LinuxCNC 2.9)")
+    mill = gp.load_machine(linuxcnc_ini=str(shared_path(*LINUXCNC, "config", "mill.ini")))
+    assert gp.estimate(program, mill).to_text().splitlines()[1].endswith(", firmware linuxcnc (LinuxCNC 2.9)")
     blend = gp.estimate(program, None, "blend")
     assert blend.to_text().splitlines()[1] == "  machine klipper-reference-cartesian, policy blend"
     assert (blend.to_json()["firmware"], blend.to_json()["firmware_version"]) == ("", "")
