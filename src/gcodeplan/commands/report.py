@@ -154,6 +154,7 @@ def build_report(path: str, machine, policy: str | None = None, jerk: float | No
     """Plan ``path`` once and return the HTML page (the viewer reads the lines' texts again: ``path`` must be
     readable twice, a regular file or :func:`gcodeplan.gcode.sources.spooled`'s copy)."""
     from ..machine import planned_by
+    from ..report.estimate import planned_by_text
     from .estimate import Estimate, print_text
     from ..report.summary import TimeSummary
     from ..report.viewer import ViewerSink, thin_for, viewer_data, viewer_fragment
@@ -205,7 +206,7 @@ def build_report(path: str, machine, policy: str | None = None, jerk: float | No
             f"{what.capitalize()}: {_fmt_s(run.time_s)} of motion{note}",
             *(html.figure(plots.png_bytes(f), f"{what}: {cap}", f"{what}: {cap}") for f, cap in figs)))
     title = f"gcodeplan report: {name}"
-    footer = html.pre(f"gcodeplan {__version__}; machine {machine.name}, policy {policy}; "
+    footer = html.pre(f"gcodeplan {__version__}; machine {machine.name}, {planned_by_text(est)}; "
                       "times are the plan's (docs/design.md), curves sampled from the plan's segments.")
     return html.page(title, *parts, footer)
 
