@@ -583,29 +583,8 @@ def plot_axes(win: Window, machine=None, title: str | None = None, size_in=FIGSI
             pos[name], vel[name] = mp, mv
         motor_units.update((r.name, ik_unit(r)) for r in rails_for(machine) if r.ik is not None)
     elif machine is not None and kin != "cartesian":
-        # a linear machine's motors (corexy, corexz, ...): asked of the kinematics, each a weighted sum of axes;
-        # a plug-in's non-linear motors (polar's bed and arm, a winch's cables): its inverse kinematics
-        from ..kinematics import rails_for
-
-        for rail in rails_for(machine):
-            if rail.ik is not None:
-                key = rail.name if rail.name not in AXES else f"{rail.name} motor"
-                pos[key], vel[key] = ik_motion(rail, s.pos, s.vel)
-                motor_labels[key] = f"{key} = ik(x, y, z)"
-                motor_units[key] = ik_unit(rail)
-                motor_spm[key] = rail.steps_per_mm
-                rows.append(key)
-                continue
-            w = rail.weights
-            if w is None or sum(1 for x in w if x != 0.0) < 2:
-                continue                   # a motor that is one axis is that axis's own row
-            pos[rail.name] = sum(wi * pos[a] for wi, a in zip(w, AXES) if wi != 0.0)
-            vel[rail.name] = sum(wi * vel[a] for wi, a in zip(w, AXES) if wi != 0.0)
-            terms = " ".join(f"{'+' if wi > 0 else '−'} {'' if abs(wi) == 1 else f'{abs(wi):g}·'}{a}"
-                             for wi, a in zip(w, AXES) if wi != 0.0)
-            motor_labels[rail.name] = f"{rail.name} = {terms.lstrip('+ ')}"
-            motor_spm[rail.name] = rail.steps_per_mm
-            rows.append(rail.name)
+        names, motor_labels, motor_units, motor_spm = _motor_rows(machine, s, pos, vel)
+        rows += names
     rows += list(motors)
     fig, axs = new_figure(len(rows), 2, size_in, dpi, sharex=True)
     for r, name in enumerate(rows):
@@ -661,6 +640,34 @@ def plot_axes(win: Window, machine=None, title: str | None = None, size_in=FIGSI
     axs[0, 0].set_xlim(s.t[0], s.t[-1])
     fig.suptitle(title or _window_title(win, f"axes ({kin})"))
     return fig
+
+
+def _motor_rows(machine, s: "Samples", pos: dict, vel: dict) -> tuple[list, dict, dict, dict]:
+    """The rows of the motors the kinematics makes of the axes, unshaped: a linear machine's motors (corexy,
+    corexz, ...) each a weighted sum of axes; a plug-in's non-linear motors (polar's bed and arm, a winch's
+    cables) its inverse kinematics (:func:`ik_motion`). Adds their positions and velocities to ``pos``/``vel``;
+    returns (row names in order, labels, position units, steps per unit) by row name."""
+    from ..kinematics import rails_for
+
+    names, labels, units, spm = [], {}, {}, {}
+    for rail in rails_for(machine):
+        if rail.ik is not None:
+            key = rail.name if rail.name not in AXES else f"{rail.name} motor"
+            pos[key], vel[key] = ik_motion(rail, s.pos, s.vel)
+            labels[key], units[key], spm[key] = f"{key} = ik(x, y, z)", ik_unit(rail), rail.steps_per_mm
+            names.append(key)
+            continue
+        w = rail.weights
+        if w is None or sum(1 for x in w if x != 0.0) < 2:
+            continue                   # a motor that is one axis is that axis's own row
+        pos[rail.name] = sum(wi * pos[a] for wi, a in zip(w, AXES) if wi != 0.0)
+        vel[rail.name] = sum(wi * vel[a] for wi, a in zip(w, AXES) if wi != 0.0)
+        terms = " ".join(f"{'+' if wi > 0 else '−'} {'' if abs(wi) == 1 else f'{abs(wi):g}·'}{a}"
+                         for wi, a in zip(w, AXES) if wi != 0.0)
+        labels[rail.name] = f"{rail.name} = {terms.lstrip('+ ')}"
+        spm[rail.name] = rail.steps_per_mm
+        names.append(rail.name)
+    return names, labels, units, spm
 
 
 def _path_at(segs: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
