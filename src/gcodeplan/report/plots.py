@@ -654,7 +654,7 @@ def _motor_rows(machine, s: "Samples", pos: dict, vel: dict) -> tuple[list, dict
         if rail.ik is not None:
             key = rail.name if rail.name not in AXES else f"{rail.name} motor"
             pos[key], vel[key] = ik_motion(rail, s.pos, s.vel)
-            labels[key], units[key], spm[key] = f"{key} = ik(x, y, z)", ik_unit(rail), rail.steps_per_mm
+            labels[key], units[key], spm[key] = key, ik_unit(rail), rail.steps_per_mm
             names.append(key)
             continue
         w = rail.weights
@@ -733,16 +733,32 @@ def ik_motion(rail, p: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarra
     """A plug-in motor's position (its inverse kinematics' unit: mm, rad) and velocity (unit/s) for toolhead
     positions ``p`` (n, ≥3, mm) moving at ``v`` (n, ≥3, mm/s): ``rail.ik`` at each point, a cyclic motor (a
     turntable: ``rail.period``) followed continuously as the step engine follows it, and the velocity the ik's
-    derivative along ``v`` (a central difference over ±:data:`IK_DT` s)."""
+    derivative along ``v`` (a central difference over ±:data:`IK_DT` s). Where the ik has no derivative (polar's
+    bed angle at the centre) the velocity is NaN (a gap), not the difference across the jump: there the
+    one-sided differences' disagreement does not shrink as dt² when dt halves (:func:`_ik_kink`)."""
     params = np.asarray(rail.ik_params if len(rail.ik_params) else (0.0,), np.float64)
     p3 = np.asarray(p, np.float64)[:, :3]
     v3 = np.asarray(v, np.float64)[:, :3]
     pos = _ik_at(rail.ik, p3, params)
-    step = _ik_at(rail.ik, p3 + v3 * IK_DT, params) - _ik_at(rail.ik, p3 - v3 * IK_DT, params)
+    diffs = []       # one-sided differences ahead and behind over dt and 2·dt
+    for k in (1.0, -1.0, 2.0, -2.0):
+        d = (_ik_at(rail.ik, p3 + v3 * (k * IK_DT), params) - pos) * np.sign(k)
+        if rail.period > 0:
+            d -= rail.period * np.round(d / rail.period)        # a difference taken across the wrap
+        diffs.append(d)
+    ahead, behind, ahead2, behind2 = diffs
     if rail.period > 0 and pos.size:
         pos = np.unwrap(pos, period=rail.period)
-        step -= rail.period * np.round(step / rail.period)      # a difference taken across the wrap
-    return pos, step / (2.0 * IK_DT)
+    kink = _ik_kink(ahead - behind, ahead2 - behind2, pos)
+    return pos, np.where(kink, np.nan, (ahead + behind) / (2.0 * IK_DT))
+
+
+def _ik_kink(d1: np.ndarray, d2: np.ndarray, pos: np.ndarray) -> np.ndarray:
+    """True where a motor's position has no derivative: ``d1``, ``d2`` = ahead − behind one-sided differences over
+    dt and 2·dt. A smooth position gives d2 = 4·d1 (both ∝ the second derivative · dt²), a kink 2·d1, a jump
+    d1 (the jump itself); a d1 at the level of the position's rounding is smooth."""
+    noise = 64.0 * np.finfo(np.float64).eps * (1.0 + np.abs(pos))
+    return (np.abs(d1) > noise) & (np.abs(d2) < 3.0 * np.abs(d1))
 
 
 def _ik_at(ik, p3: np.ndarray, params: np.ndarray) -> np.ndarray:
@@ -752,8 +768,8 @@ def _ik_at(ik, p3: np.ndarray, params: np.ndarray) -> np.ndarray:
 
 def ik_unit(rail) -> str:
     """The position unit a plug-in motor's row is labelled in: rad for a turntable (period 2π), else the
-    plug-in's own ("motor units": mm for a carriage or cable, rad for an arm's angle)."""
-    return "rad" if rail.period and abs(rail.period - 2.0 * math.pi) < 1e-12 else "motor units"
+    plug-in's own ("units": mm for a carriage or cable, rad for an arm's angle)."""
+    return "rad" if rail.period and abs(rail.period - 2.0 * math.pi) < 1e-12 else "units"
 
 
 # ----------------------------------------------------------------------------- path
