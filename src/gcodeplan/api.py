@@ -13,17 +13,14 @@ import numpy as np
 from . import pipeline
 
 
-_FIRMWARE_MODELS = ("grbl-1.1", "marlin-2.1.2", "marlin-bugfix")
-
-
 def load_machine(spec: str | None = None, *, klipper_config: str | None = None, linuxcnc_ini: str | None = None,
                  flavor: str | None = None, firmware: str | None = None):
     """A :class:`~gcodeplan.machine.Machine`: a preset name (``klipper``, ``marlin``, ``grbl``), a machine
     ``.toml`` path, or ``klipper_config=`` a Klipper ``printer.cfg`` (includes followed; the G-code then
     has Klipper's meanings), or ``linuxcnc_ini=`` a LinuxCNC machine ``.ini`` (planned with the ``linuxcnc``
     policy). ``flavor`` overrides the G-code dialect; ``firmware`` the firmware model (``grbl-1.1``,
-    ``marlin-2.1.2``, ``marlin-bugfix``, or ``generic`` for the junction policy alone). Default: the ``klipper``
-    preset.
+    ``marlin-2.1.2``, ``marlin-bugfix``, ``klipper`` or ``linuxcnc`` (the policy of that name), or ``generic`` for
+    the junction policy alone). Default: the ``klipper`` preset.
     Its limits are in mm, mm/s, mm/s² (docs/machine.md lists every key)."""
     from dataclasses import replace
 
@@ -50,11 +47,11 @@ def load_machine(spec: str | None = None, *, klipper_config: str | None = None, 
             raise ConfigError(f"flavor: unknown value {flavor!r} (one of {', '.join(FLAVORS)})")
         machine = replace(machine, flavor=flavor)
     if firmware is not None:
-        from .machine import FIRMWARES
+        from .machine import FIRMWARES, with_firmware
 
         if firmware not in FIRMWARES:
             raise ConfigError(f"firmware: unknown value {firmware!r} (one of {', '.join(FIRMWARES)})")
-        machine = replace(machine, firmware=firmware)
+        machine = with_firmware(machine, firmware)
     return machine
 
 
@@ -91,6 +88,7 @@ def estimate(source, machine=None, policy: str | None = None, jerk: float | None
     keeps no per-line end times (16 bytes per line: 30 MB and a few tenths of a second on a 50 MB file), and
     ``est.line_times()`` then raises.
     """
+    from .machine import planned_by
     from .report.estimate import Estimate
 
     machine = as_machine(machine)
@@ -102,7 +100,7 @@ def estimate(source, machine=None, policy: str | None = None, jerk: float | None
                     line_ends=sink.lines.arrays() if sink.lines is not None else (None, None), objects=list(r.interp.objects.names),
                     wait_time_s=dict(r.interp.wait_time_s),
                     filament_diameter_mm=r.interp.filament_diameter_mm,   # the E figures' filament (M200 / UltiGCode)
-                    firmware=res.policy if res.policy in _FIRMWARE_MODELS else "")
+                    firmware=planned_by(machine, res.policy, jerk))
 
 
 @dataclass

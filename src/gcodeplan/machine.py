@@ -24,9 +24,22 @@ FLAVORS = ("marlin", "klipper", "reprap", "grbl", "linuxcnc")
 SHAPER_TYPES = ("none", "zv", "mzv", "zvd", "ei", "2hump_ei", "3hump_ei")
 SHAPER_TYPE_CODES = {name: i for i, name in enumerate(SHAPER_TYPES)}
 POLICIES = ("klipper", "junction-deviation", "classic-jerk", "blend", "exact-stop", "linuxcnc")
-# firmware models: "generic" = planned by the junction policy alone; the others run the firmware's own planner
-# and step timing: grbl 1.1 (planner/grbl.py), Marlin 2.1.2.4 (planner/marlin.py)
-FIRMWARES = ("generic", "grbl-1.1", "marlin-2.1.2", "marlin-bugfix")
+# firmware models: "generic" = planned by the junction policy alone; grbl 1.1 (planner/grbl.py) and Marlin
+# (planner/marlin.py) run the firmware's own planner and step timing; Klipper and LinuxCNC are the klipper and
+# linuxcnc policies (ports of Klipper's toolhead.py look-ahead and LinuxCNC's tp.c), so naming the firmware plans
+# with that policy
+FIRMWARES = ("generic", "grbl-1.1", "marlin-2.1.2", "marlin-bugfix", "klipper", "linuxcnc")
+# the firmware models that plan with their own code (not a junction policy's): the pipeline names them
+OWN_PLANNER_FIRMWARES = ("grbl-1.1", "marlin-2.1.2", "marlin-bugfix")
+# the junction policies each firmware model plans with, the first its own: Marlin builds with CLASSIC_JERK or
+# junction deviation (bugfix-2.1.x: classic jerk only, as modelled), grbl with junction deviation, Klipper and
+# LinuxCNC with their ported planners. A run asked for another policy is planned by that policy alone.
+FIRMWARE_POLICIES = {"marlin-2.1.2": ("classic-jerk", "junction-deviation"), "marlin-bugfix": ("classic-jerk",),
+                     "grbl-1.1": ("junction-deviation",), "klipper": ("klipper",), "linuxcnc": ("linuxcnc",)}
+# the firmware build each model was measured against (the shared reference runs): what the summary names
+FIRMWARE_VERSIONS = {"klipper": "Klipper v0.13.0-730, git 84104bbbd", "linuxcnc": "LinuxCNC 2.9",
+                     "marlin-2.1.2": "Marlin 2.1.2.4", "marlin-bugfix": "Marlin bugfix-2.1.x (2024-07-30)",
+                     "grbl-1.1": "grbl 1.1h"}
 ACCELERATION_PROFILES = ("trapezoid", "s-curve")
 AXES = ("x", "y", "z", "e")
 
@@ -51,7 +64,8 @@ class Machine:
     # G-code dialect: G4 P unit, M204 meaning, whether M201/M203/M205 apply, G0 rapid rate
     flavor: str = "marlin"
     # firmware model (FIRMWARES): "generic" plans with junction_policy; a firmware's own planning and step timing
-    # replace it otherwise (grbl-1.1: planner/grbl.py, marlin-2.1.2 and marlin-bugfix: planner/marlin.py)
+    # replace it otherwise (grbl-1.1: planner/grbl.py, marlin-2.1.2 and marlin-bugfix: planner/marlin.py);
+    # "klipper" and "linuxcnc" plan with their policy (junction_policy must then be it, or left None)
     firmware: str = "generic"
     # a firmware model's speed ramps (ACCELERATION_PROFILES): "s-curve" = Marlin's S_CURVE_ACCELERATION
     acceleration_profile: str = "trapezoid"
@@ -65,8 +79,9 @@ class Machine:
     accel_retract: float | None = None   # mm/s² M204 R default (Marlin); None = max_accel
     rapid_velocity: float | None = None  # mm/s G0 rate on CNC flavors; None = max_velocity
 
-    # junctions
-    junction_policy: str = "klipper"
+    # junctions: the policy (POLICIES); None = the firmware's own ("linuxcnc" for firmware "linuxcnc"), else
+    # "klipper". Always a name once the Machine is made.
+    junction_policy: str | None = None
     square_corner_velocity: float = 5.0  # mm/s (Klipper)
     minimum_cruise_ratio: float = 0.5    # Klipper (max_accel_to_decel = max_accel·(1 − mcr))
     junction_deviation: float = 0.013    # mm (grbl $11, Marlin JUNCTION_DEVIATION_MM)
@@ -138,6 +153,15 @@ class Machine:
     # machine property: equal machines may differ in it.
     auto_flavor: bool = field(default=False, compare=False, repr=False)
 
+    def __post_init__(self) -> None:
+        if self.junction_policy is None:
+            self.junction_policy = policy_of_firmware(self.firmware) or "klipper"
+        problem = firmware_policy_conflict(self.firmware, self.junction_policy)
+        if problem is not None:
+            from .errors import ConfigError
+
+            raise ConfigError(problem)
+
     # ------------------------------------------------------------------ derived
     def limits_row(self) -> np.ndarray:
         """Row 0 of the LIMITS table: the limits in force before the G-code changes any."""
@@ -176,3 +200,57 @@ class Machine:
     @property
     def is_cnc(self) -> bool:
         return self.flavor in ("grbl", "linuxcnc")
+
+
+def policy_of_firmware(firmware: str) -> str | None:
+    """The junction policy that *is* ``firmware``'s planner (``klipper``, ``linuxcnc``), None for the others (a
+    generic machine, or a firmware model planning with its own code)."""
+    if firmware in OWN_PLANNER_FIRMWARES:
+        return None
+    own = FIRMWARE_POLICIES.get(firmware)
+    return own[0] if own else None
+
+
+def firmware_policy_conflict(firmware: str, policy: str) -> str | None:
+    """The problem with a machine of ``firmware`` naming junction ``policy`` (None = none): Klipper and LinuxCNC
+    plan with their own policy only, so another one named beside them is a contradiction, not a choice."""
+    own = policy_of_firmware(firmware)
+    if own is None or policy == own:
+        return None
+    return (f"firmware {firmware!r} plans with the {own!r} junction policy, but the machine names policy "
+            f"{policy!r}: name one of them (firmware = \"generic\" plans with the policy alone)")
+
+
+def firmware_model(machine, policy: str | None = None) -> str:
+    """The firmware model that plans ``machine`` with junction ``policy`` (None = the machine's): its firmware
+    when that firmware plans with the policy (:data:`FIRMWARE_POLICIES`), else ``"generic"`` (the policy alone:
+    a run asked for a policy the firmware does not have is planned by that policy, as the policy runs)."""
+    firmware = getattr(machine, "firmware", "generic")
+    policy = policy or machine.junction_policy
+    return firmware if policy in FIRMWARE_POLICIES.get(firmware, ()) else "generic"
+
+
+def firmware_version(firmware: str) -> str:
+    """The firmware build a model reproduces, as the summary names it (``"Marlin 2.1.2.4"``); "" for generic."""
+    return FIRMWARE_VERSIONS.get(firmware, "")
+
+
+def with_firmware(machine: Machine, firmware: str) -> Machine:
+    """A copy of ``machine`` run by ``firmware`` (``--firmware``, ``load_machine(firmware=)``): Klipper and
+    LinuxCNC bring their policy along (they are it), the others keep the machine's policy."""
+    from dataclasses import replace
+
+    return replace(machine, firmware=firmware, junction_policy=policy_of_firmware(firmware) or machine.junction_policy)
+
+
+def planned_by(machine, run_policy: str, jerk: float | None = None) -> str:
+    """The firmware model a run of ``machine`` was planned by, "" when by the junction policy alone.
+    ``run_policy``: the run's name for how it planned (pipeline.Drive.policy: the policy, or the firmware model
+    that replaced it); ``jerk`` (mm/s³, the run's --jerk): S-curves, which neither Klipper nor LinuxCNC plans, so
+    such a run is the policy's alone (the firmware models with their own planner refuse a jerk)."""
+    if run_policy in OWN_PLANNER_FIRMWARES:
+        return run_policy
+    if jerk is not None or math.isfinite(machine.max_jerk):
+        return ""
+    model = firmware_model(machine, run_policy)
+    return "" if model == "generic" else model

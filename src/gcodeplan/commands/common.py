@@ -23,11 +23,13 @@ def add_machine_arguments(p: argparse.ArgumentParser) -> None:
                           "plans with the linuxcnc policy")
     g.add_argument("--flavor", choices=("marlin", "klipper", "reprap", "grbl", "linuxcnc"),
                    help="G-code dialect, overriding the machine's (G4 P units, M204 meaning, G0 rate)")
-    g.add_argument("--firmware", choices=("generic", "grbl-1.1", "marlin-2.1.2", "marlin-bugfix"),
+    g.add_argument("--firmware", choices=("generic", "grbl-1.1", "marlin-2.1.2", "marlin-bugfix", "klipper",
+                                          "linuxcnc"),
                    help="firmware model, overriding the machine's: grbl-1.1 runs grbl's own planner, segment "
                         "generator and step timing, marlin-2.1.2 Marlin 2.1.2.4's planner buffer and stepper "
-                        "timing, marlin-bugfix Marlin bugfix-2.1.x's (2024-07-30); generic plans with the "
-                        "junction policy alone")
+                        "timing, marlin-bugfix Marlin bugfix-2.1.x's (2024-07-30), klipper and linuxcnc the "
+                        "klipper and linuxcnc policies (Klipper's and LinuxCNC 2.9's planners); generic plans "
+                        "with the junction policy alone")
     g.add_argument("--strict", action="store_true",
                    help="unknown commands are an error instead of being counted")
     g.add_argument("--no-bounds", action="store_true",

@@ -153,6 +153,8 @@ def build_report(path: str, machine, policy: str | None = None, jerk: float | No
                  slowest: int = 2, size_in=plots.FIGSIZE_IN, progress=None) -> str:
     """Plan ``path`` once and return the HTML page (the viewer reads the lines' texts again: ``path`` must be
     readable twice, a regular file or :func:`gcodeplan.gcode.sources.spooled`'s copy)."""
+    from ..machine import planned_by
+    from ..report.estimate import planned_by_text
     from .estimate import Estimate, print_text
     from ..report.summary import TimeSummary
     from ..report.viewer import ViewerSink, thin_for, viewer_data, viewer_fragment
@@ -173,7 +175,7 @@ def build_report(path: str, machine, policy: str | None = None, jerk: float | No
     reader = stream_plan(path, machine, policy, jerk, strict, fold, progress)
     view.finish(reader, policy)
     est = Estimate(reader.path, reader.summary, time, list(reader.layer_z), list(reader.features), policy,
-                   machine.name)
+                   machine.name, firmware=planned_by(machine, policy, jerk))
     d = est.to_json()
     name = os.path.basename(reader.path)
     parts = _tables(est, d)
@@ -204,7 +206,7 @@ def build_report(path: str, machine, policy: str | None = None, jerk: float | No
             f"{what.capitalize()}: {_fmt_s(run.time_s)} of motion{note}",
             *(html.figure(plots.png_bytes(f), f"{what}: {cap}", f"{what}: {cap}") for f, cap in figs)))
     title = f"gcodeplan report: {name}"
-    footer = html.pre(f"gcodeplan {__version__}; machine {machine.name}, policy {policy}; "
+    footer = html.pre(f"gcodeplan {__version__}; machine {machine.name}, {planned_by_text(est)}; "
                       "times are the plan's (docs/design.md), curves sampled from the plan's segments.")
     return html.page(title, *parts, footer)
 

@@ -55,12 +55,12 @@ def machine_from_args(args: Any) -> Machine:
         machine = replace(machine, flavor=flavor)
     firmware = getattr(args, "firmware", None)
     if firmware:
-        from ..machine import FIRMWARES
+        from ..machine import FIRMWARES, with_firmware
 
         problem = rule_choice(FIRMWARES)(firmware)
         if problem is not None:
             raise ConfigError(f"--firmware: {problem}")
-        machine = replace(machine, firmware=firmware)
+        machine = with_firmware(machine, firmware)
     if getattr(args, "no_bounds", False):
         machine = without_bounds(machine)
     return machine

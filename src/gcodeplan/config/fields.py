@@ -11,7 +11,7 @@ from dataclasses import dataclass
 from typing import Any, Callable
 
 from ..errors import ConfigError
-from ..machine import ACCELERATION_PROFILES, AXES, FIRMWARES, FLAVORS, KINEMATICS, POLICIES, SHAPER_TYPES, Axis, Machine
+from ..machine import ACCELERATION_PROFILES, AXES, FIRMWARES, FLAVORS, KINEMATICS, POLICIES, SHAPER_TYPES, Axis, Machine, firmware_policy_conflict
 
 
 # Kinematics Klipper and others offer that we know about but cannot plan yet.
@@ -370,6 +370,9 @@ def validate(machine: Machine, source: str | None = None) -> None:
         if not ax.position_max > ax.position_min:
             raise ConfigError(f"axis.{a}.position_max: must be above position_min ({show_value(ax.position_min)}), "
                               f"got {show_value(ax.position_max)}", source)
+    problem = firmware_policy_conflict(machine.firmware, machine.junction_policy)
+    if problem is not None:
+        raise ConfigError(problem, source)
     # Klipper's corner rule takes δ = scv²·(√2−1)/max_accel and multiplies it back by the accel:
     # with an infinite max_accel that is inf·0, no answer at all.
     if machine.junction_policy == "klipper" and not math.isfinite(machine.max_accel):

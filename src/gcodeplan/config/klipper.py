@@ -290,7 +290,7 @@ def _klipper_steps_per_mm(cfg: KlipperCfg, section: str) -> float:
 
 
 def load_klipper_config(path: str) -> Machine:
-    """A machine from a Klipper printer.cfg: flavor and junction policy "klipper".
+    """A machine from a Klipper printer.cfg: flavor, firmware model and junction policy "klipper".
 
     Reads [printer], [stepper_x|y|z], [extruder], [gcode_arcs], [firmware_retraction] with Klipper's
     defaults and range checks; other sections and keys are ignored (they do not change planned times).
@@ -309,7 +309,8 @@ def load_klipper_config(path: str) -> Machine:
         raise ConfigError(f"[printer] kinematics: {reason} (supported: {', '.join(KINEMATICS)})",
                           kin_value.file, kin_value.line)
 
-    m = Machine(name=Path(path).stem, kinematics=kinematics, flavor="klipper", junction_policy="klipper")
+    m = Machine(name=Path(path).stem, kinematics=kinematics, flavor="klipper", firmware="klipper",
+                junction_policy="klipper")
     m.max_velocity = cfg.get_float("printer", "max_velocity", required=True, above=0.0)
     m.max_accel = cfg.get_float("printer", "max_accel", required=True, above=0.0)
     # toolhead.py: the older max_accel_to_decel maps to mcr = 1 − min(1, a2d/max_accel);

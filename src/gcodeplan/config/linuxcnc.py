@@ -115,7 +115,7 @@ def is_linuxcnc_ini(path: str) -> bool:
 
 
 def load_linuxcnc_ini(path: str) -> Machine:
-    """A Machine (flavor 'linuxcnc', policy 'linuxcnc') from a LinuxCNC .ini file (module docstring)."""
+    """A Machine (flavor, firmware model and policy 'linuxcnc') from a LinuxCNC .ini file (module docstring)."""
     from ..planner.linuxcnc import LinuxcncSettings
 
     ini = _Ini(os.fspath(path))
@@ -200,7 +200,8 @@ def load_linuxcnc_ini(path: str) -> Machine:
     name_raw = ini.get("EMC", "MACHINE")
     m = Machine(name=name_raw[0] if name_raw else os.path.basename(ini.path), kinematics="cartesian",
                 flavor="linuxcnc", max_velocity=vmax * scale if vmax < 1e98 else math.inf,
-                max_accel=amax * scale if amax < 1e98 else math.inf, junction_policy="linuxcnc", axes=axes)
+                max_accel=amax * scale if amax < 1e98 else math.inf, firmware="linuxcnc", junction_policy="linuxcnc",
+                axes=axes)
     _interpreter_settings(ini, settings, scale, abs(scale - 25.4) < 1e-3)
     # RS274NGC: where 'o<name> call' finds <name>.ngc (gcode/ngc.py), the parameter file
     from ..gcode.ngc import subroutine_dirs

@@ -11,7 +11,7 @@ from typing import Any
 
 from ..errors import ConfigError
 from .fields import AXIS_STEP_KEYS, EXTRUDER_EXTRA_KEYS, FIELDS, Field, SECTIONS, is_number, klipper_extrude_ratio, parse_gear_ratio, rule_positive_or_inf, section_keys, show_value, steps_per_mm_from_rotation, toml_path, validate
-from ..machine import AXES, Machine
+from ..machine import AXES, Machine, firmware_policy_conflict, policy_of_firmware
 
 
 # ============================================================================ TOML
@@ -82,8 +82,26 @@ def _load_toml_text(text: str, source: str, base_dir: str | None, seen: tuple[st
 
     machine = _base_machine(doc.get("base"), source, base_dir, seen)
     _apply_toml(doc, machine, source)
+    junction = doc.get("junction")
+    _settle_firmware_policy(machine, "firmware" in doc, isinstance(junction, dict) and "policy" in junction, source)
     validate(machine, source)
     return machine
+
+
+def _settle_firmware_policy(machine: Machine, firmware_named: bool, policy_named: bool, source: str) -> None:
+    """Klipper and LinuxCNC plan with their own policy (machine.firmware_policy_conflict): a file naming both
+    the firmware and another policy is an error; a file naming one of them over its ``base`` takes the other
+    along (``firmware = "linuxcnc"`` over the klipper preset plans with the linuxcnc policy; ``policy = "blend"``
+    over it makes the firmware generic, since Klipper has no blend)."""
+    problem = firmware_policy_conflict(machine.firmware, machine.junction_policy)
+    if problem is None:
+        return
+    if firmware_named == policy_named:      # both in this file (or neither: a base cannot conflict)
+        raise ConfigError(problem, source)
+    if firmware_named:
+        machine.junction_policy = policy_of_firmware(machine.firmware)
+    else:
+        machine.firmware = "generic"
 
 
 def _base_machine(base: Any, source: str, base_dir: str | None, seen: tuple[str, ...]) -> Machine:

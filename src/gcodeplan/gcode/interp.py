@@ -27,7 +27,7 @@ from collections import deque
 import numpy as np
 
 from ..errors import GcodeError, quote
-from ..machine import Machine
+from ..machine import OWN_PLANNER_FIRMWARES, Machine
 from ..schema import KIND_EXTRUDE_ONLY, KIND_WAIT, LIMITS_DTYPE
 from . import scan as S
 from .lexing import (CHECKSUM_RE, EXT_RE, FREE_TEXT_M, FREE_TEXT_RE, HMS_RE, M486_RE, M486_WORD_RE, MAX_EVENTS,
@@ -120,7 +120,7 @@ class Interpreter(StateCommands, MotionCommands, Rs274Commands):
         # (line, logical E in mm) of each "G92 E": a firmware model (planner/marlin.py) takes them in order, as
         # Marlin resets its E position there; kept only for such machines, and emptied as they are used
         self.e_position_sets: deque[tuple[int, float]] = deque()
-        self._keep_e_sets = getattr(machine, "firmware", "generic") != "generic"
+        self._keep_e_sets = getattr(machine, "firmware", "generic") in OWN_PLANNER_FIRMWARES
         self.warnings: list[str] = []
         self.warning_count = 0
         self.arcs = 0

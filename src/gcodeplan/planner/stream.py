@@ -26,6 +26,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import ConfigError
+from ..machine import OWN_PLANNER_FIRMWARES, firmware_model
 from ..schema import MOVE_DTYPE, PLAN_DTYPE, concat_rows, prepend_rows
 from .passes import klipper_flush, layout_rows, plan_runs, speed_buffers, standard_flush
 from .prepare import (POLICY_BLEND, POLICY_JD, POLICY_KLIPPER, POLICY_LINUXCNC, PREP_DTYPE, custom_cap,
@@ -213,11 +214,10 @@ class StreamPlanner:
         self._clock = 0.0
         self._emitted: list[tuple[np.ndarray, np.ndarray, np.ndarray, object]] = []  # last call's pieces
         # a firmware model (machine.firmware) plans with the junction rules the firmware has (Marlin: classic
-        # jerk or junction deviation; grbl: junction deviation); another policy asked for plans without the model
-        firmware = getattr(machine, "firmware", "generic")
-        allowed = {"marlin-2.1.2": ("classic-jerk", "junction-deviation"), "marlin-bugfix": ("classic-jerk",),
-                   "grbl-1.1": ("junction-deviation",)}
-        self.firmware = firmware if self.policy in allowed.get(firmware, ()) else "generic"
+        # jerk or junction deviation; grbl: junction deviation); another policy asked for plans without the model.
+        # Klipper's and LinuxCNC's models are their policies: they plan as "generic" here.
+        firmware = firmware_model(machine, self.policy)
+        self.firmware = firmware if firmware in OWN_PLANNER_FIRMWARES else "generic"
         self.e_position_sets = None                       # G92 E positions for a firmware model (pipeline sets)
         self.want_firmware_steps = False                  # a firmware model keeps its own step pulses
 

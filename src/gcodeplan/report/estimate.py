@@ -58,7 +58,10 @@ class Estimate:
         return buf.getvalue()
 
     def to_json(self) -> dict:
-        """The dict ``gcodeplan estimate --json`` prints (see the README for its keys)."""
+        """The dict ``gcodeplan estimate --json`` prints (see the README for its keys). ``firmware``: the firmware
+        model that planned ("" = the policy alone), ``firmware_version``: the firmware build it reproduces."""
+        from ..machine import firmware_version
+
         d = dict(self.parse.to_json())
         t = self.time
         d.update(
@@ -66,6 +69,7 @@ class Estimate:
             machine=self.machine_name,
             policy=self.policy,
             firmware=self.firmware,
+            firmware_version=firmware_version(self.firmware),
             total_time_s=t.total_time_s,
             total_time_hms=hms(t.total_time_s),
             moves=self.parse.moves,
@@ -92,20 +96,45 @@ class Estimate:
         return d
 
 
+def planned_by_text(est: Estimate) -> str:
+    """How ``est`` was planned, as the summary names it: the firmware model and the firmware version it
+    reproduces (``firmware marlin-2.1.2 (Marlin 2.1.2.4)``), or the junction policy when that planned alone."""
+    from ..machine import firmware_version
+
+    if not est.firmware:
+        return f"policy {est.policy}"
+    version = firmware_version(est.firmware)
+    return f"firmware {est.firmware}" + (f" ({version})" if version else "")
+
 
 def print_text(est: Estimate, out=None) -> None:
-    t, s = est.time, est.parse
+    """The summary ``gcodeplan estimate`` prints (:meth:`Estimate.to_text`), section by section."""
     w = (out or sys.stdout).write
+    dialect = _print_header(est, w)
+    _print_times(est, w)
+    _print_shares(est, w)
+    _print_flow(est, w)
+    _print_layers(est, w)
+    _print_notes(est, w, dialect)
+
+
+def _print_header(est: Estimate, w) -> dict | None:
+    """File, machine, what planned it, the G-code dialect; returns the dialect note (its warning is said here)."""
     w(f"{est.path}\n")
-    how = f"firmware {est.firmware}" if est.firmware else f"policy {est.policy}"
-    w(f"  machine {est.machine_name}, {how}\n")
-    dialect = getattr(s, "dialect", None)
+    w(f"  machine {est.machine_name}, {planned_by_text(est)}\n")
+    dialect = getattr(est.parse, "dialect", None)
     if dialect:
         from ..gcode.dialect import note_text
 
         w(f"  dialect: {note_text(dialect)}\n")
         if dialect.get("warning"):
             w(f"  warning: {dialect['warning']}\n")
+    return dialect
+
+
+def _print_times(est: Estimate, w) -> None:
+    """The totals: planned, naive and the slicer's; by kind of move; by speed phase; moves, stops and boxes."""
+    t, s = est.time, est.parse
     w(f"  total time      {hms(t.total_time_s):>10}  ({t.total_time_s:.3f} s)\n")
     naive = s.naive_time_s
     w(f"  naive time      {hms(naive):>10}  ({naive:.3f} s, distance / feed rate, for contrast)\n")
@@ -136,6 +165,11 @@ def print_text(est: Estimate, out=None) -> None:
             w(f"  {what + ' box':<16}{box_text(b)}\n")
     if getattr(s, "speed_capped_moves", 0):
         w(f"  {capped_text(s.speed_capped_moves, s.speed_capped_first_line)}\n")
+
+
+def _print_shares(est: Estimate, w) -> None:
+    """Where the time went: what limited the speed, per feature, per object, the named waits."""
+    t = est.time
     lim = t.limits()
     if lim:
         tot = sum(lim.values())
@@ -156,30 +190,46 @@ def print_text(est: Estimate, out=None) -> None:
     named = getattr(est, "wait_time_s", {}) or {}
     if named:
         w("  waits by name: " + ", ".join(f"{k} {hms(v)}" for k, v in sorted(named.items())) + "\n")
-    flow = t.flows(est.features, est.layer_z, getattr(est, "filament_diameter_mm", 1.75))
-    if flow["features"]:
-        w(f"  volumetric flow of printing moves (mm³/s; filament {flow['filament_diameter_mm']:g} mm; "
-          f"peak = at cruise speed):\n")
-        for name, f in sorted(flow["features"].items(), key=lambda kv: -kv[1]["print_time_s"]):
-            w(f"    {name:<28} average {f['average_mm3_s']:7.2f}   peak {f['peak_mm3_s']:7.2f}\n")
-        in_layers = [L for L in flow["layers"] if L["index"] >= 0]     # not the start G-code's purge line
-        if in_layers:
-            top = max(in_layers, key=lambda L: L["peak_mm3_s"])
-            busy = max(in_layers, key=lambda L: L["average_mm3_s"])
-            w(f"    layers: highest peak {top['peak_mm3_s']:.2f} (layer {top['index']}), highest average "
-              f"{busy['average_mm3_s']:.2f} (layer {busy['index']})\n")
+
+
+def _print_flow(est: Estimate, w) -> None:
+    """The volumetric flow of the printing moves per feature, and the layers of highest peak and average."""
+    flow = est.time.flows(est.features, est.layer_z, getattr(est, "filament_diameter_mm", 1.75))
+    if not flow["features"]:
+        return
+    w(f"  volumetric flow of printing moves (mm³/s; filament {flow['filament_diameter_mm']:g} mm; "
+      f"peak = at cruise speed):\n")
+    for name, f in sorted(flow["features"].items(), key=lambda kv: -kv[1]["print_time_s"]):
+        w(f"    {name:<28} average {f['average_mm3_s']:7.2f}   peak {f['peak_mm3_s']:7.2f}\n")
+    in_layers = [L for L in flow["layers"] if L["index"] >= 0]     # not the start G-code's purge line
+    if in_layers:
+        top = max(in_layers, key=lambda L: L["peak_mm3_s"])
+        busy = max(in_layers, key=lambda L: L["average_mm3_s"])
+        w(f"    layers: highest peak {top['peak_mm3_s']:.2f} (layer {top['index']}), highest average "
+          f"{busy['average_mm3_s']:.2f} (layer {busy['index']})\n")
+
+
+def _print_layers(est: Estimate, w) -> None:
+    """The layer count, the slowest and the mean layer; each layer's time when there are 40 or fewer."""
+    t = est.time
     layers = t.layers(est.layer_z)
-    if layers:
-        w(f"  layers: {len(layers)}")
-        if t.before_first_layer_s > 0:
-            w(f" (+ {hms(t.before_first_layer_s)} before the first)")
-        times = [L["time_s"] for L in layers]
-        slow = max(range(len(times)), key=times.__getitem__)
-        w(f", slowest #{slow} ({hms(times[slow])}), mean {hms(sum(times) / len(times))}\n")
-        if len(layers) <= 40:
-            for L in layers:
-                z = "" if L["z"] is None else f" z={L['z']:.3f}"
-                w(f"    layer {L['index']:>4}{z:<12} {hms(L['time_s']):>10}\n")
+    if not layers:
+        return
+    w(f"  layers: {len(layers)}")
+    if t.before_first_layer_s > 0:
+        w(f" (+ {hms(t.before_first_layer_s)} before the first)")
+    times = [L["time_s"] for L in layers]
+    slow = max(range(len(times)), key=times.__getitem__)
+    w(f", slowest #{slow} ({hms(times[slow])}), mean {hms(sum(times) / len(times))}\n")
+    if len(layers) <= 40:
+        for L in layers:
+            z = "" if L["z"] is None else f" z={L['z']:.3f}"
+            w(f"    layer {L['index']:>4}{z:<12} {hms(L['time_s']):>10}\n")
+
+
+def _print_notes(est: Estimate, w, dialect: dict | None) -> None:
+    """What was not modelled (counted commands) and the reader's warnings."""
+    s = est.parse
     unknown = getattr(s, "unknown_commands", {}) or {}
     if unknown:
         items = ", ".join(f"{k}×{v}" for k, v in sorted(unknown.items(), key=lambda kv: -kv[1])[:12])

@@ -553,8 +553,9 @@ def plot_axes(win: Window, machine=None, title: str | None = None, size_in=FIGSI
     Velocity limits drawn: the per-axis limit in force (LIMITS axis_v_*, a step line since the
     G-code may change it), the extrude-only limit on E, and, when the machine has a finite
     ``max_step_rate``, the speed at which a stepper reaches it (max_step_rate / steps_per_mm).
-    Motors that combine axes (corexy a = x + y, b = x − y: docs/design.md §9) get rows of their own. Lines carry
-    gids ``pos_<axis or motor>``/``vel_<axis or motor>``.
+    Motors that combine axes (corexy a = x + y, b = x − y: docs/design.md §9) get rows of their own, and so does
+    each motor of a plug-in kinematics given by its inverse kinematics (polar's bed angle in rad and arm in mm:
+    :func:`ik_motion`). Lines carry gids ``pos_<axis or motor>``/``vel_<axis or motor>``.
 
     A delta, or a machine with input shaping, gets one row per motor that moves with X/Y: the position
     and velocity it is driven to (X/Y shaped first, then the kinematics: gids ``motor_<name>``,
@@ -573,25 +574,17 @@ def plot_axes(win: Window, machine=None, title: str | None = None, size_in=FIGSI
     motors = {}
     motor_labels: dict[str, str] = {}
     motor_spm: dict[str, float] = {}
+    motor_units: dict[str, str] = {}       # a plug-in motor's position unit (its ik's: mm, rad)
     if kin == "delta" or shaped:
+        from ..kinematics import rails_for
+
         for name, cp, cv, mp, mv in motor_motion(win.segs, machine, s.t):
             motors[name] = (cp, cv, mp, mv)
             pos[name], vel[name] = mp, mv
+        motor_units.update((r.name, ik_unit(r)) for r in rails_for(machine) if r.ik is not None)
     elif machine is not None and kin != "cartesian":
-        # a linear machine's motors (corexy, corexz, ...): asked of the kinematics, each a weighted sum of axes
-        from ..kinematics import rails_for
-
-        for rail in rails_for(machine):
-            w = rail.weights
-            if w is None or sum(1 for x in w if x != 0.0) < 2:
-                continue                   # a motor that is one axis is that axis's own row
-            pos[rail.name] = sum(wi * pos[a] for wi, a in zip(w, AXES) if wi != 0.0)
-            vel[rail.name] = sum(wi * vel[a] for wi, a in zip(w, AXES) if wi != 0.0)
-            terms = " ".join(f"{'+' if wi > 0 else '−'} {'' if abs(wi) == 1 else f'{abs(wi):g}·'}{a}"
-                             for wi, a in zip(w, AXES) if wi != 0.0)
-            motor_labels[rail.name] = f"{rail.name} = {terms.lstrip('+ ')}"
-            motor_spm[rail.name] = rail.steps_per_mm
-            rows.append(rail.name)
+        names, motor_labels, motor_units, motor_spm = _motor_rows(machine, s, pos, vel)
+        rows += names
     rows += list(motors)
     fig, axs = new_figure(len(rows), 2, size_in, dpi, sharex=True)
     for r, name in enumerate(rows):
@@ -604,18 +597,20 @@ def plot_axes(win: Window, machine=None, title: str | None = None, size_in=FIGSI
             plot_series(ax_v, s, cv, f"cmd_vel_{name}", "commanded", color="0.55", lw=1.6)
             plot_series(ax_v, s, mv, f"motor_vel_{name}", "driven (shaped)" if shaped else "driven",
                         color="tab:blue", lw=1.0)
-            ax_p.set_ylabel(f"{label} (mm)", fontsize=9)
-            ax_v.set_ylabel(f"{label} (mm/s)", fontsize=9)
+            unit = motor_units.get(name, "mm")
+            ax_p.set_ylabel(f"{label} ({unit})", fontsize=9)
+            ax_v.set_ylabel(f"{label} ({unit}/s)", fontsize=9)
             for ax in (ax_p, ax_v):
                 ax.grid(True, alpha=0.3)
                 ax.tick_params(labelsize=8)
             ax_v.legend(loc="upper left", bbox_to_anchor=(1.0, 1.0), fontsize=8)
             continue
         label = motor_labels.get(name, name)
+        unit = motor_units.get(name, "mm")
         plot_series(ax_p, s, pos[name], f"pos_{name}", color="tab:blue", lw=1.0)
         plot_series(ax_v, s, vel[name], f"vel_{name}", f"{name} velocity", color="tab:blue", lw=1.0)
-        ax_p.set_ylabel(f"{label} (mm)", fontsize=9)
-        ax_v.set_ylabel(f"{label} (mm/s)", fontsize=9)
+        ax_p.set_ylabel(f"{label} ({unit})", fontsize=9)
+        ax_v.set_ylabel(f"{label} ({unit}/s)", fontsize=9)
         for ax in (ax_p, ax_v):
             ax.grid(True, alpha=0.3)
             ax.tick_params(labelsize=8)
@@ -645,6 +640,34 @@ def plot_axes(win: Window, machine=None, title: str | None = None, size_in=FIGSI
     axs[0, 0].set_xlim(s.t[0], s.t[-1])
     fig.suptitle(title or _window_title(win, f"axes ({kin})"))
     return fig
+
+
+def _motor_rows(machine, s: "Samples", pos: dict, vel: dict) -> tuple[list, dict, dict, dict]:
+    """The rows of the motors the kinematics makes of the axes, unshaped: a linear machine's motors (corexy,
+    corexz, ...) each a weighted sum of axes; a plug-in's non-linear motors (polar's bed and arm, a winch's
+    cables) its inverse kinematics (:func:`ik_motion`). Adds their positions and velocities to ``pos``/``vel``;
+    returns (row names in order, labels, position units, steps per unit) by row name."""
+    from ..kinematics import rails_for
+
+    names, labels, units, spm = [], {}, {}, {}
+    for rail in rails_for(machine):
+        if rail.ik is not None:
+            key = rail.name if rail.name not in AXES else f"{rail.name} motor"
+            pos[key], vel[key] = ik_motion(rail, s.pos, s.vel)
+            labels[key], units[key], spm[key] = key, ik_unit(rail), rail.steps_per_mm
+            names.append(key)
+            continue
+        w = rail.weights
+        if w is None or sum(1 for x in w if x != 0.0) < 2:
+            continue                   # a motor that is one axis is that axis's own row
+        pos[rail.name] = sum(wi * pos[a] for wi, a in zip(w, AXES) if wi != 0.0)
+        vel[rail.name] = sum(wi * vel[a] for wi, a in zip(w, AXES) if wi != 0.0)
+        terms = " ".join(f"{'+' if wi > 0 else '−'} {'' if abs(wi) == 1 else f'{abs(wi):g}·'}{a}"
+                         for wi, a in zip(w, AXES) if wi != 0.0)
+        labels[rail.name] = f"{rail.name} = {terms.lstrip('+ ')}"
+        spm[rail.name] = rail.steps_per_mm
+        names.append(rail.name)
+    return names, labels, units, spm
 
 
 def _path_at(segs: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -695,7 +718,58 @@ def motor_motion(segs: np.ndarray, machine, t: np.ndarray) -> list[tuple]:
         elif rail.weights is not None and (rail.weights[0] or rail.weights[1]):
             w = np.asarray(rail.weights, np.float64)
             out.append((rail.name, cp @ w, cv @ w, dp @ w, dv @ w))
+        elif rail.ik is not None:
+            out.append((rail.name, *ik_motion(rail, cp, cv), *ik_motion(rail, dp, dv)))
     return out
+
+
+# s: the half-interval of the central difference a plug-in motor's velocity is taken over: at 1000 mm/s the
+# toolhead moves 0.01 mm, so the difference's truncation error (∝ dt²) and its rounding error (∝ 1/dt) both stay
+# below 1e-8 of the velocity on machines of metres and millimetres
+IK_DT = 1e-5
+
+
+def ik_motion(rail, p: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """A plug-in motor's position (its inverse kinematics' unit: mm, rad) and velocity (unit/s) for toolhead
+    positions ``p`` (n, ≥3, mm) moving at ``v`` (n, ≥3, mm/s): ``rail.ik`` at each point, a cyclic motor (a
+    turntable: ``rail.period``) followed continuously as the step engine follows it, and the velocity the ik's
+    derivative along ``v`` (a central difference over ±:data:`IK_DT` s). Where the ik has no derivative (polar's
+    bed angle at the centre) the velocity is NaN (a gap), not the difference across the jump: there the
+    one-sided differences' disagreement does not shrink as dt² when dt halves (:func:`_ik_kink`)."""
+    params = np.asarray(rail.ik_params if len(rail.ik_params) else (0.0,), np.float64)
+    p3 = np.asarray(p, np.float64)[:, :3]
+    v3 = np.asarray(v, np.float64)[:, :3]
+    pos = _ik_at(rail.ik, p3, params)
+    diffs = []       # one-sided differences ahead and behind over dt and 2·dt
+    for k in (1.0, -1.0, 2.0, -2.0):
+        d = (_ik_at(rail.ik, p3 + v3 * (k * IK_DT), params) - pos) * np.sign(k)
+        if rail.period > 0:
+            d -= rail.period * np.round(d / rail.period)        # a difference taken across the wrap
+        diffs.append(d)
+    ahead, behind, ahead2, behind2 = diffs
+    if rail.period > 0 and pos.size:
+        pos = np.unwrap(pos, period=rail.period)
+    kink = _ik_kink(ahead - behind, ahead2 - behind2, pos)
+    return pos, np.where(kink, np.nan, (ahead + behind) / (2.0 * IK_DT))
+
+
+def _ik_kink(d1: np.ndarray, d2: np.ndarray, pos: np.ndarray) -> np.ndarray:
+    """True where a motor's position has no derivative: ``d1``, ``d2`` = ahead − behind one-sided differences over
+    dt and 2·dt. A smooth position gives d2 = 4·d1 (both ∝ the second derivative · dt²), a kink 2·d1, a jump
+    d1 (the jump itself); a d1 at the level of the position's rounding is smooth."""
+    noise = 64.0 * np.finfo(np.float64).eps * (1.0 + np.abs(pos))
+    return (np.abs(d1) > noise) & (np.abs(d2) < 3.0 * np.abs(d1))
+
+
+def _ik_at(ik, p3: np.ndarray, params: np.ndarray) -> np.ndarray:
+    """``ik(x, y, z, params)`` at each row of ``p3`` (the plug-in's own function, compiled or not)."""
+    return np.fromiter((ik(x, y, z, params) for x, y, z in p3.tolist()), np.float64, count=len(p3))
+
+
+def ik_unit(rail) -> str:
+    """The position unit a plug-in motor's row is labelled in: rad for a turntable (period 2π), else the
+    plug-in's own ("units": mm for a carriage or cable, rad for an arm's angle)."""
+    return "rad" if rail.period and abs(rail.period - 2.0 * math.pi) < 1e-12 else "units"
 
 
 # ----------------------------------------------------------------------------- path
