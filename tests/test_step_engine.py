@@ -162,10 +162,10 @@ def test_a_kinematics_written_outside_the_package_runs_on_the_engine():
         return m + v * s + 0.5 * a * s * s
 
     @numba.njit
-    def turning_points(piece, span, out):
+    def turning_points(piece, span, bnd):
         m, v, a = piece
         if a != 0.0 and 0.0 < -v / a < span:
-            out[0] = -v / a
+            bnd[1] = -v / a
             return 1
         return 0
 

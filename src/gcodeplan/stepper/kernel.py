@@ -75,12 +75,18 @@ def velocity_roots(v, a, j, dt, roots):
     Quadratic case uses q = −(a + sign(a)·√(a² − 2jv))/2, roots q/(j/2) and v/q
     (Numerical Recipes §5.6), which keeps full precision for both roots.
     """
+    return _velocity_roots_at(v, a, j, dt, roots, 0)
+
+
+@njit(cache=True, inline="always")
+def _velocity_roots_at(v, a, j, dt, roots, first):
+    """:func:`velocity_roots` written to ``roots[first:]`` (the step engine's cut list, without a view)."""
     count = 0
     if j == 0.0:
         if a != 0.0:
             r = -v / a
             if 0.0 < r < dt:
-                roots[0] = r
+                roots[first] = r
                 count = 1
         return count
     half_j = 0.5 * j
@@ -94,10 +100,10 @@ def velocity_roots(v, a, j, dt, roots):
     if r2 < r1:
         r1, r2 = r2, r1
     if 0.0 < r1 < dt:
-        roots[count] = r1
+        roots[first + count] = r1
         count += 1
     if 0.0 < r2 < dt and r2 != r1:
-        roots[count] = r2
+        roots[first + count] = r2
         count += 1
     return count
 
@@ -204,8 +210,8 @@ def _stretch_steps(n, u_start, u_end, k, sgn, cnt):
 # * ``piece_at(data, i) -> (status, start_mm, piece)``: piece i's own coefficients (``piece``, any tuple the
 #   other four read), the motor position at its start (mm) and a PIECE_* status;
 # * ``position(piece, s) -> mm``: the motor position at τ = s (s);
-# * ``turning_points(piece, span, out) -> count``: times in (0, span) that cut the piece into stretches on
-#   which the motor is monotone, sorted, into ``out`` (room for ``max_cuts``);
+# * ``turning_points(piece, span, bnd) -> count``: times in (0, span) that cut the piece into stretches on
+#   which the motor is monotone, sorted, into bnd[1..count] (room for ``max_cuts``);
 # * ``stretch(piece, lo, hi, sigma) -> ctx``: what the crossing search carries along the monotone stretch
 #   [lo, hi] (s) travelled in direction sigma (±1), a tuple of floats;
 # * ``crossing(piece, ctx, target, sigma, step_dist) -> (τ, ctx)``: the next τ (s) in the stretch where the
@@ -309,7 +315,7 @@ def step_pieces(piece_at, position, turning_points, stretch, crossing, data, max
             last_pos = position(piece, span) if span > 0.0 else p
             i += 1
             continue
-        n_cut = turning_points(piece, span, bnd[1:])
+        n_cut = turning_points(piece, span, bnd)
         bnd[0] = 0.0
         bnd[n_cut + 1] = span
         n_str = n_cut + 1
@@ -363,10 +369,10 @@ def _linear_position(piece, s):
 
 
 @njit(cache=True, inline="always")
-def _linear_turning_points(piece, span, out):
-    """Where the linear piece reverses: the roots of its velocity in (0, span), into ``out``."""
+def _linear_turning_points(piece, span, bnd):
+    """Where the linear piece reverses: the roots of its velocity in (0, span), into bnd[1..]."""
     p, v, a, j = piece
-    return velocity_roots(v, a, j, span, out)
+    return _velocity_roots_at(v, a, j, span, bnd, 1)
 
 
 @njit(cache=True, inline="always")
@@ -719,10 +725,11 @@ def _poly_position(piece, s):
 
 
 @njit(cache=True, inline="always")
-def _poly_turning_points(piece, span, out):
-    """Where the degree-5 piece reverses: the roots of its derivative in (0, span) (:func:`critical_points`)."""
+def _poly_turning_points(piece, span, bnd):
+    """Where the degree-5 piece reverses: the roots of its derivative in (0, span) (:func:`critical_points`),
+    into bnd[1..]."""
     coef, i, deriv = piece
-    return critical_points(coef, i, span, deriv, out)
+    return critical_points(coef, i, span, deriv, bnd[1:])
 
 
 @njit(cache=True, inline="always")
@@ -1061,10 +1068,10 @@ def _delta_position(piece, s):
 
 
 @njit(cache=True, inline="always")
-def _delta_turning_points(piece, span, out):
-    """Where the carriage may turn on the delta piece (:func:`delta_turning_points`), into ``out``."""
+def _delta_turning_points(piece, span, bnd):
+    """Where the carriage may turn on the delta piece (:func:`delta_turning_points`), into bnd[1..]."""
     arm2, tx, ty, px, py, pz, vx, vy, vz, ax, ay, az, jx, jy, jz = piece
-    return delta_turning_points(arm2, tx, ty, px, py, vx, vy, vz, ax, ay, az, jx, jy, jz, span, out)
+    return delta_turning_points(arm2, tx, ty, px, py, vx, vy, vz, ax, ay, az, jx, jy, jz, span, bnd[1:])
 
 
 @njit(cache=True, inline="always")
