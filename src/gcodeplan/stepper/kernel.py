@@ -220,7 +220,8 @@ def _stretch_steps(n, u_start, u_end, k, sgn, cnt):
 # The skeleton and its two passes are ``inline="always"``: numba copies them into each thin entry kernel
 # (gen_steps, gen_steps_poly, gen_steps_delta) with the functions as module globals there, so each entry
 # is compiled once for its kinematics, keeps numba's on-disk cache (no dispatcher in any cached signature)
-# and runs as fast as a hand-written kernel.
+# and keeps the hand-written kernels' speed. A skeleton compiled on its own and called with the functions as
+# arguments would not: numba then refuses to cache the entry kernels ("uses dynamic globals").
 
 # piece_at statuses: the values the entry kernels return as ``need`` when they stop at the piece
 PIECE_MOVING = 0
