@@ -75,12 +75,18 @@ def velocity_roots(v, a, j, dt, roots):
     Quadratic case uses q = −(a + sign(a)·√(a² − 2jv))/2, roots q/(j/2) and v/q
     (Numerical Recipes §5.6), which keeps full precision for both roots.
     """
+    return _velocity_roots_at(v, a, j, dt, roots, 0)
+
+
+@njit(cache=True, inline="always")
+def _velocity_roots_at(v, a, j, dt, roots, first):
+    """:func:`velocity_roots` written to ``roots[first:]`` (the step engine's cut list, without a view)."""
     count = 0
     if j == 0.0:
         if a != 0.0:
             r = -v / a
             if 0.0 < r < dt:
-                roots[0] = r
+                roots[first] = r
                 count = 1
         return count
     half_j = 0.5 * j
@@ -94,10 +100,10 @@ def velocity_roots(v, a, j, dt, roots):
     if r2 < r1:
         r1, r2 = r2, r1
     if 0.0 < r1 < dt:
-        roots[count] = r1
+        roots[first + count] = r1
         count += 1
     if 0.0 < r2 < dt and r2 != r1:
-        roots[count] = r2
+        roots[first + count] = r2
         count += 1
     return count
 
@@ -195,6 +201,209 @@ def _stretch_steps(n, u_start, u_end, k, sgn, cnt):
     return c, n
 
 
+# ------------------------------------------------------------------ the step engine (one skeleton, any motor)
+#
+# Every exact kernel below runs :func:`step_pieces`: the grid (anchor, reset flags, hysteresis), the
+# count-then-solve passes and the output-full protocol are written once; what depends on the kinematics is
+# handed to it as five compiled functions, as a junction policy hands the planner its ``cap_v2``:
+#
+# * ``piece_at(data, i) -> (status, start_mm, piece)``: piece i's own coefficients (``piece``, any tuple the
+#   other four read), the motor position at its start (mm) and a PIECE_* status;
+# * ``position(piece, s) -> mm``: the motor position at τ = s (s);
+# * ``turning_points(piece, span, bnd) -> count``: times in (0, span) that cut the piece into stretches on
+#   which the motor is monotone, sorted, into bnd[1..count] (room for ``max_cuts``);
+# * ``stretch(piece, lo, hi, sigma) -> ctx``: what the crossing search carries along the monotone stretch
+#   [lo, hi] (s) travelled in direction sigma (±1), a tuple of floats;
+# * ``crossing(piece, ctx, target, sigma, step_dist) -> (τ, ctx)``: the next τ (s) in the stretch where the
+#   motor reaches ``target`` (mm), the crossings of one stretch asked for in order.
+#
+# The skeleton and its two passes are ``inline="always"``: numba copies them into each thin entry kernel
+# (gen_steps, gen_steps_poly, gen_steps_delta) with the functions as module globals there, so each entry
+# is compiled once for its kinematics, keeps numba's on-disk cache (no dispatcher in any cached signature)
+# and keeps the hand-written kernels' speed. A skeleton compiled on its own and called with the functions as
+# arguments would not: numba then refuses to cache the entry kernels ("uses dynamic globals").
+
+# piece_at statuses: the values the entry kernels return as ``need`` when they stop at the piece
+PIECE_MOVING = 0
+PIECE_STILL = 1           # the motor does not move on this piece: no step, no root search
+PIECE_BROKEN = -1         # a non-finite coefficient (a planner bug: the caller reports it)
+PIECE_UNREACHABLE = -2    # the motor has no position there (e.g. beyond a delta arm's reach)
+
+
+@njit(cache=True, inline="always")
+def _count_piece_steps(position, piece, bnd, n_str, anchor, n, inv_d, u_start, sgn, cnt):
+    """Pass 1 over one piece: the steps of each monotone stretch [bnd[k], bnd[k+1]] (into ``cnt``/``sgn``,
+    see :func:`_stretch_steps`) from commanded step ``n``, u_start the piece's start in steps from ``anchor``
+    (mm). Returns the piece's step count, or −1 when the motor has no position at a stretch end."""
+    total = 0
+    u_prev = u_start
+    for k in range(n_str):
+        end = position(piece, bnd[k + 1])
+        if not math.isfinite(end):
+            return -1
+        u_end = (end - anchor) * inv_d
+        c, n = _stretch_steps(n, u_prev, u_end, k, sgn, cnt)
+        total += c
+        u_prev = u_end
+    return total
+
+
+@njit(cache=True, inline="always")
+def _solve_piece_steps(stretch, crossing, piece, bnd, n_str, sgn, cnt, anchor, n, step_dist, base_t,
+                       out_t, out_dir, out_n):
+    """Pass 2 over one piece: the time of every step counted by :func:`_count_piece_steps`, the crossing of
+    its half-step point ``anchor + (n ± ½)·step_dist`` (mm), written to ``out_t`` (s, base_t + τ) and
+    ``out_dir`` from ``out_n``. Returns (commanded step after the piece, new out_n)."""
+    for k in range(n_str):
+        c = cnt[k]
+        if c == 0:
+            continue
+        sigma = sgn[k]
+        dirv = np.int8(1) if sigma > 0.0 else np.int8(-1)
+        ctx = stretch(piece, bnd[k], bnd[k + 1], sigma)
+        for m in range(c):
+            target = anchor + (n + 0.5 * sigma) * step_dist
+            tau, ctx = crossing(piece, ctx, target, sigma, step_dist)
+            out_t[out_n] = base_t + tau
+            out_dir[out_n] = dirv
+            out_n += 1
+            n += sigma
+    return n, out_n
+
+
+@njit(cache=True, inline="always")
+def step_pieces(piece_at, position, turning_points, stretch, crossing, data, max_cuts,
+                t0, dt, reset, step_dist, state, start, out_t, out_dir, out_n):
+    """The step engine: append the step times (s) of pieces ``start..`` of one motor to ``out_t``/``out_dir``
+    from index ``out_n``, the motor given by the five functions described above this section over ``data``.
+
+    Piece i lasts τ in [0, dt[i]] from absolute time t0[i] (s). ``reset[i]`` = RESET_ANCHOR re-anchors the
+    grid at piece i's start; so does a jump of more than JUMP_TOL_MM from the previous piece's end, unless
+    ``reset[i]`` = RESET_CONTINUE. ``state`` (see S_*) carries the grid between calls; ``step_dist`` is mm
+    per step. A piece is emitted whole or not at all: when the output is full the call returns early.
+
+    Returns (next piece index, new out_n, need): need is the step count of the piece that did not fit, 0
+    when all pieces were done, −1 when piece ``next`` has a non-finite coefficient, −2 when the motor has no
+    position on it.
+    """
+    n_pieces = t0.shape[0]
+    cap = out_t.shape[0]
+    inv_d = 1.0 / step_dist
+    anchor = state[S_ANCHOR]
+    n = state[S_N]
+    last_pos = state[S_LAST_POS]
+    anchored = state[S_ANCHORED] != 0.0
+    bnd = np.empty(max_cuts + 2, dtype=np.float64)
+    cnt = np.empty(max_cuts + 1, dtype=np.int64)
+    sgn = np.empty(max_cuts + 1, dtype=np.float64)
+    i = start
+    need = 0
+    while i < n_pieces:
+        span = dt[i]
+        status, p, piece = piece_at(data, i)
+        if status == PIECE_BROKEN or not math.isfinite(span):
+            need = PIECE_BROKEN          # a broken plan: the caller reports it
+            break
+        if status == PIECE_UNREACHABLE:
+            need = PIECE_UNREACHABLE
+            break
+        if (not anchored) or reset[i] == RESET_ANCHOR or (reset[i] != RESET_CONTINUE
+                                                          and abs(p - last_pos) > JUMP_TOL_MM):
+            anchor = p
+            n = 0.0
+            anchored = True
+        if status == PIECE_STILL or not (span > 0.0):
+            last_pos = position(piece, span) if span > 0.0 else p
+            i += 1
+            continue
+        n_cut = turning_points(piece, span, bnd)
+        bnd[0] = 0.0
+        bnd[n_cut + 1] = span
+        n_str = n_cut + 1
+        total = _count_piece_steps(position, piece, bnd, n_str, anchor, n, inv_d, (p - anchor) * inv_d,
+                                   sgn, cnt)
+        if total < 0:
+            need = PIECE_UNREACHABLE
+            break
+        if out_n + total > cap:
+            need = total
+            break
+        n, out_n = _solve_piece_steps(stretch, crossing, piece, bnd, n_str, sgn, cnt, anchor, n, step_dist,
+                                      t0[i], out_t, out_dir, out_n)
+        last_pos = position(piece, span)
+        i += 1
+    state[S_ANCHOR] = anchor
+    state[S_N] = n
+    state[S_LAST_POS] = last_pos
+    state[S_ANCHORED] = 1.0 if anchored else 0.0
+    return i, out_n, need
+
+
+# ------------------------------------------------------------------ linear motors (cubic pieces, exact)
+
+# cuts of a cubic piece: the roots of its quadratic velocity
+LINEAR_MAX_CUTS = 2
+
+
+@njit(cache=True, inline="always")
+def _linear_piece(data, i):
+    """:func:`step_pieces`'s ``piece_at`` for linear motors: data = (p, v, a, j) columns (mm, mm/s, mm/s²,
+    mm/s³); the piece is (p, v, a, j) of row i."""
+    pc, vc, ac, jc = data
+    p = pc[i]
+    v = vc[i]
+    a = ac[i]
+    j = jc[i]
+    status = PIECE_MOVING
+    if not (math.isfinite(p) and math.isfinite(v) and math.isfinite(a) and math.isfinite(j)):
+        status = PIECE_BROKEN
+    elif v == 0.0 and a == 0.0 and j == 0.0:
+        status = PIECE_STILL
+    return status, p, (p, v, a, j)
+
+
+@njit(cache=True, inline="always")
+def _linear_position(piece, s):
+    """Position (mm) of the linear piece at τ = s."""
+    p, v, a, j = piece
+    return _pos(p, v, a, j, s)
+
+
+@njit(cache=True, inline="always")
+def _linear_turning_points(piece, span, bnd):
+    """Where the linear piece reverses: the roots of its velocity in (0, span), into bnd[1..]."""
+    p, v, a, j = piece
+    return _velocity_roots_at(v, a, j, span, bnd, 1)
+
+
+@njit(cache=True, inline="always")
+def _linear_stretch(piece, lo, hi, sigma):
+    """(lo, hi, last crossing, p, v re-based at lo, width) of a monotone stretch: with j = 0 the crossings
+    solve the quadratic re-based at the stretch start, where the velocity has sign sigma (or is 0)."""
+    p, v, a, j = piece
+    p1 = 0.0
+    v1 = 0.0
+    if j == 0.0:
+        p1 = _pos(p, v, a, 0.0, lo)
+        v1 = v + a * lo
+        if v1 * sigma < 0.0:
+            v1 = 0.0
+    return (lo, hi, lo, p1, v1, hi - lo)
+
+
+@njit(cache=True, inline="always")
+def _linear_crossing(piece, ctx, target, sigma, step_dist):
+    """The next crossing of ``target`` (mm) by the linear piece: closed form for j = 0
+    (:func:`quadratic_crossing`), bracketed Newton from the last crossing otherwise (:func:`cubic_crossing`)."""
+    p, v, a, j = piece
+    lo, hi, left, p1, v1, width = ctx
+    if j == 0.0:
+        tau = lo + quadratic_crossing(p1, v1, a, target, sigma, width)
+    else:
+        tau = cubic_crossing(p, v, a, j, target, left, hi)
+    return tau, (lo, hi, tau, p1, v1, width)
+
+
 @njit(cache=True)
 def gen_steps(t0, dt, pc, vc, ac, jc, reset, step_dist, state, start, out_t, out_dir, out_n):
     """Append the step times of pieces ``start..`` to ``out_t``/``out_dir`` from index ``out_n``.
@@ -208,100 +417,11 @@ def gen_steps(t0, dt, pc, vc, ac, jc, reset, step_dist, state, start, out_t, out
 
     Returns (next piece index, new out_n, need): need is the step count of the
     piece that did not fit, 0 when all pieces were done, −1 when piece ``next``
-    has a non-finite coefficient.
+    has a non-finite coefficient. (:func:`step_pieces` with the linear motor's functions.)
     """
-    n_pieces = t0.shape[0]
-    cap = out_t.shape[0]
-    inv_d = 1.0 / step_dist
-    anchor = state[S_ANCHOR]
-    n = state[S_N]
-    last_pos = state[S_LAST_POS]
-    anchored = state[S_ANCHORED] != 0.0
-    roots = np.empty(2, dtype=np.float64)
-    bnd = np.empty(4, dtype=np.float64)
-    cnt = np.empty(3, dtype=np.int64)
-    sgn = np.empty(3, dtype=np.float64)
-    i = start
-    need = 0
-    while i < n_pieces:
-        p = pc[i]
-        v = vc[i]
-        a = ac[i]
-        j = jc[i]
-        span = dt[i]
-        if (not anchored) or reset[i] == RESET_ANCHOR or (reset[i] != RESET_CONTINUE
-                                                          and abs(p - last_pos) > JUMP_TOL_MM):
-            anchor = p
-            n = 0.0
-            anchored = True
-        if not (math.isfinite(p) and math.isfinite(v) and math.isfinite(a) and math.isfinite(j)
-                and math.isfinite(span)):
-            need = -1          # a broken plan: the caller reports it
-            break
-        if (v == 0.0 and a == 0.0 and j == 0.0) or not (span > 0.0):
-            last_pos = _pos(p, v, a, j, span) if span > 0.0 else p
-            i += 1
-            continue
-        # monotone stretches [bnd[k], bnd[k+1]]
-        nr = velocity_roots(v, a, j, span, roots)
-        bnd[0] = 0.0
-        for k in range(nr):
-            bnd[k + 1] = roots[k]
-        bnd[nr + 1] = span
-        n_str = nr + 1
-        # pass 1: how many steps, per stretch (no root solving)
-        nn = n
-        total = 0
-        u_prev = (p - anchor) * inv_d
-        for k in range(n_str):
-            u_end = (_pos(p, v, a, j, bnd[k + 1]) - anchor) * inv_d
-            c, nn = _stretch_steps(nn, u_prev, u_end, k, sgn, cnt)
-            total += c
-            u_prev = u_end
-        if out_n + total > cap:
-            need = total
-            break
-        # pass 2: solve each crossing
-        base_t = t0[i]
-        for k in range(n_str):
-            c = cnt[k]
-            if c == 0:
-                continue
-            sigma = sgn[k]
-            lo = bnd[k]
-            hi = bnd[k + 1]
-            dirv = np.int8(1) if sigma > 0.0 else np.int8(-1)
-            if j == 0.0:
-                # re-base at the stretch start, where the velocity has sign sigma (or is 0)
-                p1 = _pos(p, v, a, 0.0, lo)
-                v1 = v + a * lo
-                if v1 * sigma < 0.0:
-                    v1 = 0.0
-                width = hi - lo
-                for m in range(c):
-                    target = anchor + (n + 0.5 * sigma) * step_dist
-                    tau = quadratic_crossing(p1, v1, a, target, sigma, width)
-                    out_t[out_n] = base_t + (lo + tau)
-                    out_dir[out_n] = dirv
-                    out_n += 1
-                    n += sigma
-            else:
-                left = lo
-                for m in range(c):
-                    target = anchor + (n + 0.5 * sigma) * step_dist
-                    tau = cubic_crossing(p, v, a, j, target, left, hi)
-                    out_t[out_n] = base_t + tau
-                    out_dir[out_n] = dirv
-                    out_n += 1
-                    n += sigma
-                    left = tau
-        last_pos = _pos(p, v, a, j, span)
-        i += 1
-    state[S_ANCHOR] = anchor
-    state[S_N] = n
-    state[S_LAST_POS] = last_pos
-    state[S_ANCHORED] = 1.0 if anchored else 0.0
-    return i, out_n, need
+    return step_pieces(_linear_piece, _linear_position, _linear_turning_points, _linear_stretch,
+                       _linear_crossing, (pc, vc, ac, jc), LINEAR_MAX_CUTS,
+                       t0, dt, reset, step_dist, state, start, out_t, out_dir, out_n)
 
 
 # ------------------------------------------------------------------ filters and statistics
@@ -578,6 +698,66 @@ def critical_points(c, k, span, deriv, out):
     return n_pts
 
 
+@njit(cache=True, inline="always")
+def _poly_piece(data, i):
+    """:func:`step_pieces`'s ``piece_at`` for degree-5 pieces: data = (coef, deriv scratch); the piece is
+    (coef, i, deriv scratch)."""
+    coef, deriv = data
+    p = coef[i, 0]
+    finite = True
+    moving = False
+    for d in range(POLY_NCOEF):
+        finite = finite and math.isfinite(coef[i, d])
+        if d > 0 and coef[i, d] != 0.0:
+            moving = True
+    status = PIECE_MOVING
+    if not finite:
+        status = PIECE_BROKEN
+    elif not moving:
+        status = PIECE_STILL
+    return status, p, (coef, i, deriv)
+
+
+@njit(cache=True, inline="always")
+def _poly_position(piece, s):
+    """Position (mm) of the degree-5 piece at τ = s."""
+    coef, i, deriv = piece
+    return _horner(coef, i, POLY_NCOEF - 1, s)
+
+
+@njit(cache=True, inline="always")
+def _poly_turning_points(piece, span, bnd):
+    """Where the degree-5 piece reverses: the roots of its derivative in (0, span) (:func:`critical_points`),
+    into bnd[1..]."""
+    coef, i, deriv = piece
+    return critical_points(coef, i, span, deriv, bnd[1:])
+
+
+@njit(cache=True, inline="always")
+def _poly_stretch(piece, lo, hi, sigma):
+    """(last crossing, stretch end) of a monotone stretch of a degree-5 piece."""
+    return (lo, hi)
+
+
+@njit(cache=True, inline="always")
+def _poly_crossing(piece, ctx, target, sigma, step_dist):
+    """The next crossing of ``target`` (mm) by the degree-5 piece: bracketed Newton (:func:`_poly_newton`)
+    between the last crossing and the stretch end."""
+    coef, i, deriv = piece
+    left, hi = ctx
+    deg = POLY_NCOEF - 1
+    f_lo = _horner(coef, i, deg, left) - target
+    f_hi = _horner(coef, i, deg, hi) - target
+    if f_lo == 0.0:
+        tau = left
+    elif f_hi == 0.0 or (f_lo > 0.0) == (f_hi > 0.0):
+        # rounding at the stretch's end: the crossing is at the nearer end
+        tau = hi if abs(f_hi) <= abs(f_lo) else left
+    else:
+        tau = _poly_newton(coef, i, deg, target, left, hi, f_lo, f_hi)
+    return tau, (tau, hi)
+
+
 @njit(cache=True)
 def gen_steps_poly(t0, dt, coef, reset, step_dist, state, start, out_t, out_dir, out_n):
     """:func:`gen_steps` for pieces of degree ≤ 5: s(τ) = Σ coef[i, d]·τ^d, τ in [0, dt[i]].
@@ -586,92 +766,9 @@ def gen_steps_poly(t0, dt, coef, reset, step_dist, state, start, out_t, out_dir,
     split at the roots of its derivative (:func:`critical_points`) into monotone stretches; every
     half-step crossing in a stretch is bracketed and solved to full precision.
     """
-    n_pieces = t0.shape[0]
-    cap = out_t.shape[0]
-    anchor = state[S_ANCHOR]
-    n = state[S_N]
-    last_pos = state[S_LAST_POS]
-    anchored = state[S_ANCHORED] != 0.0
-    inv_d = 1.0 / step_dist
-    roots = np.empty(POLY_NCOEF)
     deriv = np.empty((POLY_NCOEF, POLY_NCOEF))
-    bnd = np.empty(POLY_NCOEF + 2)
-    cnt = np.empty(POLY_NCOEF + 1, np.int64)
-    sgn = np.empty(POLY_NCOEF + 1)
-    deg = POLY_NCOEF - 1
-    i = start
-    need = 0
-    while i < n_pieces:
-        p = coef[i, 0]
-        span = dt[i]
-        if (not anchored) or reset[i] == RESET_ANCHOR or (reset[i] != RESET_CONTINUE
-                                                          and abs(p - last_pos) > JUMP_TOL_MM):
-            anchor = p
-            n = 0.0
-            anchored = True
-        finite = math.isfinite(span)
-        for d in range(POLY_NCOEF):
-            finite = finite and math.isfinite(coef[i, d])
-        if not finite:
-            need = -1
-            break
-        moving = False
-        for d in range(1, POLY_NCOEF):
-            if coef[i, d] != 0.0:
-                moving = True
-        if not moving or not (span > 0.0):
-            last_pos = _horner(coef, i, deg, span) if span > 0.0 else p
-            i += 1
-            continue
-        nr = critical_points(coef, i, span, deriv, roots)
-        bnd[0] = 0.0
-        for k in range(nr):
-            bnd[k + 1] = roots[k]
-        bnd[nr + 1] = span
-        n_str = nr + 1
-        nn = n
-        total = 0
-        u_prev = (p - anchor) * inv_d
-        for k in range(n_str):
-            u_end = (_horner(coef, i, deg, bnd[k + 1]) - anchor) * inv_d
-            c, nn = _stretch_steps(nn, u_prev, u_end, k, sgn, cnt)
-            total += c
-            u_prev = u_end
-        if out_n + total > cap:
-            need = total
-            break
-        base_t = t0[i]
-        for k in range(n_str):
-            c = cnt[k]
-            if c == 0:
-                continue
-            sigma = sgn[k]
-            left = bnd[k]
-            hi = bnd[k + 1]
-            dirv = np.int8(1) if sigma > 0.0 else np.int8(-1)
-            for m in range(c):
-                target = anchor + (n + 0.5 * sigma) * step_dist
-                f_lo = _horner(coef, i, deg, left) - target
-                f_hi = _horner(coef, i, deg, hi) - target
-                if f_lo == 0.0:
-                    tau = left
-                elif f_hi == 0.0 or (f_lo > 0.0) == (f_hi > 0.0):
-                    # rounding at the stretch's end: the crossing is at the nearer end
-                    tau = hi if abs(f_hi) <= abs(f_lo) else left
-                else:
-                    tau = _poly_newton(coef, i, deg, target, left, hi, f_lo, f_hi)
-                out_t[out_n] = base_t + tau
-                out_dir[out_n] = dirv
-                out_n += 1
-                n += sigma
-                left = tau
-        last_pos = _horner(coef, i, deg, span)
-        i += 1
-    state[S_ANCHOR] = anchor
-    state[S_N] = n
-    state[S_LAST_POS] = last_pos
-    state[S_ANCHORED] = 1.0 if anchored else 0.0
-    return i, out_n, need
+    return step_pieces(_poly_piece, _poly_position, _poly_turning_points, _poly_stretch, _poly_crossing,
+                       (coef, deriv), POLY_NCOEF, t0, dt, reset, step_dist, state, start, out_t, out_dir, out_n)
 
 
 @njit(cache=True)
@@ -704,7 +801,7 @@ def _poly_newton(c, k, deg, target, lo, hi, f_lo, f_hi):
 # coefficients of the polynomials the delta kernel builds: R(τ) = arm² − dx² − dy² has degree ≤ 6 for
 # cubic pieces; h = 4·z'²·R − R'² degree ≤ 10
 DELTA_NCOEF = 11
-# s: a Newton step this small ends the delta crossing search (see _delta_crossing)
+# s: a Newton step this small ends the delta crossing search (see _carriage_crossing)
 NEWTON_DONE_S = 1e-10
 
 
@@ -900,8 +997,8 @@ def delta_turning_points(arm2, tx, ty, px, py, vx, vy, vz, ax, ay, az, jx, jy, j
 
 
 @njit(cache=True, inline="always")
-def _delta_crossing(arm2, tx, ty, px, py, pz, vx, vy, vz, ax, ay, az, jx, jy, jz, target, lo, hi, f_lo, f_hi,
-                    guess):
+def _carriage_crossing(arm2, tx, ty, px, py, pz, vx, vy, vz, ax, ay, az, jx, jy, jz, target, lo, hi, f_lo,
+                       f_hi, guess):
     """(τ, carriage velocity there) with τ in [lo, hi] where the carriage height equals ``target``: bracketed
     Newton from ``guess`` (inside the bracket, else the secant of the bracket). The height is monotone on
     the bracket; ``f_lo``/``f_hi`` are height − target at its ends, of opposite signs.
@@ -931,6 +1028,90 @@ def _delta_crossing(arm2, tx, ty, px, py, pz, vx, vy, vz, ax, ay, az, jx, jy, jz
     return tau, d
 
 
+@njit(cache=True, inline="always")
+def _delta_piece(data, i):
+    """:func:`step_pieces`'s ``piece_at`` for a delta tower: data = (p, v, a, j, arm2, tx, ty), (n, ≥3) x, y,
+    z columns (mm, mm/s, mm/s², mm/s³) and the tower (mm², mm, mm); the piece is (arm2, tx, ty, px, py, pz,
+    vx, vy, vz, ax, ay, az, jx, jy, jz), the arguments of :func:`_carriage` but τ."""
+    pc, vc, ac, jc, arm2, tx, ty = data
+    px = pc[i, 0]
+    py = pc[i, 1]
+    pz = pc[i, 2]
+    vx = vc[i, 0]
+    vy = vc[i, 1]
+    vz = vc[i, 2]
+    ax = ac[i, 0]
+    ay = ac[i, 1]
+    az = ac[i, 2]
+    jx = jc[i, 0]
+    jy = jc[i, 1]
+    jz = jc[i, 2]
+    piece = (arm2, tx, ty, px, py, pz, vx, vy, vz, ax, ay, az, jx, jy, jz)
+    if not (math.isfinite(px) and math.isfinite(py) and math.isfinite(pz) and math.isfinite(vx)
+            and math.isfinite(vy) and math.isfinite(vz) and math.isfinite(ax) and math.isfinite(ay)
+            and math.isfinite(az) and math.isfinite(jx) and math.isfinite(jy) and math.isfinite(jz)):
+        return PIECE_BROKEN, px, piece
+    p = _carriage(arm2, tx, ty, px, py, pz, vx, vy, vz, ax, ay, az, jx, jy, jz, 0.0)
+    status = PIECE_MOVING
+    if not math.isfinite(p):
+        status = PIECE_UNREACHABLE
+    elif (vx == 0.0 and vy == 0.0 and vz == 0.0 and ax == 0.0 and ay == 0.0 and az == 0.0 and jx == 0.0
+          and jy == 0.0 and jz == 0.0):
+        status = PIECE_STILL
+    return status, p, piece
+
+
+@njit(cache=True, inline="always")
+def _delta_position(piece, s):
+    """Carriage height (mm) of the delta piece at τ = s (:func:`_carriage`)."""
+    arm2, tx, ty, px, py, pz, vx, vy, vz, ax, ay, az, jx, jy, jz = piece
+    return _carriage(arm2, tx, ty, px, py, pz, vx, vy, vz, ax, ay, az, jx, jy, jz, s)
+
+
+@njit(cache=True, inline="always")
+def _delta_turning_points(piece, span, bnd):
+    """Where the carriage may turn on the delta piece (:func:`delta_turning_points`), into bnd[1..]."""
+    arm2, tx, ty, px, py, pz, vx, vy, vz, ax, ay, az, jx, jy, jz = piece
+    return delta_turning_points(arm2, tx, ty, px, py, vx, vy, vz, ax, ay, az, jx, jy, jz, span, bnd[1:])
+
+
+@njit(cache=True, inline="always")
+def _delta_stretch(piece, lo, hi, sigma):
+    """(last crossing, stretch end, carriage height at both (mm), Newton's next guess (−1: none), 1/carriage
+    velocity at the last crossing (s/mm, 0: none)) of a monotone stretch of a delta piece."""
+    return (lo, hi, _delta_position(piece, lo), _delta_position(piece, hi), -1.0, 0.0)
+
+
+@njit(cache=True, inline="always")
+def _delta_crossing(piece, ctx, target, sigma, step_dist):
+    """The next crossing of ``target`` (mm) by the carriage: bracketed Newton (:func:`_carriage_crossing`)
+    from a guess one step past the last crossing (two-step Adams–Bashforth on dτ/dc = 1/c' with the
+    velocities at the last two crossings; Euler after the first)."""
+    arm2, tx, ty, px, py, pz, vx, vy, vz, ax, ay, az, jx, jy, jz = piece
+    left, hi, c_left, c_hi, guess, inv_v_prev = ctx
+    f_lo = c_left - target
+    f_hi = c_hi - target
+    if f_lo == 0.0:
+        tau = left
+        guess = -1.0
+    elif f_hi == 0.0 or (f_lo > 0.0) == (f_hi > 0.0):
+        # rounding at the stretch's end: the crossing is at the nearer end
+        tau = hi if abs(f_hi) <= abs(f_lo) else left
+        guess = -1.0
+    else:
+        tau, vel = _carriage_crossing(arm2, tx, ty, px, py, pz, vx, vy, vz, ax, ay, az, jx, jy, jz,
+                                      target, left, hi, f_lo, f_hi, guess)
+        if vel != 0.0:
+            inv_v = 1.0 / vel
+            w = inv_v if inv_v_prev == 0.0 else 1.5 * inv_v - 0.5 * inv_v_prev
+            guess = tau + sigma * step_dist * w
+            inv_v_prev = inv_v
+        else:
+            guess = -1.0
+            inv_v_prev = 0.0
+    return tau, (tau, hi, target, c_hi, guess, inv_v_prev)
+
+
 @njit(cache=True)
 def gen_steps_delta(t0, dt, pc, vc, ac, jc, reset, arm2, tx, ty, step_dist, state, start, out_t, out_dir, out_n):
     """:func:`gen_steps` for a delta tower: the stepper position is the carriage height
@@ -943,128 +1124,9 @@ def gen_steps_delta(t0, dt, pc, vc, ac, jc, reset, arm2, tx, ty, step_dist, stat
     Returns (next piece index, new out_n, need); need = −1 for a non-finite coefficient, −2 for a
     piece whose start the arm cannot reach.
     """
-    n_pieces = t0.shape[0]
-    cap = out_t.shape[0]
-    inv_d = 1.0 / step_dist
-    anchor = state[S_ANCHOR]
-    n = state[S_N]
-    last_pos = state[S_LAST_POS]
-    anchored = state[S_ANCHORED] != 0.0
-    cuts = np.empty(2 * DELTA_NCOEF)
-    bnd = np.empty(2 * DELTA_NCOEF + 2)
-    cnt = np.empty(2 * DELTA_NCOEF + 1, np.int64)
-    sgn = np.empty(2 * DELTA_NCOEF + 1)
-    i = start
-    need = 0
-    while i < n_pieces:
-        px = pc[i, 0]
-        py = pc[i, 1]
-        pz = pc[i, 2]
-        vx = vc[i, 0]
-        vy = vc[i, 1]
-        vz = vc[i, 2]
-        ax = ac[i, 0]
-        ay = ac[i, 1]
-        az = ac[i, 2]
-        jx = jc[i, 0]
-        jy = jc[i, 1]
-        jz = jc[i, 2]
-        span = dt[i]
-        if not (math.isfinite(px) and math.isfinite(py) and math.isfinite(pz) and math.isfinite(vx)
-                and math.isfinite(vy) and math.isfinite(vz) and math.isfinite(ax) and math.isfinite(ay)
-                and math.isfinite(az) and math.isfinite(jx) and math.isfinite(jy) and math.isfinite(jz)
-                and math.isfinite(span)):
-            need = -1
-            break
-        p = _carriage(arm2, tx, ty, px, py, pz, vx, vy, vz, ax, ay, az, jx, jy, jz, 0.0)
-        if not math.isfinite(p):
-            need = -2
-            break
-        if (not anchored) or reset[i] == RESET_ANCHOR or (reset[i] != RESET_CONTINUE
-                                                          and abs(p - last_pos) > JUMP_TOL_MM):
-            anchor = p
-            n = 0.0
-            anchored = True
-        if (vx == 0.0 and vy == 0.0 and vz == 0.0 and ax == 0.0 and ay == 0.0 and az == 0.0 and jx == 0.0
-                and jy == 0.0 and jz == 0.0) or not (span > 0.0):
-            last_pos = p
-            i += 1
-            continue
-        nc = delta_turning_points(arm2, tx, ty, px, py, vx, vy, vz, ax, ay, az, jx, jy, jz, span, cuts)
-        bnd[0] = 0.0
-        for k in range(nc):
-            bnd[k + 1] = cuts[k]
-        bnd[nc + 1] = span
-        n_str = nc + 1
-        # pass 1: how many steps, per stretch
-        nn = n
-        total = 0
-        u_prev = (p - anchor) * inv_d
-        for k in range(n_str):
-            c_end = _carriage(arm2, tx, ty, px, py, pz, vx, vy, vz, ax, ay, az, jx, jy, jz, bnd[k + 1])
-            if not math.isfinite(c_end):
-                need = -2
-                break
-            u_end = (c_end - anchor) * inv_d
-            c, nn = _stretch_steps(nn, u_prev, u_end, k, sgn, cnt)
-            total += c
-            u_prev = u_end
-        if need == -2:
-            break
-        if out_n + total > cap:
-            need = total
-            break
-        # pass 2: solve each crossing
-        base_t = t0[i]
-        for k in range(n_str):
-            c = cnt[k]
-            if c == 0:
-                continue
-            sigma = sgn[k]
-            left = bnd[k]
-            hi = bnd[k + 1]
-            c_left = _carriage(arm2, tx, ty, px, py, pz, vx, vy, vz, ax, ay, az, jx, jy, jz, left)
-            c_hi = _carriage(arm2, tx, ty, px, py, pz, vx, vy, vz, ax, ay, az, jx, jy, jz, hi)
-            dirv = np.int8(1) if sigma > 0.0 else np.int8(-1)
-            guess = -1.0
-            inv_v_prev = 0.0
-            for m in range(c):
-                target = anchor + (n + 0.5 * sigma) * step_dist
-                f_lo = c_left - target
-                f_hi = c_hi - target
-                if f_lo == 0.0:
-                    tau = left
-                    guess = -1.0
-                elif f_hi == 0.0 or (f_lo > 0.0) == (f_hi > 0.0):
-                    # rounding at the stretch's end: the crossing is at the nearer end
-                    tau = hi if abs(f_hi) <= abs(f_lo) else left
-                    guess = -1.0
-                else:
-                    tau, vel = _delta_crossing(arm2, tx, ty, px, py, pz, vx, vy, vz, ax, ay, az, jx, jy, jz,
-                                               target, left, hi, f_lo, f_hi, guess)
-                    # the next crossing is one step further: integrate dτ/dc = 1/c' over the step (two-step
-                    # Adams–Bashforth with the velocities at the last two crossings; Euler after the first)
-                    if vel != 0.0:
-                        inv_v = 1.0 / vel
-                        w = inv_v if inv_v_prev == 0.0 else 1.5 * inv_v - 0.5 * inv_v_prev
-                        guess = tau + sigma * step_dist * w
-                        inv_v_prev = inv_v
-                    else:
-                        guess = -1.0
-                        inv_v_prev = 0.0
-                out_t[out_n] = base_t + tau
-                out_dir[out_n] = dirv
-                out_n += 1
-                n += sigma
-                left = tau
-                c_left = target
-        last_pos = _carriage(arm2, tx, ty, px, py, pz, vx, vy, vz, ax, ay, az, jx, jy, jz, span)
-        i += 1
-    state[S_ANCHOR] = anchor
-    state[S_N] = n
-    state[S_LAST_POS] = last_pos
-    state[S_ANCHORED] = 1.0 if anchored else 0.0
-    return i, out_n, need
+    return step_pieces(_delta_piece, _delta_position, _delta_turning_points, _delta_stretch, _delta_crossing,
+                       (pc, vc, ac, jc, arm2, tx, ty), 2 * DELTA_NCOEF,
+                       t0, dt, reset, step_dist, state, start, out_t, out_dir, out_n)
 
 
 # ------------------------------------------------------------------ Klipper's own step search (itersolve)
