@@ -29,7 +29,7 @@ import math
 from .._jit import njit
 import numpy as np
 
-from ..schema import FLAG_ARC, FLAG_RAPID, KIND_DWELL, KIND_WAIT
+from ..schema import FLAG_ARC, FLAG_RAPID, KIND_DWELL, KIND_WAIT, LIMIT_ACCEL, LIMIT_AXIS, LIMIT_FEED, LIMIT_NONE
 
 f32 = np.float32
 
@@ -1005,53 +1005,76 @@ def _plan_rows(moves, op_of_row, op_kind, op_end, op_info, op_rapid, clock_s, t0
     rows without a step end where the previous one did. Speeds and phases are the block's profile as grbl's
     segment generator planned it, laid on the row's own length and stretched in time to the firmware's
     duration (its timer rounds every step period up: +0.004 … +0.12 %), so that the pieces are continuous
-    in position and their times are the firmware's."""
-    from ..schema import LIMIT_ACCEL, LIMIT_AXIS, LIMIT_FEED, LIMIT_NONE, PLAN_DTYPE
+    in position and their times are the firmware's. Returns (plan, end of the last row s)."""
+    from ..schema import PLAN_DTYPE
 
-    n = len(moves)
-    plan = np.zeros(n, dtype=PLAN_DTYPE)
-    has_op = op_of_row >= 0
-    k = np.where(has_op, op_of_row, 0)
-    end_tick = np.where(has_op, op_end[k] if len(op_end) else -1, -1)
-    end_s = np.where(end_tick >= 0, (end_tick - t0) / F_CPU, -np.inf)
-    end_s = np.maximum.accumulate(np.maximum(end_s, clock_s)) if n else end_s
-    start_s = np.concatenate([[clock_s], end_s[:-1]]) if n else end_s
-    duration = end_s - start_s
-    plan["t_start"] = start_s
-    plan["duration"] = duration
-    plan["limit"] = LIMIT_NONE
-    info = op_info[k] if len(op_info) else np.zeros((n, N_INFO), np.float32)
-    line = has_op & (op_kind[k] == OP_LINE if len(op_kind) else False) & (duration > 0) & (moves["move_d"] > 0)
-    i = np.nonzero(line)[0]
-    if i.size:
-        v0, vp, v1 = (info[i, c].astype(np.float64) / 60.0 for c in (0, 1, 2))
-        nominal = info[i, 3].astype(np.float64) / 60.0
-        a = info[i, 4].astype(np.float64) / 3600.0
-        d = moves["move_d"][i]
-        da = np.maximum(vp * vp - v0 * v0, 0.0) / (2 * a)
-        dd = np.maximum(vp * vp - v1 * v1, 0.0) / (2 * a)
-        short = da + dd > d             # the step-rounded length differs from the row's: the peak on the row
-        if short.any():
-            vps = np.maximum(np.maximum(v0, v1), np.sqrt(np.maximum((2 * a * d + v0 * v0 + v1 * v1) / 2, 0.0)))
-            das = np.maximum(vps * vps - v0 * v0, 0.0) / (2 * a)
-            dds = np.maximum(d - das, 0.0)
-            vp = np.where(short, vps, vp)
-            v1 = np.where(short, np.sqrt(np.maximum(vps * vps - 2 * a * dds, 0.0)), v1)
-            da = np.where(short, das, da)
-            dd = np.where(short, dds, dd)
-        ta, td = (vp - v0) / a, (vp - v1) / a
-        tc = np.where(vp > 0, np.maximum(d - da - dd, 0.0) / np.where(vp > 0, vp, 1.0), 0.0)
-        t_plan = ta + tc + td
-        f = np.where(t_plan > 0, duration[i] / np.where(t_plan > 0, t_plan, 1.0), 1.0)
-        plan["start_v"][i], plan["cruise_v"][i], plan["end_v"][i] = v0 / f, vp / f, v1 / f
-        plan["accel"][i] = plan["decel"][i] = a / (f * f)
-        plan["accel_t"][i], plan["cruise_t"][i], plan["decel_t"][i] = ta * f, tc * f, td * f
-        feed = moves["feed_v"][i]
-        at_nominal = vp >= nominal * (1 - 1e-6)
-        capped = op_rapid[k[i]] | (np.isfinite(feed) & (nominal < feed * (1 - 1e-6)))
-        plan["limit"][i] = np.where(at_nominal, np.where(capped, LIMIT_AXIS, LIMIT_FEED), LIMIT_ACCEL)
-    t_end = float(end_s[-1]) if n else clock_s
+    plan = np.zeros(len(moves), dtype=PLAN_DTYPE)
+    t_end = _plan_rows_kernel(moves["move_d"], moves["feed_v"], op_of_row, op_kind, op_end, op_info, op_rapid,
+                              float(clock_s), int(t0), plan["t_start"], plan["duration"], plan["start_v"],
+                              plan["cruise_v"], plan["end_v"], plan["accel"], plan["decel"], plan["accel_t"],
+                              plan["cruise_t"], plan["decel_t"], plan["limit"])
     return plan, t_end
+
+
+@njit(cache=True, nogil=True)
+def _max_nan(a, b):
+    """np.maximum of two floats: the larger, nan if either is nan."""
+    return a if (a >= b or a != a) else b
+
+
+@njit(cache=True, nogil=True)
+def _plan_rows_kernel(move_d, feed_v, op_of_row, op_kind, op_end, op_info, op_rapid, clock_s, t0, t_start,
+                      duration, start_v, cruise_v, end_v, accel, decel, accel_t, cruise_t, decel_t, limit):
+    """:func:`_plan_rows` row by row into the PLAN columns (zeros on entry); returns the last row's end (s).
+    Speeds mm/s from op_info's mm/min, acceleration mm/s² from its mm/min²."""
+    n = move_d.shape[0]
+    prev_end = clock_s
+    for r in range(n):
+        j = op_of_row[r]
+        end_s = -np.inf
+        if j >= 0 and op_end[j] >= 0:
+            end_s = (op_end[j] - t0) / F_CPU
+        end_s = _max_nan(prev_end, _max_nan(end_s, clock_s))       # rows end in order, none before the clock
+        dur = end_s - prev_end
+        t_start[r] = prev_end
+        duration[r] = dur
+        prev_end = end_s
+        limit[r] = LIMIT_NONE
+        if not (j >= 0 and op_kind[j] == OP_LINE and dur > 0 and move_d[r] > 0):
+            continue
+        v0 = np.float64(op_info[j, 0]) / 60.0
+        vp = np.float64(op_info[j, 1]) / 60.0
+        v1 = np.float64(op_info[j, 2]) / 60.0
+        nominal = np.float64(op_info[j, 3]) / 60.0
+        a = np.float64(op_info[j, 4]) / 3600.0
+        d = move_d[r]
+        da = _max_nan(vp * vp - v0 * v0, 0.0) / (2 * a)
+        dd = _max_nan(vp * vp - v1 * v1, 0.0) / (2 * a)
+        if da + dd > d:             # the step-rounded length differs from the row's: the peak on the row
+            vp = _max_nan(_max_nan(v0, v1), math.sqrt(_max_nan((2 * a * d + v0 * v0 + v1 * v1) / 2, 0.0)))
+            da = _max_nan(vp * vp - v0 * v0, 0.0) / (2 * a)
+            dd = _max_nan(d - da, 0.0)
+            v1 = math.sqrt(_max_nan(vp * vp - 2 * a * dd, 0.0))
+        ta = (vp - v0) / a
+        td = (vp - v1) / a
+        tc = _max_nan(d - da - dd, 0.0) / vp if vp > 0 else 0.0
+        t_plan = ta + tc + td
+        f = dur / t_plan if t_plan > 0 else 1.0
+        start_v[r] = v0 / f
+        cruise_v[r] = vp / f
+        end_v[r] = v1 / f
+        accel[r] = a / (f * f)
+        decel[r] = a / (f * f)
+        accel_t[r] = ta * f
+        cruise_t[r] = tc * f
+        decel_t[r] = td * f
+        feed = feed_v[r]
+        if vp >= nominal * (1 - 1e-6):
+            capped = op_rapid[j] or (math.isfinite(feed) and nominal < feed * (1 - 1e-6))
+            limit[r] = LIMIT_AXIS if capped else LIMIT_FEED
+        else:
+            limit[r] = LIMIT_ACCEL
+    return prev_end
 
 
 def make_stream_mode(base_cls):
