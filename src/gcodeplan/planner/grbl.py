@@ -403,185 +403,28 @@ def _lround(x):
 def _st_prep_buffer(si, sf, bf, bsteps, bdir, bop, brapid, st_steps, st_sec, st_dir, st_op, seg_n, seg_cycles,
                     seg_block, seg_amass, window_base, op_info):
     """stepper.c st_prep_buffer, normal operation (no feed hold, parking or overrides): fill the segment ring
-    with 10 ms segments of the block at the planner's tail."""
+    with 10 ms segments of the block at the planner's tail. Its steps in grbl's order, one function each: take
+    the tail block (:func:`_prep_load_block`) and compute its velocity profile (:func:`_prep_velocity_profile`),
+    then per segment the distance covered in its time (:func:`_prep_segment_distance`) and its steps and step
+    rate (:func:`_prep_segment_step_rate`); a block whose last segment is made leaves the planner."""
     while si[I_SEG_TAIL] != si[I_SEG_NEXT_HEAD]:
         if si[I_PL_BLOCK] < 0:
             if si[I_HEAD] == si[I_TAIL]:
                 return
             pb = si[I_TAIL]
             si[I_PL_BLOCK] = pb
-            loaded = False
-            if si[I_RECALC] & PREP_FLAG_RECALCULATE:
-                si[I_RECALC] = 0
-            else:
-                loaded = True
-                sbi = _next(si[I_ST_BLOCK_INDEX], ST_BLOCK_BUFFER_SIZE)
-                si[I_ST_BLOCK_INDEX] = sbi
-                st_dir[sbi] = bdir[pb]
-                sec = 0
-                for i in range(3):
-                    st_steps[sbi, i] = bsteps[pb, i] << MAX_AMASS_LEVEL
-                    if bsteps[pb, i] > sec:
-                        sec = bsteps[pb, i]
-                st_sec[sbi] = sec << MAX_AMASS_LEVEL
-                st_op[sbi] = bop[pb]
-                sf[F_STEPS_REM] = np.float32(sec)
-                sf[F_STEP_PER_MM] = np.float32(sf[F_STEPS_REM] / bf[pb, B_MM])
-                sf[F_REQ_MM] = np.float32(REQ_MM_INCREMENT_SCALAR / np.float64(sf[F_STEP_PER_MM]))
-                sf[F_DT_REM] = 0.0
-                sf[F_CUR_V] = np.float32(math.sqrt(np.float64(bf[pb, B_ENTRY2])))
-            # the velocity profile of the block (or of what is left of it)
-            sf[F_MM_COMPLETE] = 0.0
-            acc = bf[pb, B_ACC]
-            mm = bf[pb, B_MM]
-            entry2 = bf[pb, B_ENTRY2]
-            inv_2_accel = np.float32(0.5 / np.float64(acc))
-            si[I_RAMP] = RAMP_ACCEL
-            sf[F_ACC_UNTIL] = mm
-            nb = _next(pb, BLOCK_BUFFER_SIZE)
-            exit2 = np.float32(0.0) if nb == si[I_HEAD] else bf[nb, B_ENTRY2]
-            sf[F_EXIT_V] = np.float32(math.sqrt(np.float64(exit2)))
-            nominal = _nominal_speed(bf, pb, brapid)
-            nominal2 = np.float32(nominal * nominal)
-            intersect = np.float32(0.5 * np.float64(np.float32(mm + np.float32(inv_2_accel * np.float32(entry2 - exit2)))))
-            if entry2 > nominal2:
-                sf[F_ACC_UNTIL] = np.float32(mm - np.float32(inv_2_accel * np.float32(entry2 - nominal2)))
-                if sf[F_ACC_UNTIL] <= 0.0:
-                    si[I_RAMP] = RAMP_DECEL
-                    sf[F_EXIT_V] = np.float32(math.sqrt(np.float64(np.float32(entry2 - np.float32(np.float32(2) * acc) * mm))))
-                    si[I_RECALC] |= PREP_FLAG_DECEL_OVERRIDE
-                else:
-                    sf[F_DEC_AFTER] = np.float32(inv_2_accel * np.float32(nominal2 - exit2))
-                    sf[F_MAX_V] = nominal
-                    si[I_RAMP] = RAMP_DECEL_OVERRIDE
-            elif intersect > 0.0:
-                if intersect < mm:
-                    sf[F_DEC_AFTER] = np.float32(inv_2_accel * np.float32(nominal2 - exit2))
-                    if sf[F_DEC_AFTER] < intersect:
-                        sf[F_MAX_V] = nominal
-                        if entry2 == nominal2:
-                            si[I_RAMP] = RAMP_CRUISE
-                        else:
-                            sf[F_ACC_UNTIL] = np.float32(sf[F_ACC_UNTIL] - np.float32(inv_2_accel * np.float32(nominal2 - entry2)))
-                    else:
-                        sf[F_ACC_UNTIL] = intersect
-                        sf[F_DEC_AFTER] = intersect
-                        sf[F_MAX_V] = np.float32(math.sqrt(2.0 * np.float64(acc) * np.float64(intersect) + np.float64(exit2)))
-                else:
-                    si[I_RAMP] = RAMP_DECEL
-            else:
-                sf[F_ACC_UNTIL] = 0.0
-                sf[F_MAX_V] = sf[F_EXIT_V]
+            loaded = _prep_load_block(si, sf, bf, bsteps, bdir, bop, st_steps, st_sec, st_dir, st_op, pb)
+            nominal = _prep_velocity_profile(si, sf, bf, brapid, pb)
             if loaded:
-                row = bop[pb] - window_base
-                op_info[row, 0] = sf[F_CUR_V]
-                if si[I_RAMP] == RAMP_DECEL or si[I_RAMP] == RAMP_DECEL_OVERRIDE:
-                    op_info[row, 1] = sf[F_CUR_V]     # deceleration only: the peak is the entry
-                else:
-                    op_info[row, 1] = sf[F_MAX_V]
-                op_info[row, 2] = sf[F_EXIT_V]
-                op_info[row, 3] = nominal
-                op_info[row, 4] = acc
-                op_info[row, 5] = mm
+                _record_profile(si, sf, bf, bop, pb, nominal, window_base, op_info)
         pb = si[I_PL_BLOCK]
         seg = si[I_SEG_HEAD]
         seg_block[seg] = si[I_ST_BLOCK_INDEX]
-        acc = bf[pb, B_ACC]
-        dt_max = np.float32(DT_SEGMENT)
-        dt = np.float32(0.0)
-        time_var = dt_max
-        mm_remaining = bf[pb, B_MM]
-        minimum_mm = np.float32(mm_remaining - sf[F_REQ_MM])
-        if minimum_mm < 0.0:
-            minimum_mm = np.float32(0.0)
-        while True:
-            ramp = si[I_RAMP]
-            if ramp == RAMP_DECEL_OVERRIDE:
-                speed_var = np.float32(acc * time_var)
-                if np.float32(sf[F_CUR_V] - sf[F_MAX_V]) <= speed_var:
-                    mm_remaining = sf[F_ACC_UNTIL]
-                    time_var = np.float32(2.0 * np.float64(np.float32(bf[pb, B_MM] - mm_remaining))
-                                          / np.float64(np.float32(sf[F_CUR_V] + sf[F_MAX_V])))
-                    si[I_RAMP] = RAMP_CRUISE
-                    sf[F_CUR_V] = sf[F_MAX_V]
-                else:
-                    mm_remaining = np.float32(np.float64(mm_remaining) - np.float64(time_var) * (
-                        np.float64(sf[F_CUR_V]) - 0.5 * np.float64(speed_var)))
-                    sf[F_CUR_V] = np.float32(sf[F_CUR_V] - speed_var)
-            elif ramp == RAMP_ACCEL:
-                speed_var = np.float32(acc * time_var)
-                mm_remaining = np.float32(np.float64(mm_remaining) - np.float64(time_var) * (
-                    np.float64(sf[F_CUR_V]) + 0.5 * np.float64(speed_var)))
-                if mm_remaining < sf[F_ACC_UNTIL]:
-                    mm_remaining = sf[F_ACC_UNTIL]
-                    time_var = np.float32(2.0 * np.float64(np.float32(bf[pb, B_MM] - mm_remaining))
-                                          / np.float64(np.float32(sf[F_CUR_V] + sf[F_MAX_V])))
-                    if mm_remaining == sf[F_DEC_AFTER]:
-                        si[I_RAMP] = RAMP_DECEL
-                    else:
-                        si[I_RAMP] = RAMP_CRUISE
-                    sf[F_CUR_V] = sf[F_MAX_V]
-                else:
-                    sf[F_CUR_V] = np.float32(sf[F_CUR_V] + speed_var)
-            elif ramp == RAMP_CRUISE:
-                mm_var = np.float32(mm_remaining - np.float32(sf[F_MAX_V] * time_var))
-                if mm_var < sf[F_DEC_AFTER]:
-                    time_var = np.float32(np.float32(mm_remaining - sf[F_DEC_AFTER]) / sf[F_MAX_V])
-                    mm_remaining = sf[F_DEC_AFTER]
-                    si[I_RAMP] = RAMP_DECEL
-                else:
-                    mm_remaining = mm_var
-            else:
-                speed_var = np.float32(acc * time_var)
-                done = False
-                if sf[F_CUR_V] > speed_var:
-                    mm_var = np.float32(np.float64(mm_remaining) - np.float64(time_var) * (
-                        np.float64(sf[F_CUR_V]) - 0.5 * np.float64(speed_var)))
-                    if mm_var > sf[F_MM_COMPLETE]:
-                        mm_remaining = mm_var
-                        sf[F_CUR_V] = np.float32(sf[F_CUR_V] - speed_var)
-                        done = True
-                if not done:
-                    time_var = np.float32(2.0 * np.float64(np.float32(mm_remaining - sf[F_MM_COMPLETE]))
-                                          / np.float64(np.float32(sf[F_CUR_V] + sf[F_EXIT_V])))
-                    mm_remaining = sf[F_MM_COMPLETE]
-                    sf[F_CUR_V] = sf[F_EXIT_V]
-            dt = np.float32(dt + time_var)
-            if dt < dt_max:
-                time_var = np.float32(dt_max - dt)
-            else:
-                if mm_remaining > minimum_mm:
-                    dt_max = np.float32(np.float64(dt_max) + DT_SEGMENT)
-                    time_var = np.float32(dt_max - dt)
-                else:
-                    break
-            if not (mm_remaining > sf[F_MM_COMPLETE]):
-                break
-        step_dist_remaining = np.float32(sf[F_STEP_PER_MM] * mm_remaining)
-        n_steps_remaining = np.float32(math.ceil(np.float64(step_dist_remaining)))
-        last_n_steps_remaining = np.float32(math.ceil(np.float64(sf[F_STEPS_REM])))
-        n_step = np.int64(np.float32(last_n_steps_remaining - n_steps_remaining))
-        dt = np.float32(dt + sf[F_DT_REM])
-        inv_rate = np.float32(dt / np.float32(last_n_steps_remaining - step_dist_remaining))
-        cycles = np.int64(math.ceil(np.float64(np.float32(np.float32(CYCLES_PER_MINUTE) * inv_rate))))
-        amass = 0
-        if cycles >= AMASS_LEVEL1:
-            if cycles < AMASS_LEVEL2:
-                amass = 1
-            elif cycles < AMASS_LEVEL3:
-                amass = 2
-            else:
-                amass = 3
-            cycles >>= amass
-            n_step = (n_step << amass) & 0xFFFF
-        seg_cycles[seg] = cycles if cycles < 65536 else 0xFFFF
-        seg_n[seg] = n_step
-        seg_amass[seg] = amass
+        dt, mm_remaining = _prep_segment_distance(si, sf, bf, pb)
+        _prep_segment_step_rate(sf, seg, dt, mm_remaining, seg_n, seg_cycles, seg_amass)
         si[I_SEG_HEAD] = si[I_SEG_NEXT_HEAD]
         si[I_SEG_NEXT_HEAD] = _next(si[I_SEG_NEXT_HEAD], SEGMENT_BUFFER_SIZE)
         bf[pb, B_MM] = mm_remaining
-        sf[F_STEPS_REM] = n_steps_remaining
-        sf[F_DT_REM] = np.float32(np.float32(n_steps_remaining - step_dist_remaining) * inv_rate)
         if mm_remaining == sf[F_MM_COMPLETE]:
             if mm_remaining > 0.0:
                 return
@@ -592,6 +435,211 @@ def _st_prep_buffer(si, sf, bf, bsteps, bdir, bop, brapid, st_steps, st_sec, st_
                 if si[I_TAIL] == si[I_PLANNED]:
                     si[I_PLANNED] = bi
                 si[I_TAIL] = bi
+
+
+@njit(cache=True, inline="always")
+def _prep_load_block(si, sf, bf, bsteps, bdir, bop, st_steps, st_sec, st_dir, st_op, pb):
+    """st_prep_buffer, a new planner block ``pb``: after a re-plan of the block being prepared only its profile
+    is recomputed (returns False); otherwise its steps (AMASS-scaled) go to the stepper's block ring and the
+    prep state starts at the block's entry speed (returns True)."""
+    if si[I_RECALC] & PREP_FLAG_RECALCULATE:
+        si[I_RECALC] = 0
+        return False
+    sbi = _next(si[I_ST_BLOCK_INDEX], ST_BLOCK_BUFFER_SIZE)
+    si[I_ST_BLOCK_INDEX] = sbi
+    st_dir[sbi] = bdir[pb]
+    sec = 0
+    for i in range(3):
+        st_steps[sbi, i] = bsteps[pb, i] << MAX_AMASS_LEVEL
+        if bsteps[pb, i] > sec:
+            sec = bsteps[pb, i]
+    st_sec[sbi] = sec << MAX_AMASS_LEVEL
+    st_op[sbi] = bop[pb]
+    sf[F_STEPS_REM] = np.float32(sec)
+    sf[F_STEP_PER_MM] = np.float32(sf[F_STEPS_REM] / bf[pb, B_MM])
+    sf[F_REQ_MM] = np.float32(REQ_MM_INCREMENT_SCALAR / np.float64(sf[F_STEP_PER_MM]))
+    sf[F_DT_REM] = 0.0
+    sf[F_CUR_V] = np.float32(math.sqrt(np.float64(bf[pb, B_ENTRY2])))
+    return True
+
+
+@njit(cache=True, inline="always")
+def _prep_velocity_profile(si, sf, bf, brapid, pb):
+    """st_prep_buffer, the velocity profile of block ``pb`` (or of what is left of it) from its entry and exit
+    speeds: the ramp it starts in, where acceleration ends and deceleration starts (mm left), its top speed.
+    Returns the block's nominal speed (mm/min)."""
+    sf[F_MM_COMPLETE] = 0.0
+    acc = bf[pb, B_ACC]
+    mm = bf[pb, B_MM]
+    entry2 = bf[pb, B_ENTRY2]
+    inv_2_accel = np.float32(0.5 / np.float64(acc))
+    si[I_RAMP] = RAMP_ACCEL
+    sf[F_ACC_UNTIL] = mm
+    nb = _next(pb, BLOCK_BUFFER_SIZE)
+    exit2 = np.float32(0.0) if nb == si[I_HEAD] else bf[nb, B_ENTRY2]
+    sf[F_EXIT_V] = np.float32(math.sqrt(np.float64(exit2)))
+    nominal = _nominal_speed(bf, pb, brapid)
+    nominal2 = np.float32(nominal * nominal)
+    intersect = np.float32(0.5 * np.float64(np.float32(mm + np.float32(inv_2_accel * np.float32(entry2 - exit2)))))
+    if entry2 > nominal2:
+        sf[F_ACC_UNTIL] = np.float32(mm - np.float32(inv_2_accel * np.float32(entry2 - nominal2)))
+        if sf[F_ACC_UNTIL] <= 0.0:
+            si[I_RAMP] = RAMP_DECEL
+            sf[F_EXIT_V] = np.float32(math.sqrt(np.float64(np.float32(entry2 - np.float32(np.float32(2) * acc) * mm))))
+            si[I_RECALC] |= PREP_FLAG_DECEL_OVERRIDE
+        else:
+            sf[F_DEC_AFTER] = np.float32(inv_2_accel * np.float32(nominal2 - exit2))
+            sf[F_MAX_V] = nominal
+            si[I_RAMP] = RAMP_DECEL_OVERRIDE
+    elif intersect > 0.0:
+        if intersect < mm:
+            sf[F_DEC_AFTER] = np.float32(inv_2_accel * np.float32(nominal2 - exit2))
+            if sf[F_DEC_AFTER] < intersect:
+                sf[F_MAX_V] = nominal
+                if entry2 == nominal2:
+                    si[I_RAMP] = RAMP_CRUISE
+                else:
+                    sf[F_ACC_UNTIL] = np.float32(sf[F_ACC_UNTIL] - np.float32(inv_2_accel * np.float32(nominal2 - entry2)))
+            else:
+                sf[F_ACC_UNTIL] = intersect
+                sf[F_DEC_AFTER] = intersect
+                sf[F_MAX_V] = np.float32(math.sqrt(2.0 * np.float64(acc) * np.float64(intersect) + np.float64(exit2)))
+        else:
+            si[I_RAMP] = RAMP_DECEL
+    else:
+        sf[F_ACC_UNTIL] = 0.0
+        sf[F_MAX_V] = sf[F_EXIT_V]
+    return nominal
+
+
+@njit(cache=True, inline="always")
+def _record_profile(si, sf, bf, bop, pb, nominal, window_base, op_info):
+    """op_info of block ``pb`` as first profiled (gcodeplan's, not grbl's): entry, peak, exit and nominal speed
+    (mm/min), acceleration (mm/min²), length (mm)."""
+    row = bop[pb] - window_base
+    op_info[row, 0] = sf[F_CUR_V]
+    if si[I_RAMP] == RAMP_DECEL or si[I_RAMP] == RAMP_DECEL_OVERRIDE:
+        op_info[row, 1] = sf[F_CUR_V]     # deceleration only: the peak is the entry
+    else:
+        # A block the planner made one deceleration from its entry (entry² = exit² + 2·a·mm) has its
+        # accelerate/decelerate intersection at its length to rounding; when it falls just inside, the top
+        # speed, √(2·a·intersect + exit²) in single precision, can come out one float below the entry, and
+        # the firmware's "acceleration" lowers the speed by that float over a fraction of a step. The
+        # profile's peak is then its entry (a peak below the entry is a phase of negative time).
+        op_info[row, 1] = sf[F_MAX_V]
+    op_info[row, 2] = sf[F_EXIT_V]
+    op_info[row, 3] = nominal
+    op_info[row, 4] = bf[pb, B_ACC]
+    op_info[row, 5] = bf[pb, B_MM]
+
+
+@njit(cache=True, inline="always")
+def _prep_segment_distance(si, sf, bf, pb):
+    """st_prep_buffer, one segment of block ``pb``: run the ramp state machine (acceleration, cruise,
+    deceleration, deceleration override) over the segment time DT_SEGMENT, extended by whole DT_SEGMENTs until
+    it covers at least REQ_MM_INCREMENT_SCALAR steps or ends the block. Returns (segment time min, mm of the
+    block left after it)."""
+    acc = bf[pb, B_ACC]
+    dt_max = np.float32(DT_SEGMENT)
+    dt = np.float32(0.0)
+    time_var = dt_max
+    mm_remaining = bf[pb, B_MM]
+    minimum_mm = np.float32(mm_remaining - sf[F_REQ_MM])
+    if minimum_mm < 0.0:
+        minimum_mm = np.float32(0.0)
+    while True:
+        ramp = si[I_RAMP]
+        if ramp == RAMP_DECEL_OVERRIDE:
+            speed_var = np.float32(acc * time_var)
+            if np.float32(sf[F_CUR_V] - sf[F_MAX_V]) <= speed_var:
+                mm_remaining = sf[F_ACC_UNTIL]
+                time_var = np.float32(2.0 * np.float64(np.float32(bf[pb, B_MM] - mm_remaining))
+                                      / np.float64(np.float32(sf[F_CUR_V] + sf[F_MAX_V])))
+                si[I_RAMP] = RAMP_CRUISE
+                sf[F_CUR_V] = sf[F_MAX_V]
+            else:
+                mm_remaining = np.float32(np.float64(mm_remaining) - np.float64(time_var) * (
+                    np.float64(sf[F_CUR_V]) - 0.5 * np.float64(speed_var)))
+                sf[F_CUR_V] = np.float32(sf[F_CUR_V] - speed_var)
+        elif ramp == RAMP_ACCEL:
+            speed_var = np.float32(acc * time_var)
+            mm_remaining = np.float32(np.float64(mm_remaining) - np.float64(time_var) * (
+                np.float64(sf[F_CUR_V]) + 0.5 * np.float64(speed_var)))
+            if mm_remaining < sf[F_ACC_UNTIL]:
+                mm_remaining = sf[F_ACC_UNTIL]
+                time_var = np.float32(2.0 * np.float64(np.float32(bf[pb, B_MM] - mm_remaining))
+                                      / np.float64(np.float32(sf[F_CUR_V] + sf[F_MAX_V])))
+                if mm_remaining == sf[F_DEC_AFTER]:
+                    si[I_RAMP] = RAMP_DECEL
+                else:
+                    si[I_RAMP] = RAMP_CRUISE
+                sf[F_CUR_V] = sf[F_MAX_V]
+            else:
+                sf[F_CUR_V] = np.float32(sf[F_CUR_V] + speed_var)
+        elif ramp == RAMP_CRUISE:
+            mm_var = np.float32(mm_remaining - np.float32(sf[F_MAX_V] * time_var))
+            if mm_var < sf[F_DEC_AFTER]:
+                time_var = np.float32(np.float32(mm_remaining - sf[F_DEC_AFTER]) / sf[F_MAX_V])
+                mm_remaining = sf[F_DEC_AFTER]
+                si[I_RAMP] = RAMP_DECEL
+            else:
+                mm_remaining = mm_var
+        else:
+            speed_var = np.float32(acc * time_var)
+            done = False
+            if sf[F_CUR_V] > speed_var:
+                mm_var = np.float32(np.float64(mm_remaining) - np.float64(time_var) * (
+                    np.float64(sf[F_CUR_V]) - 0.5 * np.float64(speed_var)))
+                if mm_var > sf[F_MM_COMPLETE]:
+                    mm_remaining = mm_var
+                    sf[F_CUR_V] = np.float32(sf[F_CUR_V] - speed_var)
+                    done = True
+            if not done:
+                time_var = np.float32(2.0 * np.float64(np.float32(mm_remaining - sf[F_MM_COMPLETE]))
+                                      / np.float64(np.float32(sf[F_CUR_V] + sf[F_EXIT_V])))
+                mm_remaining = sf[F_MM_COMPLETE]
+                sf[F_CUR_V] = sf[F_EXIT_V]
+        dt = np.float32(dt + time_var)
+        if dt < dt_max:
+            time_var = np.float32(dt_max - dt)
+        else:
+            if mm_remaining > minimum_mm:
+                dt_max = np.float32(np.float64(dt_max) + DT_SEGMENT)
+                time_var = np.float32(dt_max - dt)
+            else:
+                break
+        if not (mm_remaining > sf[F_MM_COMPLETE]):
+            break
+    return dt, mm_remaining
+
+
+@njit(cache=True, inline="always")
+def _prep_segment_step_rate(sf, seg, dt, mm_remaining, seg_n, seg_cycles, seg_amass):
+    """st_prep_buffer, segment ``seg`` of ``dt`` min ending ``mm_remaining`` mm before the block's end: its
+    whole steps, its step period in Timer1 cycles from the time since the last step (the step-remainder time
+    carried from the previous segment included), its AMASS level; the carried step and time remainders."""
+    step_dist_remaining = np.float32(sf[F_STEP_PER_MM] * mm_remaining)
+    n_steps_remaining = np.float32(math.ceil(np.float64(step_dist_remaining)))
+    last_n_steps_remaining = np.float32(math.ceil(np.float64(sf[F_STEPS_REM])))
+    n_step = np.int64(np.float32(last_n_steps_remaining - n_steps_remaining))
+    dt = np.float32(dt + sf[F_DT_REM])
+    inv_rate = np.float32(dt / np.float32(last_n_steps_remaining - step_dist_remaining))
+    cycles = np.int64(math.ceil(np.float64(np.float32(np.float32(CYCLES_PER_MINUTE) * inv_rate))))
+    amass = 0
+    if cycles >= AMASS_LEVEL1:
+        if cycles < AMASS_LEVEL2:
+            amass = 1
+        elif cycles < AMASS_LEVEL3:
+            amass = 2
+        else:
+            amass = 3
+        cycles >>= amass
+        n_step = (n_step << amass) & 0xFFFF
+    seg_cycles[seg] = cycles if cycles < 65536 else 0xFFFF
+    seg_n[seg] = n_step
+    seg_amass[seg] = amass
+    sf[F_STEPS_REM] = n_steps_remaining
+    sf[F_DT_REM] = np.float32(np.float32(n_steps_remaining - step_dist_remaining) * inv_rate)
 
 
 @njit(cache=True, inline="always")
