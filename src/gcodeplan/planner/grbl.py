@@ -521,11 +521,6 @@ def _record_profile(si, sf, bf, bop, pb, nominal, window_base, op_info):
     if si[I_RAMP] == RAMP_DECEL or si[I_RAMP] == RAMP_DECEL_OVERRIDE:
         op_info[row, 1] = sf[F_CUR_V]     # deceleration only: the peak is the entry
     else:
-        # A block the planner made one deceleration from its entry (entry² = exit² + 2·a·mm) has its
-        # accelerate/decelerate intersection at its length to rounding; when it falls just inside, the top
-        # speed, √(2·a·intersect + exit²) in single precision, can come out one float below the entry, and
-        # the firmware's "acceleration" lowers the speed by that float over a fraction of a step. The
-        # profile's peak is then its entry (a peak below the entry is a phase of negative time).
         op_info[row, 1] = sf[F_MAX_V]
     op_info[row, 2] = sf[F_EXIT_V]
     op_info[row, 3] = nominal
@@ -1127,140 +1122,162 @@ def _plan_rows_kernel(move_d, feed_v, op_of_row, op_kind, op_end, op_info, op_ra
 
 def make_stream_mode(base_cls):
     """The StreamPlanner mode of machines with ``firmware = "grbl-1.1"`` (``base_cls``: planner.stream._Mode):
-    every batch runs grbl on, and the rows whose last step pulse is out are final."""
-    from .prepare import PREP_DTYPE
+    every batch runs grbl on, and the rows whose last step pulse is out are final (:class:`_GrblStreamMode`)."""
+    return type("GrblMode", (_GrblStreamMode, base_cls), {"__doc__": _GrblStreamMode.__doc__})
 
-    no_prep = np.zeros(1, dtype=PREP_DTYPE)[0]
-    class GrblMode(base_cls):
-        name = "grbl-1.1"
-        own_prepare = True
 
-        def __init__(self, sp):
-            super().__init__(sp)
-            from ..errors import ConfigError
+def _no_prep(n: int) -> np.ndarray:
+    """n PREP rows for a window the grbl model does not read: one zero row repeated (a read-only view)."""
+    global _NO_PREP
+    if _NO_PREP is None:
+        from .prepare import PREP_DTYPE
 
-            if sp.machine.kinematics != "cartesian":
-                raise ConfigError(f"the grbl-1.1 firmware model steps a cartesian machine, not "
-                                  f"{sp.machine.kinematics!r} (grbl's COREXY build is not modelled)")
-            self.settings = GrblSettings.from_machine(sp.machine)
-            self.state = GrblState(self.settings)
-            self.want_steps = bool(getattr(sp, "want_firmware_steps", False))
-            self.pos_steps = np.zeros(3, np.int64)         # where the last fed line ends, in steps (for sizing)
-            self.bound_steps = np.zeros(3, np.int64)       # pulses the lines fed so far can make, at most
-            self.taken_steps = np.zeros(3, np.int64)       # pulses handed on
-            self.last_steps = None                         # the pulses of the rows of the last emission
-            self.fed = 0                                   # pending rows already given to grbl
-            self.row_op = np.zeros(0, np.int64)            # per pending row: its op (global index), −1 none
-            self.op_base = 0                               # global index of the first op kept below
-            self.op_kind = np.zeros(0, np.int64)
-            self.op_rapid = np.zeros(0, np.bool_)
-            self.op_end = np.zeros(0, np.int64)
-            self.op_info = np.zeros((0, N_INFO), np.float32)
-            self.n_out = np.zeros(3, np.int64)
-            self.no_steps = np.zeros((3, 0), np.int64)
-            self.no_dirs = np.zeros((3, 0), np.int8)
+        _NO_PREP = np.zeros(1, dtype=PREP_DTYPE)[0]
+    return np.broadcast_to(_NO_PREP, (n,))
 
-        def prepare(self, moves_chunk, limits):
-            from ..errors import GcodeError
 
-            e_move = _first_e_move(moves_chunk["e0"], moves_chunk["e1"])
-            if e_move >= 0:      # gcode.c: E is no grbl word (error:20), the whole line is rejected
-                line = int(moves_chunk["line"][e_move])
-                raise GcodeError("grbl 1.1 has no E axis: it rejects this line (error:20, unsupported command)",
-                                 line=line)
-            check_reach(moves_chunk, self.settings)
-            return np.broadcast_to(no_prep, (len(moves_chunk),))
+_NO_PREP = None
 
-        def window_prep(self, moves_chunk, limits):
-            """The grbl model plans from the MOVE rows alone: the window's PREP rows (the stream keeps them
-            1:1 with its MOVE rows) are one zero row repeated, a read-only view of no memory (zeroing and
-            copying 128 bytes a row cost more than a tenth of the model's time)."""
-            self.prepare(moves_chunk, limits)
-            return np.broadcast_to(no_prep, (len(self.sp.pending_prep) + len(moves_chunk),))
 
-        def plan(self, final: bool):
-            sp = self.sp
-            new = sp.pending_moves[self.fed:]
-            kind, target, rate, rapid, dwell, rows = operations(new)
-            first = self.op_base + len(self.op_kind)
-            ops = np.full(len(new), -1, np.int64)
-            ops[rows] = first + np.arange(len(rows))
-            self.row_op = np.concatenate([self.row_op, ops])
-            self.op_kind = np.concatenate([self.op_kind, kind])
-            self.op_rapid = np.concatenate([self.op_rapid, rapid])
-            self.op_end = np.concatenate([self.op_end, np.full(len(kind), -1, np.int64)])
-            self.op_info = np.concatenate([self.op_info, np.zeros((len(kind), N_INFO), np.float32)])
-            if self.want_steps:
-                self._make_room(kind, target)
-            self.state.feed(kind, target, rate, rapid, dwell, final, self.op_base, self.op_end, self.op_info,
-                            self.no_steps, self.no_dirs, self.n_out)
-            self.fed = len(sp.pending_moves)
-            if final:
-                n_rows = len(sp.pending_moves)
-            else:
-                open_op = self.state.first_open_op()
-                later = np.nonzero(self.row_op >= open_op)[0]
-                n_rows = int(later[0]) if later.size else len(sp.pending_moves)
-            if n_rows == 0:
-                return 0, None, sp.clock, None
-            local = np.where(self.row_op[:n_rows] >= 0, self.row_op[:n_rows] - self.op_base, -1)
-            plan, t_end = _plan_rows(sp.pending_moves[:n_rows], local, self.op_kind, self.op_end, self.op_info,
-                                     self.op_rapid, sp.clock, 0)
-            if self.want_steps:
-                self.last_steps = self._take_steps(None if final else int(round(t_end * F_CPU)))
-            return n_rows, plan, t_end, None
+class _GrblStreamMode:
+    """The grbl-1.1 planning mode (mixed in before planner.stream._Mode by :func:`make_stream_mode`): grbl's
+    state carries over from batch to batch; a batch's MOVE rows become operations with global indices, and
+    the op arrays keep those of the rows still pending (from op ``op_base`` on)."""
 
-        def _make_room(self, kind, target):
-            """Room in the pulse buffers for every step the new lines can make (their step-rounded lengths)."""
-            spm = self.settings.steps_per_mm
-            lines = target[kind == OP_LINE]
-            pos = np.rint((lines * spm).astype(np.float32).astype(np.float64)).astype(np.int64)
-            path = np.concatenate([self.pos_steps[None, :], pos]) if len(pos) else self.pos_steps[None, :]
-            if len(pos):
-                self.pos_steps = pos[-1]
-            # every pulse still to come is of a line fed so far: at most their step-rounded lengths
-            self.bound_steps = self.bound_steps + np.abs(np.diff(path, axis=0)).sum(axis=0) + len(pos)
-            need = self.bound_steps - self.taken_steps + 8
-            width = self.no_steps.shape[1]
-            if need.max() > width:
-                size = int(max(need.max(), 2 * width, 1024))
-                t = np.zeros((3, size), np.int64)
-                d = np.zeros((3, size), np.int8)
-                t[:, :width], d[:, :width] = self.no_steps, self.no_dirs
-                self.no_steps, self.no_dirs = t, d
+    name = "grbl-1.1"
+    own_prepare = True
 
-        def _take_steps(self, until_tick):
-            """The pulses issued up to ``until_tick`` (all with None): {axis index: (times s, dirs)}; the rest
-            stays for the next emission."""
-            out = {}
-            for ax in range(3):
-                n = int(self.n_out[ax])
-                if n > self.no_steps.shape[1]:
-                    raise RuntimeError("grbl model: step buffer overrun (a sizing bug)")
-                t = self.no_steps[ax, :n]
-                k = n if until_tick is None else int(np.searchsorted(t, until_tick, side="right"))
-                out[ax] = (t[:k] / F_CPU, self.no_dirs[ax, :k].copy())
-                rest = n - k
-                self.taken_steps[ax] += k
-                self.no_steps[ax, :rest] = self.no_steps[ax, k:n].copy()
-                self.no_dirs[ax, :rest] = self.no_dirs[ax, k:n].copy()
-                self.n_out[ax] = rest
-            return out
+    def __init__(self, sp):
+        super().__init__(sp)
+        from ..errors import ConfigError
 
-        def drop(self, n_rows: int) -> None:
-            self.fed -= n_rows
-            gone = self.row_op[:n_rows]
-            self.row_op = self.row_op[n_rows:].copy()
-            used = gone[gone >= 0]
-            if used.size:
-                k = int(used.max()) + 1 - self.op_base
-                self.op_base += k
-                self.op_kind = self.op_kind[k:].copy()
-                self.op_rapid = self.op_rapid[k:].copy()
-                self.op_end = self.op_end[k:].copy()
-                self.op_info = self.op_info[k:].copy()
+        if sp.machine.kinematics != "cartesian":
+            raise ConfigError(f"the grbl-1.1 firmware model steps a cartesian machine, not "
+                              f"{sp.machine.kinematics!r} (grbl's COREXY build is not modelled)")
+        self.settings = GrblSettings.from_machine(sp.machine)
+        self.state = GrblState(self.settings)
+        self.want_steps = bool(getattr(sp, "want_firmware_steps", False))
+        self.pos_steps = np.zeros(3, np.int64)         # where the last fed line ends, in steps (for sizing)
+        self.bound_steps = np.zeros(3, np.int64)       # pulses the lines fed so far can make, at most
+        self.taken_steps = np.zeros(3, np.int64)       # pulses handed on
+        self.last_steps = None                         # the pulses of the rows of the last emission
+        self.fed = 0                                   # pending rows already given to grbl
+        self.row_op = np.zeros(0, np.int64)            # per pending row: its op (global index), −1 none
+        self.op_base = 0                               # global index of the first op kept below
+        self.op_kind = np.zeros(0, np.int64)
+        self.op_rapid = np.zeros(0, np.bool_)
+        self.op_end = np.zeros(0, np.int64)
+        self.op_info = np.zeros((0, N_INFO), np.float32)
+        self.n_out = np.zeros(3, np.int64)
+        self.no_steps = np.zeros((3, 0), np.int64)
+        self.no_dirs = np.zeros((3, 0), np.int8)
 
-        def reset(self) -> None:
-            pass
+    def prepare(self, moves_chunk, limits):
+        """The checks grbl's parser makes on a chunk (E words, int32 step positions); PREP rows it does not use."""
+        from ..errors import GcodeError
 
-    return GrblMode
+        e_move = _first_e_move(moves_chunk["e0"], moves_chunk["e1"])
+        if e_move >= 0:      # gcode.c: E is no grbl word (error:20), the whole line is rejected
+            line = int(moves_chunk["line"][e_move])
+            raise GcodeError("grbl 1.1 has no E axis: it rejects this line (error:20, unsupported command)",
+                             line=line)
+        check_reach(moves_chunk, self.settings)
+        return _no_prep(len(moves_chunk))
+
+    def window_prep(self, moves_chunk, limits):
+        """The grbl model plans from the MOVE rows alone: the window's PREP rows (the stream keeps them 1:1
+        with its MOVE rows) are one zero row repeated, a read-only view of no memory (zeroing and copying
+        128 bytes a row cost more than a tenth of the model's time)."""
+        self.prepare(moves_chunk, limits)
+        return _no_prep(len(self.sp.pending_prep) + len(moves_chunk))
+
+    def plan(self, final: bool):
+        """Run grbl on the rows not fed yet; emit the rows before the first whose last pulse is not out."""
+        sp = self.sp
+        kind, target, rate, rapid, dwell = self._add_ops(sp.pending_moves[self.fed:])
+        if self.want_steps:
+            self._make_room(kind, target)
+        self.state.feed(kind, target, rate, rapid, dwell, final, self.op_base, self.op_end, self.op_info,
+                        self.no_steps, self.no_dirs, self.n_out)
+        self.fed = len(sp.pending_moves)
+        if final:
+            n_rows = len(sp.pending_moves)
+        else:
+            open_op = self.state.first_open_op()
+            later = np.nonzero(self.row_op >= open_op)[0]
+            n_rows = int(later[0]) if later.size else len(sp.pending_moves)
+        if n_rows == 0:
+            return 0, None, sp.clock, None
+        local = np.where(self.row_op[:n_rows] >= 0, self.row_op[:n_rows] - self.op_base, -1)
+        plan, t_end = _plan_rows(sp.pending_moves[:n_rows], local, self.op_kind, self.op_end, self.op_info,
+                                 self.op_rapid, sp.clock, 0)
+        if self.want_steps:
+            self.last_steps = self._take_steps(None if final else int(round(t_end * F_CPU)))
+        return n_rows, plan, t_end, None
+
+    def _add_ops(self, new):
+        """grbl's operations of the new MOVE rows, appended to the pending ones (global indices go on);
+        returns what the feed kernel takes: (kind, target, rate, rapid, dwell ticks)."""
+        kind, target, rate, rapid, dwell, rows = operations(new)
+        first = self.op_base + len(self.op_kind)
+        ops = np.full(len(new), -1, np.int64)
+        ops[rows] = first + np.arange(len(rows))
+        self.row_op = np.concatenate([self.row_op, ops])
+        self.op_kind = np.concatenate([self.op_kind, kind])
+        self.op_rapid = np.concatenate([self.op_rapid, rapid])
+        self.op_end = np.concatenate([self.op_end, np.full(len(kind), -1, np.int64)])
+        self.op_info = np.concatenate([self.op_info, np.zeros((len(kind), N_INFO), np.float32)])
+        return kind, target, rate, rapid, dwell
+
+    def _make_room(self, kind, target):
+        """Room in the pulse buffers for every step the new lines can make (their step-rounded lengths)."""
+        spm = self.settings.steps_per_mm
+        lines = target[kind == OP_LINE]
+        pos = np.rint((lines * spm).astype(np.float32).astype(np.float64)).astype(np.int64)
+        path = np.concatenate([self.pos_steps[None, :], pos]) if len(pos) else self.pos_steps[None, :]
+        if len(pos):
+            self.pos_steps = pos[-1]
+        # every pulse still to come is of a line fed so far: at most their step-rounded lengths
+        self.bound_steps = self.bound_steps + np.abs(np.diff(path, axis=0)).sum(axis=0) + len(pos)
+        need = self.bound_steps - self.taken_steps + 8
+        width = self.no_steps.shape[1]
+        if need.max() > width:
+            size = int(max(need.max(), 2 * width, 1024))
+            t = np.zeros((3, size), np.int64)
+            d = np.zeros((3, size), np.int8)
+            t[:, :width], d[:, :width] = self.no_steps, self.no_dirs
+            self.no_steps, self.no_dirs = t, d
+
+    def _take_steps(self, until_tick):
+        """The pulses issued up to ``until_tick`` (all with None): {axis index: (times s, dirs)}; the rest
+        stays for the next emission."""
+        out = {}
+        for ax in range(3):
+            n = int(self.n_out[ax])
+            if n > self.no_steps.shape[1]:
+                raise RuntimeError("grbl model: step buffer overrun (a sizing bug)")
+            t = self.no_steps[ax, :n]
+            k = n if until_tick is None else int(np.searchsorted(t, until_tick, side="right"))
+            out[ax] = (t[:k] / F_CPU, self.no_dirs[ax, :k].copy())
+            rest = n - k
+            self.taken_steps[ax] += k
+            self.no_steps[ax, :rest] = self.no_steps[ax, k:n].copy()
+            self.no_dirs[ax, :rest] = self.no_dirs[ax, k:n].copy()
+            self.n_out[ax] = rest
+        return out
+
+    def drop(self, n_rows: int) -> None:
+        self.fed -= n_rows
+        gone = self.row_op[:n_rows]
+        self.row_op = self.row_op[n_rows:].copy()
+        used = gone[gone >= 0]
+        if used.size:
+            k = int(used.max()) + 1 - self.op_base
+            self.op_base += k
+            self.op_kind = self.op_kind[k:].copy()
+            self.op_rapid = self.op_rapid[k:].copy()
+            self.op_end = self.op_end[k:].copy()
+            self.op_info = self.op_info[k:].copy()
+
+    def reset(self) -> None:
+        pass
