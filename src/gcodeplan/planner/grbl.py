@@ -521,7 +521,12 @@ def _record_profile(si, sf, bf, bop, pb, nominal, window_base, op_info):
     if si[I_RAMP] == RAMP_DECEL or si[I_RAMP] == RAMP_DECEL_OVERRIDE:
         op_info[row, 1] = sf[F_CUR_V]     # deceleration only: the peak is the entry
     else:
-        op_info[row, 1] = sf[F_MAX_V]
+        # A block the planner made one deceleration from its entry (entry² = exit² + 2·a·mm) has its
+        # accelerate/decelerate intersection at its length to rounding; when it falls just inside, the top
+        # speed, √(2·a·intersect + exit²) in single precision, can come out one float below the entry, and
+        # the firmware's "acceleration" lowers the speed by that float over a fraction of a step. The
+        # profile's peak is then its entry (a peak below the entry is a phase of negative time).
+        op_info[row, 1] = sf[F_MAX_V] if sf[F_MAX_V] >= sf[F_CUR_V] else sf[F_CUR_V]
     op_info[row, 2] = sf[F_EXIT_V]
     op_info[row, 3] = nominal
     op_info[row, 4] = bf[pb, B_ACC]
