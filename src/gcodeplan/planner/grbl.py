@@ -958,7 +958,7 @@ def operations(moves: np.ndarray):
                               moves["feed_v"], moves["dwell_t"], _POW10)
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=False)     # main thread, once a batch: see _first_beyond_reach
 def _operations_kernel(kind, flags, x1, y1, z1, feed_v, dwell_t, pow10):
     """:func:`operations` on the MOVE columns, one pass."""
     n_rows = kind.shape[0]
@@ -974,6 +974,8 @@ def _operations_kernel(kind, flags, x1, y1, z1, feed_v, dwell_t, pow10):
     rate = np.empty(n, np.float32)
     rapid = np.empty(n, np.bool_)
     dwell_ticks = np.zeros(n, np.int64)
+    px = py = pz = np.nan                  # the last coordinates read, and grbl's floats of them
+    fx = fy = fz = np.float32(0.0)
     for j in range(n):
         r = keep[j]
         k = kind[r]
@@ -985,9 +987,16 @@ def _operations_kernel(kind, flags, x1, y1, z1, feed_v, dwell_t, pow10):
             target[j, 1] = np.float32(y1[r])
             target[j, 2] = np.float32(z1[r])
         else:
-            target[j, 0] = _grbl_float_of(x1[r], pow10)
-            target[j, 1] = _grbl_float_of(y1[r], pow10)
-            target[j, 2] = _grbl_float_of(z1[r], pow10)
+            # a coordinate the line repeats (Z on most lines) is read once; ±0 always (its sign is its own)
+            if x1[r] != px or x1[r] == 0.0:
+                px, fx = x1[r], _grbl_float_of(x1[r], pow10)
+            if y1[r] != py or y1[r] == 0.0:
+                py, fy = y1[r], _grbl_float_of(y1[r], pow10)
+            if z1[r] != pz or z1[r] == 0.0:
+                pz, fz = z1[r], _grbl_float_of(z1[r], pow10)
+            target[j, 0] = fx
+            target[j, 1] = fy
+            target[j, 2] = fz
         feed = feed_v[r]
         rapid[j] = (flags[r] & FLAG_RAPID) != 0 or not math.isfinite(feed)
         rate[j] = np.float32(0.0) if rapid[j] else np.float32(feed * 60.0)
@@ -1003,13 +1012,29 @@ def check_reach(moves: np.ndarray, settings: GrblSettings) -> None:
     number) has no meaning on the machine; an error naming the line rather than a wrapped position."""
     from ..errors import GcodeError
 
-    for k, axis in enumerate(("x1", "y1", "z1")):
-        bad = np.nonzero(~(np.abs(moves[axis]) < 2.0 ** 31 / float(settings.steps_per_mm[k])))[0]
-        if bad.size:
-            i = int(bad[0])
-            raise GcodeError(f"{axis[0].upper()} {moves[axis][i]:g} mm is beyond grbl's reach "
-                             f"(±2³¹ steps at {float(settings.steps_per_mm[k]):g} steps/mm)",
-                             line=int(moves["line"][i]))
+    reach = np.array([2.0 ** 31 / float(v) for v in settings.steps_per_mm])
+    k, i = _first_beyond_reach(moves["x1"], moves["y1"], moves["z1"], reach)
+    if k >= 0:
+        axis = "xyz"[k]
+        raise GcodeError(f"{axis.upper()} {moves[axis + '1'][i]:g} mm is beyond grbl's reach "
+                         f"(±2³¹ steps at {float(settings.steps_per_mm[k]):g} steps/mm)",
+                         line=int(moves["line"][i]))
+
+
+# nogil=False for the small kernels the grbl mode runs in the main thread once a batch (well under a
+# millisecond each): releasing the GIL for them hands it to the reader thread, which then keeps it for its
+# Python work up to the interpreter's switch interval (5 ms); measured on the 50 MB file, 1.4 s of such waits
+# around 0.05 s of work in one of them
+@njit(cache=True, nogil=False)
+def _first_beyond_reach(x1, y1, z1, reach):
+    """(axis, row) of the first target not within ±reach[axis] mm (or not a number), axes in order X, Y, Z;
+    (−1, −1) when all are."""
+    for k in range(3):
+        v = x1 if k == 0 else (y1 if k == 1 else z1)
+        for i in range(v.shape[0]):
+            if not (abs(v[i]) < reach[k]):
+                return k, i
+    return -1, -1
 
 
 def run(moves: np.ndarray, settings: GrblSettings, steps_capacity: int = 0) -> GrblRun:
@@ -1038,7 +1063,7 @@ def run(moves: np.ndarray, settings: GrblSettings, steps_capacity: int = 0) -> G
     return GrblRun(row_end, last / F_CPU, steps)
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=False)     # main thread, once a batch: see _first_beyond_reach
 def _first_e_move(e0, e1):
     """Index of the first row that moves E (−1: none)."""
     for i in range(e0.shape[0]):
@@ -1064,13 +1089,13 @@ def _plan_rows(moves, op_of_row, op_kind, op_end, op_info, op_rapid, clock_s, t0
     return plan, t_end
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True)
 def _max_nan(a, b):
     """np.maximum of two floats: the larger, nan if either is nan."""
     return a if (a >= b or a != a) else b
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=False)     # main thread, once a batch: see _first_beyond_reach
 def _plan_rows_kernel(move_d, feed_v, op_of_row, op_kind, op_end, op_info, op_rapid, clock_s, t0, t_start,
                       duration, start_v, cruise_v, end_v, accel, decel, accel_t, cruise_t, decel_t, limit):
     """:func:`_plan_rows` row by row into the PLAN columns (zeros on entry); returns the last row's end (s).
