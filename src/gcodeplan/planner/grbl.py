@@ -191,8 +191,8 @@ def _decimal(v: float) -> str:
 
 # --------------------------------------------------------------------------- the simulation
 # State lives in small arrays so one numba function can run the whole program (grbl's globals). The functions
-# run once per segment or per block (_prep_then_wait, _st_prep_buffer, _isr, _rest_of_segment,
-# _plan_buffer_line) are inlined into the feed kernel (inline="always"): a call of a compiled numba function
+# run once per segment or per block (_prep_then_wait, _st_prep_buffer and its steps _prep_*, _isr,
+# _rest_of_segment, _plan_buffer_line) are inlined into the feed kernel (inline="always"): a call of a compiled numba function
 # with its ~20 array arguments costs more than the work of a segment (measured: the kernel 2.5× faster).
 # planner ring, per block
 B_MM, B_ACC, B_RAPID, B_PROG, B_ENTRY2, B_MAXENTRY2, B_MAXJUNC2 = range(7)
