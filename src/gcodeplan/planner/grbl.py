@@ -29,7 +29,7 @@ import math
 from .._jit import njit
 import numpy as np
 
-from ..schema import FLAG_ARC, FLAG_RAPID, KIND_DWELL, KIND_WAIT
+from ..schema import FLAG_ARC, FLAG_RAPID, KIND_DWELL, KIND_WAIT, LIMIT_ACCEL, LIMIT_AXIS, LIMIT_FEED, LIMIT_NONE
 
 f32 = np.float32
 
@@ -191,8 +191,8 @@ def _decimal(v: float) -> str:
 
 # --------------------------------------------------------------------------- the simulation
 # State lives in small arrays so one numba function can run the whole program (grbl's globals). The functions
-# run once per segment or per block (_prep_then_wait, _st_prep_buffer, _isr, _rest_of_segment,
-# _plan_buffer_line) are inlined into the feed kernel (inline="always"): a call of a compiled numba function
+# run once per segment or per block (_prep_then_wait, _st_prep_buffer and its steps _prep_*, _isr,
+# _rest_of_segment, _plan_buffer_line) are inlined into the feed kernel (inline="always"): a call of a compiled numba function
 # with its ~20 array arguments costs more than the work of a segment (measured: the kernel 2.5× faster).
 # planner ring, per block
 B_MM, B_ACC, B_RAPID, B_PROG, B_ENTRY2, B_MAXENTRY2, B_MAXJUNC2 = range(7)
@@ -403,185 +403,28 @@ def _lround(x):
 def _st_prep_buffer(si, sf, bf, bsteps, bdir, bop, brapid, st_steps, st_sec, st_dir, st_op, seg_n, seg_cycles,
                     seg_block, seg_amass, window_base, op_info):
     """stepper.c st_prep_buffer, normal operation (no feed hold, parking or overrides): fill the segment ring
-    with 10 ms segments of the block at the planner's tail."""
+    with 10 ms segments of the block at the planner's tail. Its steps in grbl's order, one function each: take
+    the tail block (:func:`_prep_load_block`) and compute its velocity profile (:func:`_prep_velocity_profile`),
+    then per segment the distance covered in its time (:func:`_prep_segment_distance`) and its steps and step
+    rate (:func:`_prep_segment_step_rate`); a block whose last segment is made leaves the planner."""
     while si[I_SEG_TAIL] != si[I_SEG_NEXT_HEAD]:
         if si[I_PL_BLOCK] < 0:
             if si[I_HEAD] == si[I_TAIL]:
                 return
             pb = si[I_TAIL]
             si[I_PL_BLOCK] = pb
-            loaded = False
-            if si[I_RECALC] & PREP_FLAG_RECALCULATE:
-                si[I_RECALC] = 0
-            else:
-                loaded = True
-                sbi = _next(si[I_ST_BLOCK_INDEX], ST_BLOCK_BUFFER_SIZE)
-                si[I_ST_BLOCK_INDEX] = sbi
-                st_dir[sbi] = bdir[pb]
-                sec = 0
-                for i in range(3):
-                    st_steps[sbi, i] = bsteps[pb, i] << MAX_AMASS_LEVEL
-                    if bsteps[pb, i] > sec:
-                        sec = bsteps[pb, i]
-                st_sec[sbi] = sec << MAX_AMASS_LEVEL
-                st_op[sbi] = bop[pb]
-                sf[F_STEPS_REM] = np.float32(sec)
-                sf[F_STEP_PER_MM] = np.float32(sf[F_STEPS_REM] / bf[pb, B_MM])
-                sf[F_REQ_MM] = np.float32(REQ_MM_INCREMENT_SCALAR / np.float64(sf[F_STEP_PER_MM]))
-                sf[F_DT_REM] = 0.0
-                sf[F_CUR_V] = np.float32(math.sqrt(np.float64(bf[pb, B_ENTRY2])))
-            # the velocity profile of the block (or of what is left of it)
-            sf[F_MM_COMPLETE] = 0.0
-            acc = bf[pb, B_ACC]
-            mm = bf[pb, B_MM]
-            entry2 = bf[pb, B_ENTRY2]
-            inv_2_accel = np.float32(0.5 / np.float64(acc))
-            si[I_RAMP] = RAMP_ACCEL
-            sf[F_ACC_UNTIL] = mm
-            nb = _next(pb, BLOCK_BUFFER_SIZE)
-            exit2 = np.float32(0.0) if nb == si[I_HEAD] else bf[nb, B_ENTRY2]
-            sf[F_EXIT_V] = np.float32(math.sqrt(np.float64(exit2)))
-            nominal = _nominal_speed(bf, pb, brapid)
-            nominal2 = np.float32(nominal * nominal)
-            intersect = np.float32(0.5 * np.float64(np.float32(mm + np.float32(inv_2_accel * np.float32(entry2 - exit2)))))
-            if entry2 > nominal2:
-                sf[F_ACC_UNTIL] = np.float32(mm - np.float32(inv_2_accel * np.float32(entry2 - nominal2)))
-                if sf[F_ACC_UNTIL] <= 0.0:
-                    si[I_RAMP] = RAMP_DECEL
-                    sf[F_EXIT_V] = np.float32(math.sqrt(np.float64(np.float32(entry2 - np.float32(np.float32(2) * acc) * mm))))
-                    si[I_RECALC] |= PREP_FLAG_DECEL_OVERRIDE
-                else:
-                    sf[F_DEC_AFTER] = np.float32(inv_2_accel * np.float32(nominal2 - exit2))
-                    sf[F_MAX_V] = nominal
-                    si[I_RAMP] = RAMP_DECEL_OVERRIDE
-            elif intersect > 0.0:
-                if intersect < mm:
-                    sf[F_DEC_AFTER] = np.float32(inv_2_accel * np.float32(nominal2 - exit2))
-                    if sf[F_DEC_AFTER] < intersect:
-                        sf[F_MAX_V] = nominal
-                        if entry2 == nominal2:
-                            si[I_RAMP] = RAMP_CRUISE
-                        else:
-                            sf[F_ACC_UNTIL] = np.float32(sf[F_ACC_UNTIL] - np.float32(inv_2_accel * np.float32(nominal2 - entry2)))
-                    else:
-                        sf[F_ACC_UNTIL] = intersect
-                        sf[F_DEC_AFTER] = intersect
-                        sf[F_MAX_V] = np.float32(math.sqrt(2.0 * np.float64(acc) * np.float64(intersect) + np.float64(exit2)))
-                else:
-                    si[I_RAMP] = RAMP_DECEL
-            else:
-                sf[F_ACC_UNTIL] = 0.0
-                sf[F_MAX_V] = sf[F_EXIT_V]
+            loaded = _prep_load_block(si, sf, bf, bsteps, bdir, bop, st_steps, st_sec, st_dir, st_op, pb)
+            nominal = _prep_velocity_profile(si, sf, bf, brapid, pb)
             if loaded:
-                row = bop[pb] - window_base
-                op_info[row, 0] = sf[F_CUR_V]
-                if si[I_RAMP] == RAMP_DECEL or si[I_RAMP] == RAMP_DECEL_OVERRIDE:
-                    op_info[row, 1] = sf[F_CUR_V]     # deceleration only: the peak is the entry
-                else:
-                    op_info[row, 1] = sf[F_MAX_V]
-                op_info[row, 2] = sf[F_EXIT_V]
-                op_info[row, 3] = nominal
-                op_info[row, 4] = acc
-                op_info[row, 5] = mm
+                _record_profile(si, sf, bf, bop, pb, nominal, window_base, op_info)
         pb = si[I_PL_BLOCK]
         seg = si[I_SEG_HEAD]
         seg_block[seg] = si[I_ST_BLOCK_INDEX]
-        acc = bf[pb, B_ACC]
-        dt_max = np.float32(DT_SEGMENT)
-        dt = np.float32(0.0)
-        time_var = dt_max
-        mm_remaining = bf[pb, B_MM]
-        minimum_mm = np.float32(mm_remaining - sf[F_REQ_MM])
-        if minimum_mm < 0.0:
-            minimum_mm = np.float32(0.0)
-        while True:
-            ramp = si[I_RAMP]
-            if ramp == RAMP_DECEL_OVERRIDE:
-                speed_var = np.float32(acc * time_var)
-                if np.float32(sf[F_CUR_V] - sf[F_MAX_V]) <= speed_var:
-                    mm_remaining = sf[F_ACC_UNTIL]
-                    time_var = np.float32(2.0 * np.float64(np.float32(bf[pb, B_MM] - mm_remaining))
-                                          / np.float64(np.float32(sf[F_CUR_V] + sf[F_MAX_V])))
-                    si[I_RAMP] = RAMP_CRUISE
-                    sf[F_CUR_V] = sf[F_MAX_V]
-                else:
-                    mm_remaining = np.float32(np.float64(mm_remaining) - np.float64(time_var) * (
-                        np.float64(sf[F_CUR_V]) - 0.5 * np.float64(speed_var)))
-                    sf[F_CUR_V] = np.float32(sf[F_CUR_V] - speed_var)
-            elif ramp == RAMP_ACCEL:
-                speed_var = np.float32(acc * time_var)
-                mm_remaining = np.float32(np.float64(mm_remaining) - np.float64(time_var) * (
-                    np.float64(sf[F_CUR_V]) + 0.5 * np.float64(speed_var)))
-                if mm_remaining < sf[F_ACC_UNTIL]:
-                    mm_remaining = sf[F_ACC_UNTIL]
-                    time_var = np.float32(2.0 * np.float64(np.float32(bf[pb, B_MM] - mm_remaining))
-                                          / np.float64(np.float32(sf[F_CUR_V] + sf[F_MAX_V])))
-                    if mm_remaining == sf[F_DEC_AFTER]:
-                        si[I_RAMP] = RAMP_DECEL
-                    else:
-                        si[I_RAMP] = RAMP_CRUISE
-                    sf[F_CUR_V] = sf[F_MAX_V]
-                else:
-                    sf[F_CUR_V] = np.float32(sf[F_CUR_V] + speed_var)
-            elif ramp == RAMP_CRUISE:
-                mm_var = np.float32(mm_remaining - np.float32(sf[F_MAX_V] * time_var))
-                if mm_var < sf[F_DEC_AFTER]:
-                    time_var = np.float32(np.float32(mm_remaining - sf[F_DEC_AFTER]) / sf[F_MAX_V])
-                    mm_remaining = sf[F_DEC_AFTER]
-                    si[I_RAMP] = RAMP_DECEL
-                else:
-                    mm_remaining = mm_var
-            else:
-                speed_var = np.float32(acc * time_var)
-                done = False
-                if sf[F_CUR_V] > speed_var:
-                    mm_var = np.float32(np.float64(mm_remaining) - np.float64(time_var) * (
-                        np.float64(sf[F_CUR_V]) - 0.5 * np.float64(speed_var)))
-                    if mm_var > sf[F_MM_COMPLETE]:
-                        mm_remaining = mm_var
-                        sf[F_CUR_V] = np.float32(sf[F_CUR_V] - speed_var)
-                        done = True
-                if not done:
-                    time_var = np.float32(2.0 * np.float64(np.float32(mm_remaining - sf[F_MM_COMPLETE]))
-                                          / np.float64(np.float32(sf[F_CUR_V] + sf[F_EXIT_V])))
-                    mm_remaining = sf[F_MM_COMPLETE]
-                    sf[F_CUR_V] = sf[F_EXIT_V]
-            dt = np.float32(dt + time_var)
-            if dt < dt_max:
-                time_var = np.float32(dt_max - dt)
-            else:
-                if mm_remaining > minimum_mm:
-                    dt_max = np.float32(np.float64(dt_max) + DT_SEGMENT)
-                    time_var = np.float32(dt_max - dt)
-                else:
-                    break
-            if not (mm_remaining > sf[F_MM_COMPLETE]):
-                break
-        step_dist_remaining = np.float32(sf[F_STEP_PER_MM] * mm_remaining)
-        n_steps_remaining = np.float32(math.ceil(np.float64(step_dist_remaining)))
-        last_n_steps_remaining = np.float32(math.ceil(np.float64(sf[F_STEPS_REM])))
-        n_step = np.int64(np.float32(last_n_steps_remaining - n_steps_remaining))
-        dt = np.float32(dt + sf[F_DT_REM])
-        inv_rate = np.float32(dt / np.float32(last_n_steps_remaining - step_dist_remaining))
-        cycles = np.int64(math.ceil(np.float64(np.float32(np.float32(CYCLES_PER_MINUTE) * inv_rate))))
-        amass = 0
-        if cycles >= AMASS_LEVEL1:
-            if cycles < AMASS_LEVEL2:
-                amass = 1
-            elif cycles < AMASS_LEVEL3:
-                amass = 2
-            else:
-                amass = 3
-            cycles >>= amass
-            n_step = (n_step << amass) & 0xFFFF
-        seg_cycles[seg] = cycles if cycles < 65536 else 0xFFFF
-        seg_n[seg] = n_step
-        seg_amass[seg] = amass
+        dt, mm_remaining = _prep_segment_distance(si, sf, bf, pb)
+        _prep_segment_step_rate(sf, seg, dt, mm_remaining, seg_n, seg_cycles, seg_amass)
         si[I_SEG_HEAD] = si[I_SEG_NEXT_HEAD]
         si[I_SEG_NEXT_HEAD] = _next(si[I_SEG_NEXT_HEAD], SEGMENT_BUFFER_SIZE)
         bf[pb, B_MM] = mm_remaining
-        sf[F_STEPS_REM] = n_steps_remaining
-        sf[F_DT_REM] = np.float32(np.float32(n_steps_remaining - step_dist_remaining) * inv_rate)
         if mm_remaining == sf[F_MM_COMPLETE]:
             if mm_remaining > 0.0:
                 return
@@ -592,6 +435,211 @@ def _st_prep_buffer(si, sf, bf, bsteps, bdir, bop, brapid, st_steps, st_sec, st_
                 if si[I_TAIL] == si[I_PLANNED]:
                     si[I_PLANNED] = bi
                 si[I_TAIL] = bi
+
+
+@njit(cache=True, inline="always")
+def _prep_load_block(si, sf, bf, bsteps, bdir, bop, st_steps, st_sec, st_dir, st_op, pb):
+    """st_prep_buffer, a new planner block ``pb``: after a re-plan of the block being prepared only its profile
+    is recomputed (returns False); otherwise its steps (AMASS-scaled) go to the stepper's block ring and the
+    prep state starts at the block's entry speed (returns True)."""
+    if si[I_RECALC] & PREP_FLAG_RECALCULATE:
+        si[I_RECALC] = 0
+        return False
+    sbi = _next(si[I_ST_BLOCK_INDEX], ST_BLOCK_BUFFER_SIZE)
+    si[I_ST_BLOCK_INDEX] = sbi
+    st_dir[sbi] = bdir[pb]
+    sec = 0
+    for i in range(3):
+        st_steps[sbi, i] = bsteps[pb, i] << MAX_AMASS_LEVEL
+        if bsteps[pb, i] > sec:
+            sec = bsteps[pb, i]
+    st_sec[sbi] = sec << MAX_AMASS_LEVEL
+    st_op[sbi] = bop[pb]
+    sf[F_STEPS_REM] = np.float32(sec)
+    sf[F_STEP_PER_MM] = np.float32(sf[F_STEPS_REM] / bf[pb, B_MM])
+    sf[F_REQ_MM] = np.float32(REQ_MM_INCREMENT_SCALAR / np.float64(sf[F_STEP_PER_MM]))
+    sf[F_DT_REM] = 0.0
+    sf[F_CUR_V] = np.float32(math.sqrt(np.float64(bf[pb, B_ENTRY2])))
+    return True
+
+
+@njit(cache=True, inline="always")
+def _prep_velocity_profile(si, sf, bf, brapid, pb):
+    """st_prep_buffer, the velocity profile of block ``pb`` (or of what is left of it) from its entry and exit
+    speeds: the ramp it starts in, where acceleration ends and deceleration starts (mm left), its top speed.
+    Returns the block's nominal speed (mm/min)."""
+    sf[F_MM_COMPLETE] = 0.0
+    acc = bf[pb, B_ACC]
+    mm = bf[pb, B_MM]
+    entry2 = bf[pb, B_ENTRY2]
+    inv_2_accel = np.float32(0.5 / np.float64(acc))
+    si[I_RAMP] = RAMP_ACCEL
+    sf[F_ACC_UNTIL] = mm
+    nb = _next(pb, BLOCK_BUFFER_SIZE)
+    exit2 = np.float32(0.0) if nb == si[I_HEAD] else bf[nb, B_ENTRY2]
+    sf[F_EXIT_V] = np.float32(math.sqrt(np.float64(exit2)))
+    nominal = _nominal_speed(bf, pb, brapid)
+    nominal2 = np.float32(nominal * nominal)
+    intersect = np.float32(0.5 * np.float64(np.float32(mm + np.float32(inv_2_accel * np.float32(entry2 - exit2)))))
+    if entry2 > nominal2:
+        sf[F_ACC_UNTIL] = np.float32(mm - np.float32(inv_2_accel * np.float32(entry2 - nominal2)))
+        if sf[F_ACC_UNTIL] <= 0.0:
+            si[I_RAMP] = RAMP_DECEL
+            sf[F_EXIT_V] = np.float32(math.sqrt(np.float64(np.float32(entry2 - np.float32(np.float32(2) * acc) * mm))))
+            si[I_RECALC] |= PREP_FLAG_DECEL_OVERRIDE
+        else:
+            sf[F_DEC_AFTER] = np.float32(inv_2_accel * np.float32(nominal2 - exit2))
+            sf[F_MAX_V] = nominal
+            si[I_RAMP] = RAMP_DECEL_OVERRIDE
+    elif intersect > 0.0:
+        if intersect < mm:
+            sf[F_DEC_AFTER] = np.float32(inv_2_accel * np.float32(nominal2 - exit2))
+            if sf[F_DEC_AFTER] < intersect:
+                sf[F_MAX_V] = nominal
+                if entry2 == nominal2:
+                    si[I_RAMP] = RAMP_CRUISE
+                else:
+                    sf[F_ACC_UNTIL] = np.float32(sf[F_ACC_UNTIL] - np.float32(inv_2_accel * np.float32(nominal2 - entry2)))
+            else:
+                sf[F_ACC_UNTIL] = intersect
+                sf[F_DEC_AFTER] = intersect
+                sf[F_MAX_V] = np.float32(math.sqrt(2.0 * np.float64(acc) * np.float64(intersect) + np.float64(exit2)))
+        else:
+            si[I_RAMP] = RAMP_DECEL
+    else:
+        sf[F_ACC_UNTIL] = 0.0
+        sf[F_MAX_V] = sf[F_EXIT_V]
+    return nominal
+
+
+@njit(cache=True, inline="always")
+def _record_profile(si, sf, bf, bop, pb, nominal, window_base, op_info):
+    """op_info of block ``pb`` as first profiled (gcodeplan's, not grbl's): entry, peak, exit and nominal speed
+    (mm/min), acceleration (mm/min²), length (mm)."""
+    row = bop[pb] - window_base
+    op_info[row, 0] = sf[F_CUR_V]
+    if si[I_RAMP] == RAMP_DECEL or si[I_RAMP] == RAMP_DECEL_OVERRIDE:
+        op_info[row, 1] = sf[F_CUR_V]     # deceleration only: the peak is the entry
+    else:
+        # A block the planner made one deceleration from its entry (entry² = exit² + 2·a·mm) has its
+        # accelerate/decelerate intersection at its length to rounding; when it falls just inside, the top
+        # speed, √(2·a·intersect + exit²) in single precision, can come out one float below the entry, and
+        # the firmware's "acceleration" lowers the speed by that float over a fraction of a step. The
+        # profile's peak is then its entry (a peak below the entry is a phase of negative time).
+        op_info[row, 1] = sf[F_MAX_V] if sf[F_MAX_V] >= sf[F_CUR_V] else sf[F_CUR_V]
+    op_info[row, 2] = sf[F_EXIT_V]
+    op_info[row, 3] = nominal
+    op_info[row, 4] = bf[pb, B_ACC]
+    op_info[row, 5] = bf[pb, B_MM]
+
+
+@njit(cache=True, inline="always")
+def _prep_segment_distance(si, sf, bf, pb):
+    """st_prep_buffer, one segment of block ``pb``: run the ramp state machine (acceleration, cruise,
+    deceleration, deceleration override) over the segment time DT_SEGMENT, extended by whole DT_SEGMENTs until
+    it covers at least REQ_MM_INCREMENT_SCALAR steps or ends the block. Returns (segment time min, mm of the
+    block left after it)."""
+    acc = bf[pb, B_ACC]
+    dt_max = np.float32(DT_SEGMENT)
+    dt = np.float32(0.0)
+    time_var = dt_max
+    mm_remaining = bf[pb, B_MM]
+    minimum_mm = np.float32(mm_remaining - sf[F_REQ_MM])
+    if minimum_mm < 0.0:
+        minimum_mm = np.float32(0.0)
+    while True:
+        ramp = si[I_RAMP]
+        if ramp == RAMP_DECEL_OVERRIDE:
+            speed_var = np.float32(acc * time_var)
+            if np.float32(sf[F_CUR_V] - sf[F_MAX_V]) <= speed_var:
+                mm_remaining = sf[F_ACC_UNTIL]
+                time_var = np.float32(2.0 * np.float64(np.float32(bf[pb, B_MM] - mm_remaining))
+                                      / np.float64(np.float32(sf[F_CUR_V] + sf[F_MAX_V])))
+                si[I_RAMP] = RAMP_CRUISE
+                sf[F_CUR_V] = sf[F_MAX_V]
+            else:
+                mm_remaining = np.float32(np.float64(mm_remaining) - np.float64(time_var) * (
+                    np.float64(sf[F_CUR_V]) - 0.5 * np.float64(speed_var)))
+                sf[F_CUR_V] = np.float32(sf[F_CUR_V] - speed_var)
+        elif ramp == RAMP_ACCEL:
+            speed_var = np.float32(acc * time_var)
+            mm_remaining = np.float32(np.float64(mm_remaining) - np.float64(time_var) * (
+                np.float64(sf[F_CUR_V]) + 0.5 * np.float64(speed_var)))
+            if mm_remaining < sf[F_ACC_UNTIL]:
+                mm_remaining = sf[F_ACC_UNTIL]
+                time_var = np.float32(2.0 * np.float64(np.float32(bf[pb, B_MM] - mm_remaining))
+                                      / np.float64(np.float32(sf[F_CUR_V] + sf[F_MAX_V])))
+                if mm_remaining == sf[F_DEC_AFTER]:
+                    si[I_RAMP] = RAMP_DECEL
+                else:
+                    si[I_RAMP] = RAMP_CRUISE
+                sf[F_CUR_V] = sf[F_MAX_V]
+            else:
+                sf[F_CUR_V] = np.float32(sf[F_CUR_V] + speed_var)
+        elif ramp == RAMP_CRUISE:
+            mm_var = np.float32(mm_remaining - np.float32(sf[F_MAX_V] * time_var))
+            if mm_var < sf[F_DEC_AFTER]:
+                time_var = np.float32(np.float32(mm_remaining - sf[F_DEC_AFTER]) / sf[F_MAX_V])
+                mm_remaining = sf[F_DEC_AFTER]
+                si[I_RAMP] = RAMP_DECEL
+            else:
+                mm_remaining = mm_var
+        else:
+            speed_var = np.float32(acc * time_var)
+            done = False
+            if sf[F_CUR_V] > speed_var:
+                mm_var = np.float32(np.float64(mm_remaining) - np.float64(time_var) * (
+                    np.float64(sf[F_CUR_V]) - 0.5 * np.float64(speed_var)))
+                if mm_var > sf[F_MM_COMPLETE]:
+                    mm_remaining = mm_var
+                    sf[F_CUR_V] = np.float32(sf[F_CUR_V] - speed_var)
+                    done = True
+            if not done:
+                time_var = np.float32(2.0 * np.float64(np.float32(mm_remaining - sf[F_MM_COMPLETE]))
+                                      / np.float64(np.float32(sf[F_CUR_V] + sf[F_EXIT_V])))
+                mm_remaining = sf[F_MM_COMPLETE]
+                sf[F_CUR_V] = sf[F_EXIT_V]
+        dt = np.float32(dt + time_var)
+        if dt < dt_max:
+            time_var = np.float32(dt_max - dt)
+        else:
+            if mm_remaining > minimum_mm:
+                dt_max = np.float32(np.float64(dt_max) + DT_SEGMENT)
+                time_var = np.float32(dt_max - dt)
+            else:
+                break
+        if not (mm_remaining > sf[F_MM_COMPLETE]):
+            break
+    return dt, mm_remaining
+
+
+@njit(cache=True, inline="always")
+def _prep_segment_step_rate(sf, seg, dt, mm_remaining, seg_n, seg_cycles, seg_amass):
+    """st_prep_buffer, segment ``seg`` of ``dt`` min ending ``mm_remaining`` mm before the block's end: its
+    whole steps, its step period in Timer1 cycles from the time since the last step (the step-remainder time
+    carried from the previous segment included), its AMASS level; the carried step and time remainders."""
+    step_dist_remaining = np.float32(sf[F_STEP_PER_MM] * mm_remaining)
+    n_steps_remaining = np.float32(math.ceil(np.float64(step_dist_remaining)))
+    last_n_steps_remaining = np.float32(math.ceil(np.float64(sf[F_STEPS_REM])))
+    n_step = np.int64(np.float32(last_n_steps_remaining - n_steps_remaining))
+    dt = np.float32(dt + sf[F_DT_REM])
+    inv_rate = np.float32(dt / np.float32(last_n_steps_remaining - step_dist_remaining))
+    cycles = np.int64(math.ceil(np.float64(np.float32(np.float32(CYCLES_PER_MINUTE) * inv_rate))))
+    amass = 0
+    if cycles >= AMASS_LEVEL1:
+        if cycles < AMASS_LEVEL2:
+            amass = 1
+        elif cycles < AMASS_LEVEL3:
+            amass = 2
+        else:
+            amass = 3
+        cycles >>= amass
+        n_step = (n_step << amass) & 0xFFFF
+    seg_cycles[seg] = cycles if cycles < 65536 else 0xFFFF
+    seg_n[seg] = n_step
+    seg_amass[seg] = amass
+    sf[F_STEPS_REM] = n_steps_remaining
+    sf[F_DT_REM] = np.float32(np.float32(n_steps_remaining - step_dist_remaining) * inv_rate)
 
 
 @njit(cache=True, inline="always")
@@ -910,7 +958,7 @@ def operations(moves: np.ndarray):
                               moves["feed_v"], moves["dwell_t"], _POW10)
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=False)     # main thread, once a batch: see _first_beyond_reach
 def _operations_kernel(kind, flags, x1, y1, z1, feed_v, dwell_t, pow10):
     """:func:`operations` on the MOVE columns, one pass."""
     n_rows = kind.shape[0]
@@ -926,6 +974,8 @@ def _operations_kernel(kind, flags, x1, y1, z1, feed_v, dwell_t, pow10):
     rate = np.empty(n, np.float32)
     rapid = np.empty(n, np.bool_)
     dwell_ticks = np.zeros(n, np.int64)
+    px = py = pz = np.nan                  # the last coordinates read, and grbl's floats of them
+    fx = fy = fz = np.float32(0.0)
     for j in range(n):
         r = keep[j]
         k = kind[r]
@@ -937,9 +987,16 @@ def _operations_kernel(kind, flags, x1, y1, z1, feed_v, dwell_t, pow10):
             target[j, 1] = np.float32(y1[r])
             target[j, 2] = np.float32(z1[r])
         else:
-            target[j, 0] = _grbl_float_of(x1[r], pow10)
-            target[j, 1] = _grbl_float_of(y1[r], pow10)
-            target[j, 2] = _grbl_float_of(z1[r], pow10)
+            # a coordinate the line repeats (Z on most lines) is read once; ±0 always (its sign is its own)
+            if x1[r] != px or x1[r] == 0.0:
+                px, fx = x1[r], _grbl_float_of(x1[r], pow10)
+            if y1[r] != py or y1[r] == 0.0:
+                py, fy = y1[r], _grbl_float_of(y1[r], pow10)
+            if z1[r] != pz or z1[r] == 0.0:
+                pz, fz = z1[r], _grbl_float_of(z1[r], pow10)
+            target[j, 0] = fx
+            target[j, 1] = fy
+            target[j, 2] = fz
         feed = feed_v[r]
         rapid[j] = (flags[r] & FLAG_RAPID) != 0 or not math.isfinite(feed)
         rate[j] = np.float32(0.0) if rapid[j] else np.float32(feed * 60.0)
@@ -955,13 +1012,29 @@ def check_reach(moves: np.ndarray, settings: GrblSettings) -> None:
     number) has no meaning on the machine; an error naming the line rather than a wrapped position."""
     from ..errors import GcodeError
 
-    for k, axis in enumerate(("x1", "y1", "z1")):
-        bad = np.nonzero(~(np.abs(moves[axis]) < 2.0 ** 31 / float(settings.steps_per_mm[k])))[0]
-        if bad.size:
-            i = int(bad[0])
-            raise GcodeError(f"{axis[0].upper()} {moves[axis][i]:g} mm is beyond grbl's reach "
-                             f"(±2³¹ steps at {float(settings.steps_per_mm[k]):g} steps/mm)",
-                             line=int(moves["line"][i]))
+    reach = np.array([2.0 ** 31 / float(v) for v in settings.steps_per_mm])
+    k, i = _first_beyond_reach(moves["x1"], moves["y1"], moves["z1"], reach)
+    if k >= 0:
+        axis = "xyz"[k]
+        raise GcodeError(f"{axis.upper()} {moves[axis + '1'][i]:g} mm is beyond grbl's reach "
+                         f"(±2³¹ steps at {float(settings.steps_per_mm[k]):g} steps/mm)",
+                         line=int(moves["line"][i]))
+
+
+# nogil=False for the small kernels the grbl mode runs in the main thread once a batch (well under a
+# millisecond each): releasing the GIL for them hands it to the reader thread, which then keeps it for its
+# Python work up to the interpreter's switch interval (5 ms); measured on the 50 MB file, 1.4 s of such waits
+# around 0.05 s of work in one of them
+@njit(cache=True, nogil=False)
+def _first_beyond_reach(x1, y1, z1, reach):
+    """(axis, row) of the first target not within ±reach[axis] mm (or not a number), axes in order X, Y, Z;
+    (−1, −1) when all are."""
+    for k in range(3):
+        v = x1 if k == 0 else (y1 if k == 1 else z1)
+        for i in range(v.shape[0]):
+            if not (abs(v[i]) < reach[k]):
+                return k, i
+    return -1, -1
 
 
 def run(moves: np.ndarray, settings: GrblSettings, steps_capacity: int = 0) -> GrblRun:
@@ -990,7 +1063,7 @@ def run(moves: np.ndarray, settings: GrblSettings, steps_capacity: int = 0) -> G
     return GrblRun(row_end, last / F_CPU, steps)
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=False)     # main thread, once a batch: see _first_beyond_reach
 def _first_e_move(e0, e1):
     """Index of the first row that moves E (−1: none)."""
     for i in range(e0.shape[0]):
@@ -1005,183 +1078,236 @@ def _plan_rows(moves, op_of_row, op_kind, op_end, op_info, op_rapid, clock_s, t0
     rows without a step end where the previous one did. Speeds and phases are the block's profile as grbl's
     segment generator planned it, laid on the row's own length and stretched in time to the firmware's
     duration (its timer rounds every step period up: +0.004 … +0.12 %), so that the pieces are continuous
-    in position and their times are the firmware's."""
-    from ..schema import LIMIT_ACCEL, LIMIT_AXIS, LIMIT_FEED, LIMIT_NONE, PLAN_DTYPE
+    in position and their times are the firmware's. Returns (plan, end of the last row s)."""
+    from ..schema import PLAN_DTYPE
 
-    n = len(moves)
-    plan = np.zeros(n, dtype=PLAN_DTYPE)
-    has_op = op_of_row >= 0
-    k = np.where(has_op, op_of_row, 0)
-    end_tick = np.where(has_op, op_end[k] if len(op_end) else -1, -1)
-    end_s = np.where(end_tick >= 0, (end_tick - t0) / F_CPU, -np.inf)
-    end_s = np.maximum.accumulate(np.maximum(end_s, clock_s)) if n else end_s
-    start_s = np.concatenate([[clock_s], end_s[:-1]]) if n else end_s
-    duration = end_s - start_s
-    plan["t_start"] = start_s
-    plan["duration"] = duration
-    plan["limit"] = LIMIT_NONE
-    info = op_info[k] if len(op_info) else np.zeros((n, N_INFO), np.float32)
-    line = has_op & (op_kind[k] == OP_LINE if len(op_kind) else False) & (duration > 0) & (moves["move_d"] > 0)
-    i = np.nonzero(line)[0]
-    if i.size:
-        v0, vp, v1 = (info[i, c].astype(np.float64) / 60.0 for c in (0, 1, 2))
-        nominal = info[i, 3].astype(np.float64) / 60.0
-        a = info[i, 4].astype(np.float64) / 3600.0
-        d = moves["move_d"][i]
-        da = np.maximum(vp * vp - v0 * v0, 0.0) / (2 * a)
-        dd = np.maximum(vp * vp - v1 * v1, 0.0) / (2 * a)
-        short = da + dd > d             # the step-rounded length differs from the row's: the peak on the row
-        if short.any():
-            vps = np.maximum(np.maximum(v0, v1), np.sqrt(np.maximum((2 * a * d + v0 * v0 + v1 * v1) / 2, 0.0)))
-            das = np.maximum(vps * vps - v0 * v0, 0.0) / (2 * a)
-            dds = np.maximum(d - das, 0.0)
-            vp = np.where(short, vps, vp)
-            v1 = np.where(short, np.sqrt(np.maximum(vps * vps - 2 * a * dds, 0.0)), v1)
-            da = np.where(short, das, da)
-            dd = np.where(short, dds, dd)
-        ta, td = (vp - v0) / a, (vp - v1) / a
-        tc = np.where(vp > 0, np.maximum(d - da - dd, 0.0) / np.where(vp > 0, vp, 1.0), 0.0)
-        t_plan = ta + tc + td
-        f = np.where(t_plan > 0, duration[i] / np.where(t_plan > 0, t_plan, 1.0), 1.0)
-        plan["start_v"][i], plan["cruise_v"][i], plan["end_v"][i] = v0 / f, vp / f, v1 / f
-        plan["accel"][i] = plan["decel"][i] = a / (f * f)
-        plan["accel_t"][i], plan["cruise_t"][i], plan["decel_t"][i] = ta * f, tc * f, td * f
-        feed = moves["feed_v"][i]
-        at_nominal = vp >= nominal * (1 - 1e-6)
-        capped = op_rapid[k[i]] | (np.isfinite(feed) & (nominal < feed * (1 - 1e-6)))
-        plan["limit"][i] = np.where(at_nominal, np.where(capped, LIMIT_AXIS, LIMIT_FEED), LIMIT_ACCEL)
-    t_end = float(end_s[-1]) if n else clock_s
+    plan = np.zeros(len(moves), dtype=PLAN_DTYPE)
+    t_end = _plan_rows_kernel(moves["move_d"], moves["feed_v"], op_of_row, op_kind, op_end, op_info, op_rapid,
+                              float(clock_s), int(t0), plan["t_start"], plan["duration"], plan["start_v"],
+                              plan["cruise_v"], plan["end_v"], plan["accel"], plan["decel"], plan["accel_t"],
+                              plan["cruise_t"], plan["decel_t"], plan["limit"])
     return plan, t_end
+
+
+@njit(cache=True)
+def _max_nan(a, b):
+    """np.maximum of two floats: the larger, nan if either is nan."""
+    return a if (a >= b or a != a) else b
+
+
+@njit(cache=True, nogil=False)     # main thread, once a batch: see _first_beyond_reach
+def _plan_rows_kernel(move_d, feed_v, op_of_row, op_kind, op_end, op_info, op_rapid, clock_s, t0, t_start,
+                      duration, start_v, cruise_v, end_v, accel, decel, accel_t, cruise_t, decel_t, limit):
+    """:func:`_plan_rows` row by row into the PLAN columns (zeros on entry); returns the last row's end (s).
+    Speeds mm/s from op_info's mm/min, acceleration mm/s² from its mm/min²."""
+    n = move_d.shape[0]
+    prev_end = clock_s
+    for r in range(n):
+        j = op_of_row[r]
+        end_s = -np.inf
+        if j >= 0 and op_end[j] >= 0:
+            end_s = (op_end[j] - t0) / F_CPU
+        end_s = _max_nan(prev_end, _max_nan(end_s, clock_s))       # rows end in order, none before the clock
+        dur = end_s - prev_end
+        t_start[r] = prev_end
+        duration[r] = dur
+        prev_end = end_s
+        limit[r] = LIMIT_NONE
+        if not (j >= 0 and op_kind[j] == OP_LINE and dur > 0 and move_d[r] > 0):
+            continue
+        v0 = np.float64(op_info[j, 0]) / 60.0
+        vp = np.float64(op_info[j, 1]) / 60.0
+        v1 = np.float64(op_info[j, 2]) / 60.0
+        nominal = np.float64(op_info[j, 3]) / 60.0
+        a = np.float64(op_info[j, 4]) / 3600.0
+        d = move_d[r]
+        da = _max_nan(vp * vp - v0 * v0, 0.0) / (2 * a)
+        dd = _max_nan(vp * vp - v1 * v1, 0.0) / (2 * a)
+        if da + dd > d:             # the step-rounded length differs from the row's: the peak on the row
+            vp = _max_nan(_max_nan(v0, v1), math.sqrt(_max_nan((2 * a * d + v0 * v0 + v1 * v1) / 2, 0.0)))
+            da = _max_nan(vp * vp - v0 * v0, 0.0) / (2 * a)
+            dd = _max_nan(d - da, 0.0)
+            v1 = math.sqrt(_max_nan(vp * vp - 2 * a * dd, 0.0))
+        ta = (vp - v0) / a
+        td = (vp - v1) / a
+        tc = _max_nan(d - da - dd, 0.0) / vp if vp > 0 else 0.0
+        t_plan = ta + tc + td
+        f = dur / t_plan if t_plan > 0 else 1.0
+        start_v[r] = v0 / f
+        cruise_v[r] = vp / f
+        end_v[r] = v1 / f
+        accel[r] = a / (f * f)
+        decel[r] = a / (f * f)
+        accel_t[r] = ta * f
+        cruise_t[r] = tc * f
+        decel_t[r] = td * f
+        feed = feed_v[r]
+        if vp >= nominal * (1 - 1e-6):
+            capped = op_rapid[j] or (math.isfinite(feed) and nominal < feed * (1 - 1e-6))
+            limit[r] = LIMIT_AXIS if capped else LIMIT_FEED
+        else:
+            limit[r] = LIMIT_ACCEL
+    return prev_end
 
 
 def make_stream_mode(base_cls):
     """The StreamPlanner mode of machines with ``firmware = "grbl-1.1"`` (``base_cls``: planner.stream._Mode):
-    every batch runs grbl on, and the rows whose last step pulse is out are final."""
-    from .prepare import PREP_DTYPE
+    every batch runs grbl on, and the rows whose last step pulse is out are final (:class:`_GrblStreamMode`)."""
+    return type("GrblMode", (_GrblStreamMode, base_cls), {"__doc__": _GrblStreamMode.__doc__})
 
-    class GrblMode(base_cls):
-        name = "grbl-1.1"
-        own_prepare = True
 
-        def __init__(self, sp):
-            super().__init__(sp)
-            from ..errors import ConfigError
+def _no_prep(n: int) -> np.ndarray:
+    """n PREP rows for a window the grbl model does not read: one zero row repeated (a read-only view)."""
+    global _NO_PREP
+    if _NO_PREP is None:
+        from .prepare import PREP_DTYPE
 
-            if sp.machine.kinematics != "cartesian":
-                raise ConfigError(f"the grbl-1.1 firmware model steps a cartesian machine, not "
-                                  f"{sp.machine.kinematics!r} (grbl's COREXY build is not modelled)")
-            self.settings = GrblSettings.from_machine(sp.machine)
-            self.state = GrblState(self.settings)
-            self.want_steps = bool(getattr(sp, "want_firmware_steps", False))
-            self.pos_steps = np.zeros(3, np.int64)         # where the last fed line ends, in steps (for sizing)
-            self.bound_steps = np.zeros(3, np.int64)       # pulses the lines fed so far can make, at most
-            self.taken_steps = np.zeros(3, np.int64)       # pulses handed on
-            self.last_steps = None                         # the pulses of the rows of the last emission
-            self.fed = 0                                   # pending rows already given to grbl
-            self.row_op = np.zeros(0, np.int64)            # per pending row: its op (global index), −1 none
-            self.op_base = 0                               # global index of the first op kept below
-            self.op_kind = np.zeros(0, np.int64)
-            self.op_rapid = np.zeros(0, np.bool_)
-            self.op_end = np.zeros(0, np.int64)
-            self.op_info = np.zeros((0, N_INFO), np.float32)
-            self.n_out = np.zeros(3, np.int64)
-            self.no_steps = np.zeros((3, 0), np.int64)
-            self.no_dirs = np.zeros((3, 0), np.int8)
+        _NO_PREP = np.zeros(1, dtype=PREP_DTYPE)[0]
+    return np.broadcast_to(_NO_PREP, (n,))
 
-        def prepare(self, moves_chunk, limits):
-            from ..errors import GcodeError
 
-            e_move = _first_e_move(moves_chunk["e0"], moves_chunk["e1"])
-            if e_move >= 0:      # gcode.c: E is no grbl word (error:20), the whole line is rejected
-                line = int(moves_chunk["line"][e_move])
-                raise GcodeError("grbl 1.1 has no E axis: it rejects this line (error:20, unsupported command)",
-                                 line=line)
-            check_reach(moves_chunk, self.settings)
-            return np.zeros(len(moves_chunk), dtype=PREP_DTYPE)
+_NO_PREP = None
 
-        def plan(self, final: bool):
-            sp = self.sp
-            new = sp.pending_moves[self.fed:]
-            kind, target, rate, rapid, dwell, rows = operations(new)
-            first = self.op_base + len(self.op_kind)
-            ops = np.full(len(new), -1, np.int64)
-            ops[rows] = first + np.arange(len(rows))
-            self.row_op = np.concatenate([self.row_op, ops])
-            self.op_kind = np.concatenate([self.op_kind, kind])
-            self.op_rapid = np.concatenate([self.op_rapid, rapid])
-            self.op_end = np.concatenate([self.op_end, np.full(len(kind), -1, np.int64)])
-            self.op_info = np.concatenate([self.op_info, np.zeros((len(kind), N_INFO), np.float32)])
-            if self.want_steps:
-                self._make_room(kind, target)
-            self.state.feed(kind, target, rate, rapid, dwell, final, self.op_base, self.op_end, self.op_info,
-                            self.no_steps, self.no_dirs, self.n_out)
-            self.fed = len(sp.pending_moves)
-            if final:
-                n_rows = len(sp.pending_moves)
-            else:
-                open_op = self.state.first_open_op()
-                later = np.nonzero(self.row_op >= open_op)[0]
-                n_rows = int(later[0]) if later.size else len(sp.pending_moves)
-            if n_rows == 0:
-                return 0, None, sp.clock, None
-            local = np.where(self.row_op[:n_rows] >= 0, self.row_op[:n_rows] - self.op_base, -1)
-            plan, t_end = _plan_rows(sp.pending_moves[:n_rows], local, self.op_kind, self.op_end, self.op_info,
-                                     self.op_rapid, sp.clock, 0)
-            if self.want_steps:
-                self.last_steps = self._take_steps(None if final else int(round(t_end * F_CPU)))
-            return n_rows, plan, t_end, None
 
-        def _make_room(self, kind, target):
-            """Room in the pulse buffers for every step the new lines can make (their step-rounded lengths)."""
-            spm = self.settings.steps_per_mm
-            lines = target[kind == OP_LINE]
-            pos = np.rint((lines * spm).astype(np.float32).astype(np.float64)).astype(np.int64)
-            path = np.concatenate([self.pos_steps[None, :], pos]) if len(pos) else self.pos_steps[None, :]
-            if len(pos):
-                self.pos_steps = pos[-1]
-            # every pulse still to come is of a line fed so far: at most their step-rounded lengths
-            self.bound_steps = self.bound_steps + np.abs(np.diff(path, axis=0)).sum(axis=0) + len(pos)
-            need = self.bound_steps - self.taken_steps + 8
-            width = self.no_steps.shape[1]
-            if need.max() > width:
-                size = int(max(need.max(), 2 * width, 1024))
-                t = np.zeros((3, size), np.int64)
-                d = np.zeros((3, size), np.int8)
-                t[:, :width], d[:, :width] = self.no_steps, self.no_dirs
-                self.no_steps, self.no_dirs = t, d
+class _GrblStreamMode:
+    """The grbl-1.1 planning mode (mixed in before planner.stream._Mode by :func:`make_stream_mode`): grbl's
+    state carries over from batch to batch; a batch's MOVE rows become operations with global indices, and
+    the op arrays keep those of the rows still pending (from op ``op_base`` on)."""
 
-        def _take_steps(self, until_tick):
-            """The pulses issued up to ``until_tick`` (all with None): {axis index: (times s, dirs)}; the rest
-            stays for the next emission."""
-            out = {}
-            for ax in range(3):
-                n = int(self.n_out[ax])
-                if n > self.no_steps.shape[1]:
-                    raise RuntimeError("grbl model: step buffer overrun (a sizing bug)")
-                t = self.no_steps[ax, :n]
-                k = n if until_tick is None else int(np.searchsorted(t, until_tick, side="right"))
-                out[ax] = (t[:k] / F_CPU, self.no_dirs[ax, :k].copy())
-                rest = n - k
-                self.taken_steps[ax] += k
-                self.no_steps[ax, :rest] = self.no_steps[ax, k:n].copy()
-                self.no_dirs[ax, :rest] = self.no_dirs[ax, k:n].copy()
-                self.n_out[ax] = rest
-            return out
+    name = "grbl-1.1"
+    own_prepare = True
 
-        def drop(self, n_rows: int) -> None:
-            self.fed -= n_rows
-            gone = self.row_op[:n_rows]
-            self.row_op = self.row_op[n_rows:].copy()
-            used = gone[gone >= 0]
-            if used.size:
-                k = int(used.max()) + 1 - self.op_base
-                self.op_base += k
-                self.op_kind = self.op_kind[k:].copy()
-                self.op_rapid = self.op_rapid[k:].copy()
-                self.op_end = self.op_end[k:].copy()
-                self.op_info = self.op_info[k:].copy()
+    def __init__(self, sp):
+        super().__init__(sp)
+        from ..errors import ConfigError
 
-        def reset(self) -> None:
-            pass
+        if sp.machine.kinematics != "cartesian":
+            raise ConfigError(f"the grbl-1.1 firmware model steps a cartesian machine, not "
+                              f"{sp.machine.kinematics!r} (grbl's COREXY build is not modelled)")
+        self.settings = GrblSettings.from_machine(sp.machine)
+        self.state = GrblState(self.settings)
+        self.want_steps = bool(getattr(sp, "want_firmware_steps", False))
+        self.pos_steps = np.zeros(3, np.int64)         # where the last fed line ends, in steps (for sizing)
+        self.bound_steps = np.zeros(3, np.int64)       # pulses the lines fed so far can make, at most
+        self.taken_steps = np.zeros(3, np.int64)       # pulses handed on
+        self.last_steps = None                         # the pulses of the rows of the last emission
+        self.fed = 0                                   # pending rows already given to grbl
+        self.row_op = np.zeros(0, np.int64)            # per pending row: its op (global index), −1 none
+        self.op_base = 0                               # global index of the first op kept below
+        self.op_kind = np.zeros(0, np.int64)
+        self.op_rapid = np.zeros(0, np.bool_)
+        self.op_end = np.zeros(0, np.int64)
+        self.op_info = np.zeros((0, N_INFO), np.float32)
+        self.n_out = np.zeros(3, np.int64)
+        self.no_steps = np.zeros((3, 0), np.int64)
+        self.no_dirs = np.zeros((3, 0), np.int8)
 
-    return GrblMode
+    def prepare(self, moves_chunk, limits):
+        """The checks grbl's parser makes on a chunk (E words, int32 step positions); PREP rows it does not use."""
+        from ..errors import GcodeError
+
+        e_move = _first_e_move(moves_chunk["e0"], moves_chunk["e1"])
+        if e_move >= 0:      # gcode.c: E is no grbl word (error:20), the whole line is rejected
+            line = int(moves_chunk["line"][e_move])
+            raise GcodeError("grbl 1.1 has no E axis: it rejects this line (error:20, unsupported command)",
+                             line=line)
+        check_reach(moves_chunk, self.settings)
+        return _no_prep(len(moves_chunk))
+
+    def window_prep(self, moves_chunk, limits):
+        """The grbl model plans from the MOVE rows alone: the window's PREP rows (the stream keeps them 1:1
+        with its MOVE rows) are one zero row repeated, a read-only view of no memory (zeroing and copying
+        128 bytes a row cost more than a tenth of the model's time)."""
+        self.prepare(moves_chunk, limits)
+        return _no_prep(len(self.sp.pending_prep) + len(moves_chunk))
+
+    def plan(self, final: bool):
+        """Run grbl on the rows not fed yet; emit the rows before the first whose last pulse is not out."""
+        sp = self.sp
+        kind, target, rate, rapid, dwell = self._add_ops(sp.pending_moves[self.fed:])
+        if self.want_steps:
+            self._make_room(kind, target)
+        self.state.feed(kind, target, rate, rapid, dwell, final, self.op_base, self.op_end, self.op_info,
+                        self.no_steps, self.no_dirs, self.n_out)
+        self.fed = len(sp.pending_moves)
+        if final:
+            n_rows = len(sp.pending_moves)
+        else:
+            open_op = self.state.first_open_op()
+            later = np.nonzero(self.row_op >= open_op)[0]
+            n_rows = int(later[0]) if later.size else len(sp.pending_moves)
+        if n_rows == 0:
+            return 0, None, sp.clock, None
+        local = np.where(self.row_op[:n_rows] >= 0, self.row_op[:n_rows] - self.op_base, -1)
+        plan, t_end = _plan_rows(sp.pending_moves[:n_rows], local, self.op_kind, self.op_end, self.op_info,
+                                 self.op_rapid, sp.clock, 0)
+        if self.want_steps:
+            self.last_steps = self._take_steps(None if final else int(round(t_end * F_CPU)))
+        return n_rows, plan, t_end, None
+
+    def _add_ops(self, new):
+        """grbl's operations of the new MOVE rows, appended to the pending ones (global indices go on);
+        returns what the feed kernel takes: (kind, target, rate, rapid, dwell ticks)."""
+        kind, target, rate, rapid, dwell, rows = operations(new)
+        first = self.op_base + len(self.op_kind)
+        ops = np.full(len(new), -1, np.int64)
+        ops[rows] = first + np.arange(len(rows))
+        self.row_op = np.concatenate([self.row_op, ops])
+        self.op_kind = np.concatenate([self.op_kind, kind])
+        self.op_rapid = np.concatenate([self.op_rapid, rapid])
+        self.op_end = np.concatenate([self.op_end, np.full(len(kind), -1, np.int64)])
+        self.op_info = np.concatenate([self.op_info, np.zeros((len(kind), N_INFO), np.float32)])
+        return kind, target, rate, rapid, dwell
+
+    def _make_room(self, kind, target):
+        """Room in the pulse buffers for every step the new lines can make (their step-rounded lengths)."""
+        spm = self.settings.steps_per_mm
+        lines = target[kind == OP_LINE]
+        pos = np.rint((lines * spm).astype(np.float32).astype(np.float64)).astype(np.int64)
+        path = np.concatenate([self.pos_steps[None, :], pos]) if len(pos) else self.pos_steps[None, :]
+        if len(pos):
+            self.pos_steps = pos[-1]
+        # every pulse still to come is of a line fed so far: at most their step-rounded lengths
+        self.bound_steps = self.bound_steps + np.abs(np.diff(path, axis=0)).sum(axis=0) + len(pos)
+        need = self.bound_steps - self.taken_steps + 8
+        width = self.no_steps.shape[1]
+        if need.max() > width:
+            size = int(max(need.max(), 2 * width, 1024))
+            t = np.zeros((3, size), np.int64)
+            d = np.zeros((3, size), np.int8)
+            t[:, :width], d[:, :width] = self.no_steps, self.no_dirs
+            self.no_steps, self.no_dirs = t, d
+
+    def _take_steps(self, until_tick):
+        """The pulses issued up to ``until_tick`` (all with None): {axis index: (times s, dirs)}; the rest
+        stays for the next emission."""
+        out = {}
+        for ax in range(3):
+            n = int(self.n_out[ax])
+            if n > self.no_steps.shape[1]:
+                raise RuntimeError("grbl model: step buffer overrun (a sizing bug)")
+            t = self.no_steps[ax, :n]
+            k = n if until_tick is None else int(np.searchsorted(t, until_tick, side="right"))
+            out[ax] = (t[:k] / F_CPU, self.no_dirs[ax, :k].copy())
+            rest = n - k
+            self.taken_steps[ax] += k
+            self.no_steps[ax, :rest] = self.no_steps[ax, k:n].copy()
+            self.no_dirs[ax, :rest] = self.no_dirs[ax, k:n].copy()
+            self.n_out[ax] = rest
+        return out
+
+    def drop(self, n_rows: int) -> None:
+        self.fed -= n_rows
+        gone = self.row_op[:n_rows]
+        self.row_op = self.row_op[n_rows:].copy()
+        used = gone[gone >= 0]
+        if used.size:
+            k = int(used.max()) + 1 - self.op_base
+            self.op_base += k
+            self.op_kind = self.op_kind[k:].copy()
+            self.op_rapid = self.op_rapid[k:].copy()
+            self.op_end = self.op_end[k:].copy()
+            self.op_info = self.op_info[k:].copy()
+
+    def reset(self) -> None:
+        pass
