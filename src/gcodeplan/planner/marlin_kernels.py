@@ -281,29 +281,31 @@ def recalculate_trapezoids(bf, bi, gi):
         head_idx = p
     block = -1
     nxt = -1
-    cur_entry = F32(0)
-    nxt_entry = F32(0)
+    # the entry speeds (√ of the entry speed², float32) are taken only for the blocks recalculated: nothing
+    # changes a block's entry speed² during this sweep, so √ later gives the firmware's value
     while idx != head_idx:
         nxt = idx
         if (bi[nxt, BI_FLAG] & FLAG_SYNC_POSITION) == 0:
-            nxt_entry = F32(math.sqrt(bf[nxt, BF_ENTRY_SQR]))
             if block >= 0:
                 if (bi[block, BI_FLAG] & FLAG_RECALCULATE) != 0 or (bi[nxt, BI_FLAG] & FLAG_RECALCULATE) != 0:
                     if not _is_busy(gi, block):
+                        cur_entry = F32(math.sqrt(bf[block, BF_ENTRY_SQR]))
+                        nxt_entry = F32(math.sqrt(bf[nxt, BF_ENTRY_SQR]))
                         nomr = F32(F32(1) / bf[block, BF_NOMINAL_SPEED])
                         calculate_trapezoid_for_block(bf, bi, block, F32(cur_entry * nomr), F32(nxt_entry * nomr))
                     bi[block, BI_FLAG] &= ~FLAG_RECALCULATE
             block = nxt
-            cur_entry = nxt_entry
         idx = _next(idx)
     if nxt >= 0 and (bi[nxt, BI_FLAG] & FLAG_SYNC_POSITION) == 0:
         if block < 0 or not _is_busy(gi, block):
+            nxt_entry = F32(math.sqrt(bf[nxt, BF_ENTRY_SQR]))
             nomr = F32(F32(1) / bf[nxt, BF_NOMINAL_SPEED])
             calculate_trapezoid_for_block(bf, bi, nxt, F32(nxt_entry * nomr), F32(F32(0.05) * nomr))
         bi[nxt, BI_FLAG] &= ~FLAG_RECALCULATE
     elif block >= 0:
         # trailing sync blocks: the last move block is the newest one
         if not _is_busy(gi, block):
+            cur_entry = F32(math.sqrt(bf[block, BF_ENTRY_SQR]))
             nomr = F32(F32(1) / bf[block, BF_NOMINAL_SPEED])
             calculate_trapezoid_for_block(bf, bi, block, F32(cur_entry * nomr), F32(F32(0.05) * nomr))
         bi[block, BI_FLAG] &= ~FLAG_RECALCULATE
