@@ -30,7 +30,8 @@ import numpy as np
 
 from .._jit import njit
 from ..errors import ConfigError
-from ..schema import (KIND_DWELL, KIND_EXTRUDE_ONLY, KIND_WAIT, LIMIT_ACCEL, LIMIT_FEED, LIMIT_NONE, PLAN_DTYPE)
+from ..schema import (KIND_DWELL, KIND_EXTRUDE_ONLY, KIND_WAIT, LIMIT_ACCEL, LIMIT_FEED, LIMIT_NONE, PLAN_DTYPE,
+                      concat_rows)
 from ..stepper.marlin_isr import MARLIN_TIMER_HZ
 from . import marlin_kernels as mk
 
@@ -106,6 +107,13 @@ def row_inputs_kernel(line, kind, x0, y0, z0, e0, x1, y1, z1, e1, feed_v, accel,
             acc[c, r] = F32(carry[5 + c])
     if n:
         carry[0], carry[1], carry[2], carry[3] = x1[n - 1], y1[n - 1], z1[n - 1], e1[n - 1]
+
+
+def _grow_zeros(rows: np.ndarray, n: int) -> np.ndarray:
+    """``rows`` followed by ``n`` rows of zeros (the zeros not written: fresh pages are zero)."""
+    out = np.zeros((len(rows) + n,) + rows.shape[1:], dtype=rows.dtype)
+    out[:len(rows)] = rows
+    return out
 
 
 def check_firmware(name: str | None) -> str | None:
@@ -297,10 +305,10 @@ class MarlinModel:
         if self._moves is None or len(self._moves) == 0:
             self._moves, self._arrays = moves, arr
         else:
-            self._moves = np.concatenate([self._moves, moves])
+            self._moves = concat_rows(self._moves, moves)        # one byte copy (np.concatenate goes by field)
             self._arrays = {k: np.concatenate([self._arrays[k], arr[k]]) for k in arr}
-        self._out_i = np.vstack([self._out_i, np.zeros((len(moves), mk.N_OI), dtype=np.int64)])
-        self._out_f = np.vstack([self._out_f, np.zeros((len(moves), mk.N_OF), dtype=np.float32)])
+        self._out_i = _grow_zeros(self._out_i, len(moves))
+        self._out_f = _grow_zeros(self._out_f, len(moves))
         return self._run(final=False)
 
     def finish(self):
