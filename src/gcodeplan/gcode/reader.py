@@ -283,6 +283,11 @@ class GcodeReader:
         out, n = self._out, self._n
         buf = np.frombuffer(data, dtype=np.uint8)
         cnc = interp.dialect == S.DIALECT_CNC
+        # G92 E lines the scanner interprets: handed on to interp.e_position_sets in file order (firmware models)
+        eset_line = np.empty(S.ESET_MAX, np.int64)
+        eset_v = np.empty(S.ESET_MAX)
+        eset_n = np.zeros(1, np.int64)
+        keep_e_sets = interp._keep_e_sets
         while True:
             if ist[S.I_STOPPED]:
                 ist[S.I_LINE] += S.count_lines(buf, pos, end)
@@ -293,7 +298,12 @@ class GcodeReader:
                     break
             else:
                 status, pos, n = S.scan_chunk(buf, pos, end, st, ist, out, n, interp.feat_raw,
-                                              interp.feat_len, interp.feat_idx)
+                                              interp.feat_len, interp.feat_idx, eset_line, eset_v, eset_n)
+                if eset_n[0]:
+                    if keep_e_sets:
+                        k = int(eset_n[0])
+                        interp.e_position_sets.extend(zip(eset_line[:k].tolist(), eset_v[:k].tolist()))
+                    eset_n[0] = 0
                 if status == S.ST_DONE:
                     break
                 if status == S.ST_FULL:

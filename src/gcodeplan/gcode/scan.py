@@ -73,6 +73,10 @@ ST_DONE = 0      # the chunk is consumed
 ST_PYTHON = 1    # the line starting at pos needs the Python interpreter
 ST_FULL = 2      # the output array is full; the line at pos is not processed yet
 
+#: G92 E lines the scanner notes per call (line, logical E mm) for the reader to hand on (GcodeReader._scan):
+#: firmware models re-round Marlin's E there (planner/marlin.py); a fuller buffer sends the line to Python
+ESET_MAX = 256
+
 FEAT_MAX = 64        # ;TYPE: name table rows
 FEAT_NAME_MAX = 48   # bytes per name; longer names always go through Python
 
@@ -332,10 +336,12 @@ def relative_sum(current, value, f32):
 
 
 @njit(cache=True, error_model="numpy", _nrt=False)
-def scan_chunk(buf, pos, end, st, ist, out, n_out, feat_raw, feat_len, feat_idx):
+def scan_chunk(buf, pos, end, st, ist, out, n_out, feat_raw, feat_len, feat_idx, eset_line, eset_v, eset_n):
     """Interpret lines of ``buf[pos:end]`` until the chunk ends, the output is full, or a line
     needs Python. Returns ``(status, pos, n_out)``; for ST_PYTHON/ST_FULL ``pos`` is the start
-    of the line not processed (its number is ``ist[I_LINE] + 1``)."""
+    of the line not processed (its number is ``ist[I_LINE] + 1``). Each ``G92 E`` line it interprets
+    is appended to ``eset_line`` / ``eset_v`` (its line, the logical E set in mm; ``eset_n[0]``: how many,
+    at most :data:`ESET_MAX`)."""
     cap = out.shape[0]
     dialect = ist[I_DIALECT]
     while pos < end:
@@ -538,8 +544,16 @@ def scan_chunk(buf, pos, end, st, ist, out, n_out, feat_raw, feat_len, feat_idx)
                 if ist[I_G90_SETS_E] != 0:
                     ist[I_ABS_E] = ist[I_ABS_COORD]
             elif code == 92:
-                # the interpreter sets positions (and notes "G92 E" for firmware models: planner/marlin.py)
-                return ST_PYTHON, line_start, n_out
+                # G92 E alone on a printer (a slicer's "G92 E0" every layer or so) sets the logical E: here, and
+                # noted for the firmware models (planner/marlin.py) as the interpreter's _g92 notes it. Any other
+                # G92 sets positions and offsets: the interpreter's job
+                if dialect == DIALECT_CNC or has != WORD_E or eset_n[0] >= eset_line.shape[0]:
+                    return ST_PYTHON, line_start, n_out
+                st[S_ELOG] = ve * st[S_UNIT]
+                k = eset_n[0]
+                eset_line[k] = line
+                eset_v[k] = st[S_ELOG]
+                eset_n[0] = k + 1
             elif code == 4:
                 if has & ~(WORD_S | WORD_P):
                     return ST_PYTHON, line_start, n_out
@@ -678,6 +692,7 @@ def warm_up() -> None:
     ist = np.zeros(N_IST, dtype=np.int64)
     out = np.zeros(2, dtype=MOVE_DTYPE)
     scan_chunk(buf, 0, buf.shape[0], st, ist, out, 0, np.zeros((FEAT_MAX, FEAT_NAME_MAX), np.uint8),
-               np.zeros(FEAT_MAX, np.int64), np.zeros(FEAT_MAX, np.int64))
+               np.zeros(FEAT_MAX, np.int64), np.zeros(FEAT_MAX, np.int64), np.zeros(ESET_MAX, np.int64),
+               np.zeros(ESET_MAX), np.zeros(1, np.int64))
     summarise_rows(out, np.zeros(N_ACC), 1.0)
 

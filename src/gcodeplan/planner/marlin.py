@@ -28,10 +28,14 @@ from __future__ import annotations
 
 import numpy as np
 
+from .._jit import njit
 from ..errors import ConfigError
-from ..schema import (KIND_DWELL, KIND_EXTRUDE_ONLY, KIND_WAIT, LIMIT_ACCEL, LIMIT_FEED, LIMIT_NONE, PLAN_DTYPE)
+from ..schema import (KIND_DWELL, KIND_EXTRUDE_ONLY, KIND_WAIT, LIMIT_ACCEL, LIMIT_FEED, LIMIT_NONE, PLAN_DTYPE,
+                      concat_rows)
 from ..stepper.marlin_isr import MARLIN_TIMER_HZ
 from . import marlin_kernels as mk
+
+F32 = np.float32
 
 #: firmware names this module models (machine TOML ``firmware``, CLI ``--firmware``)
 FIRMWARES = ("marlin-2.1.2", "marlin-bugfix")
@@ -43,6 +47,73 @@ _AXES = ("x", "y", "z", "e")
 #: junction policies a Marlin build has: CLASSIC_JERK on, or off (junction deviation)
 JUNCTIONS = ("classic-jerk", "junction-deviation")
 _UINT32_MAX = 4294967295
+
+
+@njit(cache=True)
+def row_inputs_kernel(line, kind, x0, y0, z0, e0, x1, y1, z1, e1, feed_v, accel, set_line, set_v, carry, tgt,
+                      reset_pos, reset_bits, fr, acc):
+    """Per MOVE row, what Marlin's planner is handed (out: ``tgt``, ``reset_pos``, ``reset_bits``, ``fr``, ``acc``).
+
+    ``tgt``: the target in Marlin's float32 mm, E logical (machine E minus the offset of the G92 E lines before
+    the row); ``reset_bits``: X/Y/Z (bits 0..2) jumped between rows (homing sets the position), E (bit 3) set by a
+    G92 E that changes it (``gcode/feature/G92``: not within NEAR_ZERO, 1e-6), to ``reset_pos``; ``fr``: F (mm/min)
+    in float32, /60, then Marlin's MMS_SCALED (·0.01·100 %), an absurd or infinite F taken as 1e9 mm/min (the
+    axes' M203 limits decide: Marlin's uint32 rate arithmetic cannot overflow); ``acc`` (3 × rows): the M204
+    P / T / R in force, each the accel of the last row of its class (print, travel, retract) up to the row.
+    ``set_line``/``set_v``: the G92 E lines before the batch's last row and their logical E (mm). ``carry``
+    (in/out): the previous row's end X/Y/Z/E (mm), the E offset (mm), the three accels (mm/s²)."""
+    n = len(line)
+    # the E offset in force at each row, and the G92 E lines that change Marlin's E
+    e_offs = np.empty(n)
+    e_reset = np.zeros(n)
+    e_set = np.zeros(n, np.int64)
+    off = carry[4]
+    j = 0
+    for s in range(len(set_line)):
+        while j < n and line[j] <= set_line[s]:        # the first row after the G92 E line
+            e_offs[j] = off
+            j += 1
+        cur = F32(e0[j] - off)                         # Marlin's current (logical) E, float
+        off = e0[j] - set_v[s]
+        if abs(F32(F32(set_v[s]) - cur)) >= F32(0.000001):
+            e_set[j] = 1
+            e_reset[j] = set_v[s]
+    while j < n:
+        e_offs[j] = off
+        j += 1
+    carry[4] = off
+    px, py, pz = carry[0], carry[1], carry[2]
+    for r in range(n):
+        reset_bits[r] = ((1 if x0[r] != px else 0) | (2 if y0[r] != py else 0) | (4 if z0[r] != pz else 0)
+                         | (8 if e_set[r] else 0))
+        px, py, pz = x1[r], y1[r], z1[r]
+        tgt[r, 0] = F32(x1[r])
+        tgt[r, 1] = F32(y1[r])
+        tgt[r, 2] = F32(z1[r])
+        tgt[r, 3] = F32(e1[r] - e_offs[r])
+        reset_pos[r, 0] = F32(x0[r])
+        reset_pos[r, 1] = F32(y0[r])
+        reset_pos[r, 2] = F32(z0[r])
+        reset_pos[r, 3] = F32(e_reset[r])
+        fv = feed_v[r]
+        f_mm_min = F32(min(fv * 60.0, 1e9)) if np.isfinite(fv) else F32(1e9)
+        f = F32(f_mm_min / F32(60))
+        fr[r] = F32(F32(f * F32(0.01)) * F32(100))
+        k = kind[r]
+        if k != KIND_WAIT and k != KIND_DWELL and np.isfinite(accel[r]):
+            c = 2 if k == KIND_EXTRUDE_ONLY else (0 if e1[r] != e0[r] else 1)
+            carry[5 + c] = accel[r]
+        for c in range(3):
+            acc[c, r] = F32(carry[5 + c])
+    if n:
+        carry[0], carry[1], carry[2], carry[3] = x1[n - 1], y1[n - 1], z1[n - 1], e1[n - 1]
+
+
+def _grow_zeros(rows: np.ndarray, n: int) -> np.ndarray:
+    """``rows`` followed by ``n`` rows of zeros (the zeros not written: fresh pages are zero)."""
+    out = np.zeros((len(rows) + n,) + rows.shape[1:], dtype=rows.dtype)
+    out[:len(rows)] = rows
+    return out
 
 
 def check_firmware(name: str | None) -> str | None:
@@ -101,6 +172,7 @@ class MarlinModel:
         self.mm_per_step = (np.float32(1) / self.spm).astype(np.float32)
         self.acc_rate_scale = np.float32(np.float32(16777216.0) / np.float32(self.timer_hz))
         self.state = mk.new_state()
+        self._scratch = mk.new_scratch()
         self.row_base = 0                        # absolute number of the window's first row
         self._moves = None                       # window: rows read, not settled
         self._arrays = None
@@ -132,67 +204,31 @@ class MarlinModel:
         dw = moves["dwell_t"]
         wmask = kind == mk.ROW_WAIT
         wait_ticks[wmask] = np.ceil(np.nan_to_num(dw[wmask]) * self.timer_hz).astype(np.int64)
-        start = np.stack([moves["x0"], moves["y0"], moves["z0"], moves["e0"]], axis=1)
-        end = np.stack([moves["x1"], moves["y1"], moves["z1"], moves["e1"]], axis=1)
-        prev_end = np.vstack([self._last_end[None, :], end[:-1]]) if n else np.zeros((0, 4))
-        # a jump of X/Y/Z between rows (homing) sets the position; the logical E changes only at G92 E
-        diff = start[:, :3] != prev_end[:, :3]
-        reset_bits = (diff * (1 << np.arange(3))).sum(axis=1).astype(np.int64)
-        if n:
-            self._last_end = end[-1].copy()
-        e_off = np.empty(n)
-        e_off.fill(self._e_off)
-        e_reset = np.zeros(n, dtype=np.float64)
+        # the G92 E lines before the batch's last row (the others wait for the rows after them)
         sets = self.e_position_sets
+        set_line, set_v = [], []
         if sets is not None and n:
-            lines = moves["line"]
-            while sets and sets[0][0] < lines[-1]:
+            last_line = moves["line"][-1]
+            while sets and sets[0][0] < last_line:
                 line, v = sets.popleft()
-                j = int(np.searchsorted(lines, line, side="right"))   # the first row after the G92
-                cur = np.float32(moves["e0"][j] - e_off[j])           # Marlin's current E (float)
-                new_off = float(moves["e0"][j]) - v
-                e_off[j:] = new_off
-                self._e_off = new_off
-                # G92 E changes nothing unless the value differs (gcode/feature/G92: NEAR_ZERO)
-                if abs(np.float32(np.float32(v) - cur)) >= np.float32(0.000001):
-                    reset_bits[j] |= 8
-                    e_reset[j] = v
-        tgt = end.astype(np.float32)
-        tgt[:, 3] = (end[:, 3] - e_off).astype(np.float32)
-        reset_pos = start.astype(np.float32)
-        reset_pos[:, 3] = e_reset.astype(np.float32)
-        # feed: F (mm/min) as float32, /60, then Marlin's MMS_SCALED (·0.01·100 %)
-        fv = moves["feed_v"]
-        # (an absurd F is taken as the "no limit" of a rapid: the axes' M203 limits decide, and Marlin's uint32
-        # rate arithmetic cannot overflow; tools/fuzz.py found F1e20 making a negative duration)
-        f_mm_min = np.where(np.isfinite(fv), np.minimum(fv * 60.0, 1e9), 1e9).astype(np.float32)
-        fr = (f_mm_min / np.float32(60)).astype(np.float32)
-        fr = (fr * np.float32(0.01)).astype(np.float32) * np.float32(100)
-        # M204 P / T / R in force: the row's own accel for its class, the last seen for the others
-        acc = np.zeros((n, 3), dtype=np.float32)
-        cls = np.where(k == KIND_EXTRUDE_ONLY, 2, np.where(moves["e1"] != moves["e0"], 0, 1))
-        accel = moves["accel"]
-        usable = (kind == mk.ROW_MOVE) & np.isfinite(accel)
-        idx = np.arange(n)
-        for c in range(3):
-            # forward fill: the accel of the last row of class c up to each row (the previous batch's before)
-            own = usable & (cls == c)
-            last = np.maximum.accumulate(np.where(own, idx, -1)) if n else idx
-            acc[:, c] = np.where(last >= 0, accel[np.maximum(last, 0)], self._acc[c])
-            if n and last[-1] >= 0:
-                self._acc[c] = float(accel[last[-1]])
-        li = moves["limits"]
-        tab = self._limit_tables(limits)
-        vmax, jerk, amax_mm, amax = tab["vmax"][li], tab["jerk"][li], tab["amax_mm"][li], tab["amax"][li]
-        cutoff = tab["cutoff"][li]
-        return dict(kind=kind, tgt=np.ascontiguousarray(tgt), reset_bits=reset_bits,
-                    reset_pos=np.ascontiguousarray(reset_pos), fr=fr.astype(np.float32),
-                    acc_p=np.ascontiguousarray(acc[:, 0]), acc_t=np.ascontiguousarray(acc[:, 1]),
-                    acc_r=np.ascontiguousarray(acc[:, 2]), vmax=np.ascontiguousarray(vmax),
-                    amax=np.ascontiguousarray(amax), cutoff=cutoff, jerk=np.ascontiguousarray(jerk),
-                    min_feed=tab["min_feed"][li], min_travel=tab["min_travel"][li],
-                    wait_ticks=wait_ticks, amax_mm=np.ascontiguousarray(amax_mm), jdev=tab["jdev"][li],
-                    advance_k=tab["advance_k"][li])
+                set_line.append(line)
+                set_v.append(v)
+        tgt = np.empty((n, 4), np.float32)
+        reset_pos = np.empty((n, 4), np.float32)
+        reset_bits = np.empty(n, np.int64)
+        fr = np.empty(n, np.float32)
+        acc = np.empty((3, n), dtype=np.float32)
+        carry = np.array([*self._last_end, self._e_off, *self._acc], dtype=np.float64)
+        row_inputs_kernel(moves["line"], k, moves["x0"], moves["y0"], moves["z0"], moves["e0"], moves["x1"],
+                          moves["y1"], moves["z1"], moves["e1"], moves["feed_v"], moves["accel"],
+                          np.array(set_line, np.int64), np.array(set_v, np.float64), carry, tgt, reset_pos,
+                          reset_bits, fr, acc)
+        self._last_end = carry[:4].copy()
+        self._e_off = float(carry[4])
+        self._acc = [float(carry[5]), float(carry[6]), float(carry[7])]
+        self._limit_tables(limits)       # the settings of each row: its LIMITS row in these tables (they only grow)
+        return dict(kind=kind, tgt=tgt, reset_bits=reset_bits, reset_pos=reset_pos, fr=fr, acc_p=acc[0],
+                    acc_t=acc[1], acc_r=acc[2], lim=moves["limits"].astype(np.int64), wait_ticks=wait_ticks)
 
     def _check_reach(self, moves: np.ndarray) -> None:
         """Marlin keeps positions as int32 steps (planner.position, count_position): an end point beyond ±2³¹
@@ -202,7 +238,11 @@ class MarlinModel:
 
         for k, axis in enumerate(_AXES):
             for col in (axis + "0", axis + "1"):
-                bad = np.nonzero(~(np.abs(moves[col]) < 2.0 ** 31 / float(self.spm[k])))[0]
+                v = moves[col]
+                reach = 2.0 ** 31 / float(self.spm[k])
+                if np.abs(v).max() < reach:       # every row within (a NaN fails this and is looked for below)
+                    continue
+                bad = np.nonzero(~(np.abs(v) < reach))[0]
                 if bad.size:
                     i = int(bad[0])
                     raise GcodeError(f"{axis.upper()} {moves[col][i]:g} mm is beyond Marlin's reach (±2³¹ steps at "
@@ -214,15 +254,21 @@ class MarlinModel:
         naming the move's line, never a traceback (tools/fuzz.py: SET_VELOCITY_LIMIT ACCEL=1e-320)."""
         from ..errors import GcodeError
 
+        tab = self._tables[1]
+        if not ((a["fr"] <= 0).any() or (a["acc_p"] <= 0).any() or (a["acc_t"] <= 0).any() or (a["acc_r"] <= 0).any()
+                or (tab["vmax"] <= 0).any() or (tab["amax"] <= 0).any()):
+            return                                    # nothing is 0: no row to look for
+        li = moves["limits"]
+        vmax, amax = tab["vmax"][li], tab["amax"][li]
         move = a["kind"] == mk.ROW_MOVE
         d = np.stack([moves[ax + "1"] - moves[ax + "0"] for ax in _AXES], axis=1) != 0
         cls = np.where(~d[:, :3].any(axis=1), a["acc_r"], np.where(d[:, 3], a["acc_p"], a["acc_t"]))
         tiny = "a float holds nothing under 1.4e-45"
         checks = (("feed rate (F × M220)", tiny, a["fr"] <= 0),
                   ("acceleration (M204 / SET_VELOCITY_LIMIT)", tiny, cls <= 0),
-                  ("axis speed limit (M203)", tiny, ((a["vmax"] <= 0) & d).any(axis=1)),
+                  ("axis speed limit (M203)", tiny, ((vmax <= 0) & d).any(axis=1)),
                   ("axis acceleration limit (M201)", "Marlin keeps whole mm/s², and whole × steps/mm as whole "
-                   "steps/s²", ((a["amax"] <= 0) & d).any(axis=1)))
+                   "steps/s²", ((amax <= 0) & d).any(axis=1)))
         for what, why, bad in checks:
             rows = np.nonzero(move & bad)[0]
             if rows.size:
@@ -263,10 +309,10 @@ class MarlinModel:
         if self._moves is None or len(self._moves) == 0:
             self._moves, self._arrays = moves, arr
         else:
-            self._moves = np.concatenate([self._moves, moves])
+            self._moves = concat_rows(self._moves, moves)        # one byte copy (np.concatenate goes by field)
             self._arrays = {k: np.concatenate([self._arrays[k], arr[k]]) for k in arr}
-        self._out_i = np.vstack([self._out_i, np.zeros((len(moves), mk.N_OI), dtype=np.int64)])
-        self._out_f = np.vstack([self._out_f, np.zeros((len(moves), mk.N_OF), dtype=np.float32)])
+        self._out_i = _grow_zeros(self._out_i, len(moves))
+        self._out_f = _grow_zeros(self._out_f, len(moves))
         return self._run(final=False)
 
     def finish(self):
@@ -278,12 +324,14 @@ class MarlinModel:
     def _run(self, final: bool):
         a = self._arrays
         bf, bi, gi, gf = self.state
+        tab = self._tables[1]
         first = mk.marlin_run_kernel(a["kind"], a["tgt"], a["reset_bits"], a["reset_pos"], a["fr"], a["acc_p"],
-                                     a["acc_t"], a["acc_r"], a["vmax"], a["amax"], a["cutoff"], a["jerk"],
-                                     a["min_feed"], a["min_travel"], a["wait_ticks"], self.spm, self.mm_per_step,
-                                     MIN_SEGMENT_TIME_US, self.timer_hz, self.acc_rate_scale, final,
-                                     self.row_base, bf, bi, gi, gf, self._out_i, self._out_f, self.junction_mode,
-                                     a["amax_mm"], a["jdev"], a["advance_k"], self.s_curve, self.version)
+                                     a["acc_t"], a["acc_r"], a["lim"], tab["vmax"], tab["amax"], tab["cutoff"],
+                                     tab["jerk"], tab["min_feed"], tab["min_travel"], a["wait_ticks"], self.spm,
+                                     self.mm_per_step, MIN_SEGMENT_TIME_US, self.timer_hz, self.acc_rate_scale,
+                                     final, self.row_base, bf, bi, gi, gf, self._out_i, self._out_f,
+                                     self.junction_mode, tab["amax_mm"], tab["jdev"], tab["advance_k"],
+                                     self.s_curve, *self._scratch, self.version)
         n_done = int(first) - self.row_base
         if final:
             n_done = len(self._moves)
@@ -296,7 +344,7 @@ class MarlinModel:
             self.blocks.append((oi.copy(), of.copy(), moves_out["line"].copy()))
         if self.want_steps:
             la = None
-            k = a["advance_k"][:n_done]
+            k = tab["advance_k"][a["lim"][:n_done]]
             lead = advance_lead(oi, a["tgt"][:n_done], a["reset_bits"][:n_done], a["reset_pos"][:n_done], k,
                                 self._la_pos)
             if lead.any() or self._la_state is not None:
@@ -316,50 +364,77 @@ class MarlinModel:
 
     def _plan_rows(self, moves: np.ndarray, oi: np.ndarray, of: np.ndarray) -> np.ndarray:
         """PLAN rows: blocks as executed; rows without a block last 0 s where the previous one ended."""
-        hz = float(self.timer_hz)
-        n = len(moves)
-        plan = np.zeros(n, dtype=PLAN_DTYPE)
-        timed = oi[:, mk.OI_HAS_BLOCK] != 0             # a block or a wait
-        has = oi[:, mk.OI_HAS_BLOCK] == 1
-        idx = np.arange(n)
-        last_timed = np.maximum.accumulate(np.where(timed, idx, -1))
-        t_end = np.where(timed, oi[:, mk.OI_T_END],
-                         np.where(last_timed >= 0, oi[np.maximum(last_timed, 0), mk.OI_T_END], self._clock_done))
-        t_end = t_end.astype(np.int64)
-        self._clock_done = int(t_end[-1])
-        t_pick = np.where(timed, oi[:, mk.OI_T_PICK], t_end)
-        plan["t_start"] = t_pick / hz
-        plan["duration"] = (t_end - t_pick) / hz
-        sec = np.maximum(oi[:, mk.OI_SEC], 1).astype(np.float64)
-        mm = of[:, mk.OF_MM].astype(np.float64)
-        per_step = np.where(has, mm / sec, 0.0)       # mm per leading-axis step
-        v0 = oi[:, mk.OI_INITIAL_RATE] * per_step
-        v1 = oi[:, mk.OI_FINAL_RATE] * per_step
-        ta = oi[:, mk.OI_ACC_T] / hz
-        tc = oi[:, mk.OI_CRUISE_T] / hz
-        td = oi[:, mk.OI_DEC_T] / hz
-        d = moves["move_d"]
-        den = ta / 2 + tc + td / 2
-        with np.errstate(divide="ignore", invalid="ignore"):
-            vc = np.where(den > 0, (d - v0 * ta / 2 - v1 * td / 2) / den, 0.0)
-            vc = np.where(has, np.maximum(vc, 0.0), 0.0)
-            plan["accel"] = np.where(ta > 0, (vc - v0) / ta, 0.0)
-            plan["decel"] = np.where(td > 0, (vc - v1) / td, 0.0)
-        # a row without a block passes in no time at the speed the block before it ended with
-        wait = (moves["kind"] == KIND_WAIT) | (moves["kind"] == KIND_DWELL)
-        v_at = np.where(has, v1, 0.0)                  # after a wait the buffer ran empty: at rest
-        last_set = np.maximum.accumulate(np.where(has | wait, idx, -1))
-        carry = np.where(last_set >= 0, v_at[np.maximum(last_set, 0)], self._last_v)
-        carry = np.where(has | wait, 0.0, carry)
-        self._last_v = float(v_at[last_set[-1]]) if last_set[-1] >= 0 else self._last_v
-        plan["start_v"] = np.where(has, v0, carry)
-        plan["cruise_v"] = np.where(has, vc, carry)
-        plan["end_v"] = np.where(has, v1, carry)
-        plan["accel_t"] = np.where(has, ta, 0.0)
-        plan["cruise_t"] = np.where(has, tc, 0.0)
-        plan["decel_t"] = np.where(has, td, 0.0)
-        plan["limit"] = np.where(wait, LIMIT_NONE, np.where(oi[:, mk.OI_ACCEL_UNTIL] > 0, LIMIT_ACCEL, LIMIT_FEED))
+        plan = np.zeros(len(moves), dtype=PLAN_DTYPE)
+        carry = np.array([self._clock_done], np.int64)
+        last_v = np.array([self._last_v])
+        plan_rows_kernel(oi, of, moves["move_d"], moves["kind"], float(self.timer_hz), carry, last_v,
+                         *(plan[f] for f in _PLAN_FIELDS))
+        self._clock_done = int(carry[0])
+        self._last_v = float(last_v[0])
         return plan
+
+
+#: the PLAN fields :func:`plan_rows_kernel` fills, in its argument order
+_PLAN_FIELDS = ("t_start", "duration", "start_v", "cruise_v", "end_v", "accel", "decel", "accel_t", "cruise_t",
+                "decel_t", "limit")
+
+
+@njit(cache=True)
+def plan_rows_kernel(oi, of, move_d, kind, hz, clock_done, last_v, t_start, duration, start_v, cruise_v, end_v,
+                     accel, decel, accel_t, cruise_t, decel_t, limit):
+    """PLAN fields of settled rows from the kernel's per-row outputs ``oi``/``of``: a block's pick-up and end tick
+    (``hz``: the timer), entry and exit speed from its initial and final rates (mm per leading-axis step), phase
+    times from the interrupt and the cruise speed that covers the row's ``move_d`` in them. A row without a
+    block (merged into the next, or a wait) lasts 0 s at the end of the last timed row (``clock_done[0]``, in/out,
+    ticks) at the exit speed of the last block before it (``last_v[0]``, in/out, mm/s; at rest after a wait)."""
+    t_done = clock_done[0]
+    v_carry = last_v[0]
+    for r in range(len(move_d)):
+        hb = oi[r, mk.OI_HAS_BLOCK]
+        timed = hb != 0                                  # a block or a wait
+        has = hb == 1
+        wait = kind[r] == KIND_WAIT or kind[r] == KIND_DWELL
+        if timed:
+            t_done = oi[r, mk.OI_T_END]
+            t_pick = oi[r, mk.OI_T_PICK]
+        else:
+            t_pick = t_done
+        t_start[r] = t_pick / hz
+        duration[r] = (t_done - t_pick) / hz
+        sec = np.float64(max(oi[r, mk.OI_SEC], 1))
+        per_step = np.float64(of[r, mk.OF_MM]) / sec if has else 0.0     # mm per leading-axis step
+        v0 = oi[r, mk.OI_INITIAL_RATE] * per_step
+        v1 = oi[r, mk.OI_FINAL_RATE] * per_step
+        ta = oi[r, mk.OI_ACC_T] / hz
+        tc = oi[r, mk.OI_CRUISE_T] / hz
+        td = oi[r, mk.OI_DEC_T] / hz
+        den = ta / 2 + tc + td / 2
+        vc = (move_d[r] - v0 * ta / 2 - v1 * td / 2) / den if den > 0 else 0.0
+        if has:
+            if vc < 0.0:
+                vc = 0.0
+        else:
+            vc = 0.0
+        accel[r] = (vc - v0) / ta if ta > 0 else 0.0
+        decel[r] = (vc - v1) / td if td > 0 else 0.0
+        if has:
+            start_v[r] = v0
+            cruise_v[r] = vc
+            end_v[r] = v1
+            accel_t[r] = ta
+            cruise_t[r] = tc
+            decel_t[r] = td
+            v_carry = v1
+        elif wait:
+            v_carry = 0.0                                # the buffer ran empty: at rest
+        else:
+            # a row without a block passes in no time at the speed the block before it ended with
+            start_v[r] = v_carry
+            cruise_v[r] = v_carry
+            end_v[r] = v_carry
+        limit[r] = LIMIT_NONE if wait else (LIMIT_ACCEL if oi[r, mk.OI_ACCEL_UNTIL] > 0 else LIMIT_FEED)
+    clock_done[0] = t_done
+    last_v[0] = v_carry
 
 
 def advance_lead(oi: np.ndarray, tgt: np.ndarray, reset_bits: np.ndarray, reset_pos: np.ndarray,

@@ -47,7 +47,7 @@ import math
 import numpy as np
 
 from .._jit import njit
-from ..stepper.marlin_isr import block_ticks_kernel, block_ticks_kernel_bugfix, block_ticks_scurve_kernel
+from ..stepper.marlin_isr import N_ISR, block_ticks_isr, block_ticks_kernel_bugfix, block_ticks_scurve_isr
 
 BLOCK_BUFFER_SIZE = 16
 MIN_STEPS_PER_SEGMENT = 6
@@ -112,6 +112,12 @@ def new_state():
     gi = np.zeros(N_GI, dtype=np.int64)
     gf = np.zeros(N_GF, dtype=np.float32)
     return bf, bi, gi, gf
+
+
+def new_scratch():
+    """(scratch_f, scratch_i, isr): the working rows :func:`marlin_run_kernel` writes into instead of allocating
+    (it runs without numba's reference counting): 4×4 float32, 4×4 int64, and the stepper interrupt's state."""
+    return np.zeros((4, 4), dtype=np.float32), np.zeros((4, 4), dtype=np.int64), np.zeros(N_ISR, dtype=np.int64)
 
 
 @njit(cache=True)
@@ -275,29 +281,31 @@ def recalculate_trapezoids(bf, bi, gi):
         head_idx = p
     block = -1
     nxt = -1
-    cur_entry = F32(0)
-    nxt_entry = F32(0)
+    # the entry speeds (√ of the entry speed², float32) are taken only for the blocks recalculated: nothing
+    # changes a block's entry speed² during this sweep, so √ later gives the firmware's value
     while idx != head_idx:
         nxt = idx
         if (bi[nxt, BI_FLAG] & FLAG_SYNC_POSITION) == 0:
-            nxt_entry = F32(math.sqrt(bf[nxt, BF_ENTRY_SQR]))
             if block >= 0:
                 if (bi[block, BI_FLAG] & FLAG_RECALCULATE) != 0 or (bi[nxt, BI_FLAG] & FLAG_RECALCULATE) != 0:
                     if not _is_busy(gi, block):
+                        cur_entry = F32(math.sqrt(bf[block, BF_ENTRY_SQR]))
+                        nxt_entry = F32(math.sqrt(bf[nxt, BF_ENTRY_SQR]))
                         nomr = F32(F32(1) / bf[block, BF_NOMINAL_SPEED])
                         calculate_trapezoid_for_block(bf, bi, block, F32(cur_entry * nomr), F32(nxt_entry * nomr))
                     bi[block, BI_FLAG] &= ~FLAG_RECALCULATE
             block = nxt
-            cur_entry = nxt_entry
         idx = _next(idx)
     if nxt >= 0 and (bi[nxt, BI_FLAG] & FLAG_SYNC_POSITION) == 0:
         if block < 0 or not _is_busy(gi, block):
+            nxt_entry = F32(math.sqrt(bf[nxt, BF_ENTRY_SQR]))
             nomr = F32(F32(1) / bf[nxt, BF_NOMINAL_SPEED])
             calculate_trapezoid_for_block(bf, bi, nxt, F32(nxt_entry * nomr), F32(F32(0.05) * nomr))
         bi[nxt, BI_FLAG] &= ~FLAG_RECALCULATE
     elif block >= 0:
         # trailing sync blocks: the last move block is the newest one
         if not _is_busy(gi, block):
+            cur_entry = F32(math.sqrt(bf[block, BF_ENTRY_SQR]))
             nomr = F32(F32(1) / bf[block, BF_NOMINAL_SPEED])
             calculate_trapezoid_for_block(bf, bi, block, F32(cur_entry * nomr), F32(F32(0.05) * nomr))
         bi[block, BI_FLAG] &= ~FLAG_RECALCULATE
@@ -589,6 +597,44 @@ def _junction_deviation_sqr(gf, dist, inverse_millimeters, esteps, millimeters, 
 
 
 @njit(cache=True)
+def _use_advance_lead_accel(accel, tgt, gf, e_jerk, advance_k, steps_per_mm):
+    """LIN_ADVANCE's acceleration cap (planner.cpp, where ``use_advance_lead`` is decided for a print move that
+    extrudes forward): the acceleration (steps/s²) at which the extruder can jump to the advance speed within its
+    jerk, E jerk / (K · e/D), e/D from the float target and ``position_float`` (mm); e/D > 3 is a retract merged
+    into a print move and gets no advance (``accel`` unchanged)."""
+    dxf = F32(tgt[0] - gf[GF_POS_FLOAT])
+    dyf = F32(tgt[1] - gf[GF_POS_FLOAT + 1])
+    dzf = F32(tgt[2] - gf[GF_POS_FLOAT + 2])
+    e_d_ratio = F32(F32(tgt[3] - gf[GF_POS_FLOAT + 3]) / F32(math.sqrt(
+        F32(F32(F32(dxf * dxf) + F32(dyf * dyf)) + F32(dzf * dzf)))))
+    if not e_d_ratio > F32(3):
+        cap = np.int64(F32(F32(e_jerk / F32(advance_k * e_d_ratio)) * steps_per_mm))
+        if cap < accel:
+            accel = cap
+    return accel
+
+
+@njit(cache=True)
+def _limit_accel(accel, steps, sec, cutoff, amax_steps):
+    """planner.cpp's LIMIT_ACCEL_LONG / LIMIT_ACCEL_FLOAT over the axes: no axis may accelerate above its M201
+    limit (steps/s²), its share of the block's acceleration being its steps / ``sec``; in uint32 arithmetic while
+    ``sec`` ≤ ``cutoff`` (the product cannot overflow), in float32 beyond."""
+    if sec <= cutoff:
+        for a in range(4):
+            if steps[a] != 0 and amax_steps[a] < accel:
+                max_possible = (amax_steps[a] * sec) // steps[a]
+                if max_possible < accel:
+                    accel = max_possible
+    else:
+        for a in range(4):
+            if steps[a] != 0 and amax_steps[a] < accel:
+                max_possible = F32(F32(F32(amax_steps[a]) * F32(sec)) / F32(steps[a]))
+                if max_possible < F32(accel):
+                    accel = np.int64(max_possible)
+    return accel
+
+
+@njit(cache=True)
 def _populate_block(bf, bi, gi, gf, row, tgt, fr_mm_s, acc_p, acc_t, acc_r, vmax, amax_steps, cutoff, jerk,
                     min_feed, min_travel, spm, mm_per_step, min_segment_time_us, junction_mode, amax_mm, jdev,
                     advance_k, scratch_f, scratch_i, version=VERSION_2_1_2):
@@ -656,30 +702,8 @@ def _populate_block(bf, bi, gi, gf, row, tgt, fr_mm_s, acc_p, acc_t, acc_r, vmax
     else:
         accel = _ceilf(F32((acc_p if esteps != 0 else acc_t) * steps_per_mm))
         if advance_k > 0 and esteps != 0 and da[3] > 0:
-            # LIN_ADVANCE: the acceleration at which the extruder can jump to the advance speed within its
-            # jerk, E jerk / (K · e/D), from the float positions (position_float); e/D > 3 is a retract
-            # merged into a print move and gets no advance
-            dxf = F32(tgt[0] - gf[GF_POS_FLOAT])
-            dyf = F32(tgt[1] - gf[GF_POS_FLOAT + 1])
-            dzf = F32(tgt[2] - gf[GF_POS_FLOAT + 2])
-            e_d_ratio = F32(F32(tgt[3] - gf[GF_POS_FLOAT + 3]) / F32(math.sqrt(
-                F32(F32(F32(dxf * dxf) + F32(dyf * dyf)) + F32(dzf * dzf)))))
-            if not e_d_ratio > F32(3):
-                cap = np.int64(F32(F32(jerk[3] / F32(advance_k * e_d_ratio)) * steps_per_mm))
-                if cap < accel:
-                    accel = cap
-        if sec <= cutoff:
-            for a in range(4):
-                if steps[a] != 0 and amax_steps[a] < accel:
-                    max_possible = (amax_steps[a] * sec) // steps[a]
-                    if max_possible < accel:
-                        accel = max_possible
-        else:
-            for a in range(4):
-                if steps[a] != 0 and amax_steps[a] < accel:
-                    max_possible = F32(F32(F32(amax_steps[a]) * F32(sec)) / F32(steps[a]))
-                    if max_possible < F32(accel):
-                        accel = np.int64(max_possible)
+            accel = _use_advance_lead_accel(accel, tgt, gf, jerk[3], advance_k, steps_per_mm)
+        accel = _limit_accel(accel, steps, sec, cutoff, amax_steps)
     acceleration = F32(F32(accel) / steps_per_mm)
     if version == VERSION_BUGFIX:
         # bugfix-2.1.x: the average speed over one step accelerating from rest, v² = a / (2 · steps/mm), is the
@@ -822,7 +846,7 @@ def _classic_jerk_sqr_bugfix(gf, current_speed, nominal_speed, moves_queued, jer
 
 
 @njit(cache=True)
-def _pick_and_run(bf, bi, gi, out_i, out_f, timer_hz, acc_rate_scale, row_base, s_curve, scratch_i,
+def _pick_and_run(bf, bi, gi, out_i, out_f, timer_hz, acc_rate_scale, row_base, s_curve, scratch_i, isr,
                   version=VERSION_2_1_2):
     """The stepper: finish the busy block, skip sync blocks, pick up the next move block and time it
     (get_current_block + block_phase_isr). Returns False when the buffer is empty."""
@@ -845,18 +869,18 @@ def _pick_and_run(bf, bi, gi, out_i, out_f, timer_hz, acc_rate_scale, row_base, 
         acc_rate = np.int64(F32(F32(acc_steps) * acc_rate_scale))
         ph = scratch_i[3]
         if s_curve:
-            ticks = block_ticks_scurve_kernel(bi[t, BI_SEC], bi[t, BI_INITIAL_RATE], bi[t, BI_NOMINAL_RATE],
-                                              bi[t, BI_FINAL_RATE], bi[t, BI_ACCEL_UNTIL], bi[t, BI_DECEL_AFTER],
-                                              bi[t, BI_CRUISE_RATE], bi[t, BI_ACC_TIME], bi[t, BI_DEC_TIME],
-                                              bi[t, BI_ACC_TIME_INV], bi[t, BI_DEC_TIME_INV], timer_hz, ph)
+            ticks = block_ticks_scurve_isr(isr, bi[t, BI_SEC], bi[t, BI_INITIAL_RATE], bi[t, BI_NOMINAL_RATE],
+                                           bi[t, BI_FINAL_RATE], bi[t, BI_ACCEL_UNTIL], bi[t, BI_DECEL_AFTER],
+                                           bi[t, BI_CRUISE_RATE], bi[t, BI_ACC_TIME], bi[t, BI_DEC_TIME],
+                                           bi[t, BI_ACC_TIME_INV], bi[t, BI_DEC_TIME_INV], timer_hz, ph)
         elif version == VERSION_BUGFIX:
             ticks = block_ticks_kernel_bugfix(bi[t, BI_SEC], bi[t, BI_INITIAL_RATE], bi[t, BI_NOMINAL_RATE],
                                               bi[t, BI_FINAL_RATE], bi[t, BI_ACCEL_UNTIL], bi[t, BI_DECEL_AFTER],
                                               acc_rate, timer_hz, ph)
         else:
-            ticks = block_ticks_kernel(bi[t, BI_SEC], bi[t, BI_INITIAL_RATE], bi[t, BI_NOMINAL_RATE],
-                                       bi[t, BI_FINAL_RATE], bi[t, BI_ACCEL_UNTIL], bi[t, BI_DECEL_AFTER], acc_rate,
-                                       timer_hz, ph)
+            ticks = block_ticks_isr(isr, bi[t, BI_SEC], bi[t, BI_INITIAL_RATE], bi[t, BI_NOMINAL_RATE],
+                                    bi[t, BI_FINAL_RATE], bi[t, BI_ACCEL_UNTIL], bi[t, BI_DECEL_AFTER], acc_rate,
+                                    timer_hz, ph)
         out_i[r, OI_HAS_BLOCK] = 1
         out_i[r, OI_T_PICK] = gi[GI_CLOCK]
         gi[GI_CLOCK] += ticks
@@ -892,22 +916,22 @@ def _pick_and_run(bf, bi, gi, out_i, out_f, timer_hz, acc_rate_scale, row_base, 
     return False
 
 
-@njit(cache=True)
-def marlin_run_kernel(kind, tgt, reset_bits, reset_pos, fr, acc_p, acc_t, acc_r, vmax, amax_steps, cutoff, jerk,
-                      min_feed, min_travel, wait_ticks, spm, mm_per_step, min_segment_time_us, timer_hz,
+@njit(cache=True, _nrt=False)
+def marlin_run_kernel(kind, tgt, reset_bits, reset_pos, fr, acc_p, acc_t, acc_r, lim, vmax, amax_steps, cutoff,
+                      jerk, min_feed, min_travel, wait_ticks, spm, mm_per_step, min_segment_time_us, timer_hz,
                       acc_rate_scale, final, row_base, bf, bi, gi, gf, out_i, out_f, junction_mode, amax_mm, jdev,
-                      advance_k, s_curve, version=VERSION_2_1_2):
+                      advance_k, s_curve, scratch_f, scratch_i, isr, version=VERSION_2_1_2):
     """Run rows ``gi[GI_NEXT_ROW] - row_base ..`` of this window through Marlin's host loop, planner and
     stepper until the input runs out (``final``: then until the buffer is empty).
 
     Row arrays are indexed from ``row_base`` (``bi[., BI_ROW]`` and ``gi[GI_NEXT_ROW]`` are absolute row
-    numbers); times are ticks of ``timer_hz`` from the first pick-up. Returns the absolute number of the
-    first row whose block has not run yet (rows before it are final). ``version``: whose rules run
-    (VERSION_2_1_2, VERSION_BUGFIX)."""
+    numbers); times are ticks of ``timer_hz`` from the first pick-up. ``lim``: each row's LIMITS row, which
+    indexes the settings tables ``vmax`` … ``min_travel``, ``amax_mm``, ``jdev``, ``advance_k``. Returns the
+    absolute number of the first row whose block has not run yet (rows before it are final). ``version``: whose rules run
+    (VERSION_2_1_2, VERSION_BUGFIX). ``scratch_f``, ``scratch_i``, ``isr``: working rows (:func:`new_scratch`);
+    compiled without numba's reference counting, so nothing it calls allocates."""
     n = len(kind)
     end_row = row_base + n
-    scratch_f = np.zeros((4, 4), dtype=np.float32)
-    scratch_i = np.zeros((4, 4), dtype=np.int64)
     while True:
         # the host: Marlin's main loop fills the buffer (15 usable slots) in no time
         while gi[GI_NEXT_ROW] < end_row and _queued(gi) < BLOCK_BUFFER_SIZE - 1:
@@ -942,9 +966,10 @@ def marlin_run_kernel(kind, tgt, reset_bits, reset_pos, fr, acc_p, acc_t, acc_r,
                     buffer_sync_block(bf, bi, gi, gi[GI_NEXT_ROW])
                     continue                   # the move needs a slot of its own
             gi[GI_RESET_DONE] = 0
-            if _populate_block(bf, bi, gi, gf, gi[GI_NEXT_ROW], tgt[r], fr[r], acc_p[r], acc_t[r], acc_r[r], vmax[r],
-                               amax_steps[r], cutoff[r], jerk[r], min_feed[r], min_travel[r], spm, mm_per_step,
-                               min_segment_time_us, junction_mode, amax_mm[r], jdev[r], advance_k[r], scratch_f,
+            L = lim[r]
+            if _populate_block(bf, bi, gi, gf, gi[GI_NEXT_ROW], tgt[r], fr[r], acc_p[r], acc_t[r], acc_r[r], vmax[L],
+                               amax_steps[L], cutoff[L], jerk[L], min_feed[L], min_travel[L], spm, mm_per_step,
+                               min_segment_time_us, junction_mode, amax_mm[L], jdev[L], advance_k[L], scratch_f,
                                scratch_i, version):
                 h = gi[GI_HEAD]
                 gi[GI_HEAD] = _next(h)
@@ -956,7 +981,7 @@ def marlin_run_kernel(kind, tgt, reset_bits, reset_pos, fr, acc_p, acc_t, acc_r,
             gi[GI_NEXT_ROW] += 1
         if not final and gi[GI_NEXT_ROW] >= end_row and _queued(gi) < BLOCK_BUFFER_SIZE - 1:
             break                              # the host would queue more: wait for the next rows
-        if not _pick_and_run(bf, bi, gi, out_i, out_f, timer_hz, acc_rate_scale, row_base, s_curve, scratch_i,
+        if not _pick_and_run(bf, bi, gi, out_i, out_f, timer_hz, acc_rate_scale, row_base, s_curve, scratch_i, isr,
                              version):
             if gi[GI_NEXT_ROW] >= end_row:
                 break

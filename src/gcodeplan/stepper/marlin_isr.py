@@ -223,12 +223,20 @@ def block_ticks_kernel(n_steps, initial_rate, nominal_rate, final_rate, accelera
 
     ``phase_ticks`` (3 int64, out): ticks spent before steps of the accelerating, cruising and decelerating
     phases (the first interval counts as accelerating). Returns the total."""
+    return block_ticks_isr(np.empty(N_ISR, np.int64), n_steps, initial_rate, nominal_rate, final_rate,
+                           accelerate_until, decelerate_after, acc_rate, timer_hz, phase_ticks)
+
+
+@njit(cache=True)
+def block_ticks_isr(isr, n_steps, initial_rate, nominal_rate, final_rate, accelerate_until, decelerate_after,
+                    acc_rate, timer_hz, phase_ticks):
+    """:func:`block_ticks_kernel` in the caller's interrupt state ``isr`` (N_ISR int64, overwritten): no
+    allocation, so a planner kernel compiled without numba's reference counting can call it per block."""
     if n_steps <= 0:
         phase_ticks[0] = 0
         phase_ticks[1] = 0
         phase_ticks[2] = 0
         return np.int64(0)
-    isr = np.empty(N_ISR, np.int64)
     first = block_pickup(isr, n_steps, initial_rate, nominal_rate, final_rate, accelerate_until, decelerate_after,
                          acc_rate, nominal_rate, 0, 0, 0, 0, False, timer_hz)
     return _block_ticks(isr, first, timer_hz, phase_ticks)
@@ -242,12 +250,23 @@ def block_ticks_scurve_kernel(n_steps, initial_rate, nominal_rate, final_rate, a
     Bézier in time (initial → cruise over ``acceleration_time`` ticks, cruise → final over
     ``deceleration_time``), read at the start of each step interval; the same phase switching by step count
     as :func:`block_ticks_kernel`."""
+    return block_ticks_scurve_isr(np.empty(N_ISR, np.int64), n_steps, initial_rate, nominal_rate, final_rate,
+                                  accelerate_until, decelerate_after, cruise_rate, acceleration_time,
+                                  deceleration_time, acceleration_time_inverse, deceleration_time_inverse, timer_hz,
+                                  phase_ticks)
+
+
+@njit(cache=True)
+def block_ticks_scurve_isr(isr, n_steps, initial_rate, nominal_rate, final_rate, accelerate_until,
+                           decelerate_after, cruise_rate, acceleration_time, deceleration_time,
+                           acceleration_time_inverse, deceleration_time_inverse, timer_hz, phase_ticks):
+    """:func:`block_ticks_scurve_kernel` in the caller's interrupt state ``isr`` (N_ISR int64, overwritten):
+    no allocation (see :func:`block_ticks_isr`)."""
     if n_steps <= 0:
         phase_ticks[0] = 0
         phase_ticks[1] = 0
         phase_ticks[2] = 0
         return np.int64(0)
-    isr = np.empty(N_ISR, np.int64)
     first = block_pickup(isr, n_steps, initial_rate, nominal_rate, final_rate, accelerate_until, decelerate_after,
                          0, cruise_rate, acceleration_time, deceleration_time, acceleration_time_inverse,
                          deceleration_time_inverse, True, timer_hz)
