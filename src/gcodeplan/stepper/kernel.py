@@ -1244,13 +1244,180 @@ def _its_eval(pt0, pdt, coef, ik, params, period, ref, k, base, t):
     return _its_ik_position(pt0, pdt, coef, ik, params, period, ref, k, base, t)
 
 
+@njit(cache=True, inline="always")
+def _its_commit(st, pend_t, out_t, out_dir, out_n):
+    """stepcompress_commit: the held step can no longer be taken back, out it goes. Returns the new out_n, −1 when
+    ``out_t`` is full."""
+    if out_n >= out_t.shape[0]:
+        return -1
+    out_t[out_n] = pend_t
+    out_dir[out_n] = np.int8(1) if st[I_DIR] != 0.0 else np.int8(-1)
+    return out_n + 1
+
+
+@njit(cache=True, inline="always")
+def _its_append(sdir, t_step, sds_t, st, pend, pend_t, out_t, out_dir, out_n):
+    """stepcompress_append with its step+dir+step filter (``sds_t`` > 0: each step is held back and dropped with the
+    opposite step less than sds_t after it; 0: out at once). The held step's direction is st[I_DIR], set here
+    to ``sdir``. Returns (out_n, −1 when ``out_t`` is full; pending; held step's time s)."""
+    if sds_t > 0.0:
+        taken_back = False
+        if pend:
+            pend_dir = st[I_DIR] != 0.0
+            if sdir != pend_dir and t_step - pend_t < sds_t:
+                pend = False
+                taken_back = True
+            else:
+                if out_n >= out_t.shape[0]:
+                    return -1, pend, pend_t
+                out_t[out_n] = pend_t
+                out_dir[out_n] = np.int8(1) if pend_dir else np.int8(-1)
+                out_n += 1
+        if not taken_back:
+            pend = True
+            pend_t = t_step
+    else:
+        if out_n >= out_t.shape[0]:
+            return -1, pend, pend_t
+        out_t[out_n] = t_step
+        out_dir[out_n] = np.int8(1) if sdir else np.int8(-1)
+        out_n += 1
+    st[I_DIR] = 1.0 if sdir else 0.0
+    return out_n, pend, pend_t
+
+
 @njit(cache=True, error_model="numpy", inline="always")
-def _its_range(m_start, m_len, abs_start, abs_end, pt0, pdt, coef, half, sds_t, st, out_t, out_dir, out_n,
-               ik, params, period):
-    """One itersolve_gen_steps_range call: the steps of trapq move [m_start, m_start + m_len] inside
-    [abs_start, abs_end]. Updates the state ``st``; returns the new out_n, or −1 when ``out_t`` is full.
-    The position comes from :func:`_its_eval` (``ik``, ``params``, ``period``: see there)."""
-    cap = out_t.shape[0]
+def _its_monotone_end(pt0, pdt, coef, k, t_prev, sdir):
+    """(end s of the run of quadratic pieces on which the position keeps moving in direction ``sdir`` from
+    ``t_prev`` (at most 32 pieces ahead), index of the piece holding ``t_prev``; ``k`` is the guess)."""
+    n_p = pt0.shape[0]
+    while k > 0 and t_prev < pt0[k]:
+        k -= 1
+    while k + 1 < n_p and t_prev >= pt0[k + 1]:
+        k += 1
+    lim = t_prev
+    kk = k
+    for _ in range(32):
+        if coef[kk, 3] != 0.0 or coef[kk, 4] != 0.0 or coef[kk, 5] != 0.0:
+            break
+        c1 = coef[kk, 1]
+        c2 = coef[kk, 2]
+        s_from = t_prev - pt0[kk]
+        if s_from < 0.0:
+            s_from = 0.0
+        v_from = c1 + 2.0 * c2 * s_from
+        if (v_from > 0.0) != sdir and v_from != 0.0:
+            break
+        s_end = pdt[kk]
+        if c2 != 0.0:
+            s_r = -c1 / (2.0 * c2)
+            if s_from < s_r < s_end:
+                lim = pt0[kk] + s_r
+                break
+        lim = pt0[kk] + s_end
+        if kk + 1 >= n_p:
+            break
+        kk += 1
+    return lim, k
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _its_closed_form_steps(pt0, pdt, coef, k, lim, t_prev, m_start, end, sdir, target, half, seek, g_p, sds_t,
+                           st, pend, pend_t, out_t, out_dir, out_n):
+    """The steps after the one at ``t_prev`` (s, absolute) that lie on the monotone run of quadratic pieces ending
+    at ``lim`` (:func:`_its_monotone_end`) where Klipper's probes for them cannot leave that run — they stay
+    below t_prev + 2·max(interval, seek) — so its search finds exactly the crossing: each taken in closed form.
+    Returns (out_n or −1 when ``out_t`` is full, pending, held step's time, target, seek, time of the last step
+    s, its piece, position of the last step, steps taken)."""
+    n_p = pt0.shape[0]
+    taken = 0
+    kc = k
+    base = t_prev
+    s_b = t_prev - pt0[kc]
+    c2 = coef[kc, 2]
+    v_b = coef[kc, 1] + 2.0 * c2 * s_b
+    p_b = coef[kc, 0] + s_b * (coef[kc, 1] + s_b * c2)
+    p_e = coef[kc, 0] + pdt[kc] * (coef[kc, 1] + pdt[kc] * c2)
+    while lim > t_prev and coef[kc, 3] == 0.0 and coef[kc, 4] == 0.0 and coef[kc, 5] == 0.0:
+        if (p_e < target) if sdir else (p_e > target):
+            # not reached on this piece: the next one of the run
+            if kc + 1 >= n_p or pt0[kc + 1] >= lim:
+                break
+            kc += 1
+            base = pt0[kc]
+            c2 = coef[kc, 2]
+            v_b = coef[kc, 1]
+            p_b = coef[kc, 0]
+            p_e = p_b + pdt[kc] * (v_b + pdt[kc] * c2)
+            continue
+        cc = p_b - target
+        disc = v_b * v_b - 4.0 * c2 * cc
+        if disc < 0.0:
+            disc = 0.0
+        den = v_b + math.sqrt(disc) if sdir else v_b - math.sqrt(disc)
+        if den == 0.0:
+            break
+        t_step = base - 2.0 * cc / den
+        gap = t_step - t_prev
+        if not (gap > 0.0):
+            break
+        reach = gap if gap > seek else seek
+        if t_prev + 2.0 * reach >= lim or t_step - m_start >= end:
+            break
+        out_n, pend, pend_t = _its_append(sdir, t_step, sds_t, st, pend, pend_t, out_t, out_dir, out_n)
+        if out_n < 0:
+            break
+        g_p = target
+        target = target + half + half if sdir else target - half - half
+        seek = 1.5 * gap
+        if seek < ITS_CLOSE_S:
+            seek = ITS_CLOSE_S
+        t_prev = t_step
+        taken += 1
+    return out_n, pend, pend_t, target, seek, t_prev, kc, g_p, taken
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _its_shortcut(pt0, pdt, coef, k, m_start, end, sdir, target, half, seek, g_p, g_t, og_t, og_p, last_t, low_t,
+                  high_t, sds_t, st, pend, pend_t, out_t, out_dir, out_n):
+    """After a step at ``last_t`` (s into the move starting at ``m_start``) on polynomial pieces: the steps
+    :func:`_its_closed_form_steps` can take, then the search's state as Klipper's would be after the last of
+    them (that step as its last guess, a point just before it as the one before). Returns (out_n or −1 when
+    ``out_t`` is full, pending, held step's time, target, g_p, g_t, og_t, og_p, last_t, low_t, high_t, k)."""
+    lim, k = _its_monotone_end(pt0, pdt, coef, k, m_start + last_t, sdir)
+    out_n, pend, pend_t, target, seek, t_prev, kc, g_p, taken = _its_closed_form_steps(
+        pt0, pdt, coef, k, lim, m_start + last_t, m_start, end, sdir, target, half, seek, g_p, sds_t, st, pend,
+        pend_t, out_t, out_dir, out_n)
+    if taken and out_n >= 0:
+        last_t = t_prev - m_start
+        g_t = last_t
+        delta = seek * (1e-3 / 1.5)
+        og_t = g_t - delta
+        og_p, k = _its_position(pt0, pdt, coef, kc, m_start + og_t)
+        low_t = g_t
+        high_t = g_t + seek
+        if high_t > end:
+            high_t = end
+    return out_n, pend, pend_t, target, g_p, g_t, og_t, og_p, last_t, low_t, high_t, k
+
+
+@njit(cache=True, inline="always")
+def _its_angle_post_fixup(commanded, period):
+    """Klipper's polar_stepper_angle_post_fixup: a cyclic motor's commanded position back within half a period
+    of 0 (``period`` 0: unchanged)."""
+    if period > 0.0:
+        if commanded < -0.5 * period:
+            commanded += period
+        elif commanded > 0.5 * period:
+            commanded -= period
+    return commanded
+
+
+@njit(cache=True, inline="always")
+def _its_range_start(m_start, m_len, abs_start, abs_end, half, st):
+    """The start of itersolve_gen_steps_range: the range in the move's own time (s), the search state read from
+    ``st`` and the first half-step point and search bound. Returns (start, end, commanded position, piece hint,
+    pending, held step's time, direction, target, high_t)."""
     start = abs_start - m_start
     if start < 0.0:
         start = 0.0
@@ -1258,23 +1425,25 @@ def _its_range(m_start, m_len, abs_start, abs_end, pt0, pdt, coef, half, sds_t, 
     if end > m_len:
         end = m_len
     commanded = st[I_COMMANDED]
-    k = np.int64(st[I_PIECE])
-    pend = st[I_PENDING] != 0.0
-    pend_t = st[I_PEND_T]
     sdir = st[I_DIR] != 0.0
-    og_t = start
-    og_p = commanded
-    g_t = start
-    g_p = commanded
-    is_dir_change = False
-    have_bracket = False
-    check_osc = False
     target = commanded + half if sdir else commanded - half
-    last_t = start
-    low_t = start
     high_t = start + ITS_SEEK_RESET_S
     if high_t > end:
         high_t = end
+    return (start, end, commanded, np.int64(st[I_PIECE]), st[I_PENDING] != 0.0, st[I_PEND_T], sdir, target,
+            high_t)
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _its_range(m_start, m_len, abs_start, abs_end, pt0, pdt, coef, half, sds_t, st, out_t, out_dir, out_n,
+               ik, params, period):
+    """itersolve_gen_steps_range: the steps of trapq move [m_start, m_start + m_len] inside [abs_start, abs_end],
+    position from :func:`_its_eval` (see there). Updates ``st``; returns the new out_n, −1 when ``out_t`` is full."""
+    start, end, commanded, k, pend, pend_t, sdir, target, high_t = _its_range_start(m_start, m_len, abs_start,
+                                                                                    abs_end, half, st)
+    og_t, og_p, g_t, g_p = start, commanded, start, commanded
+    is_dir_change = have_bracket = check_osc = False
+    last_t = low_t = start
     while True:
         # secant through the last two guesses
         g_d = g_p - target
@@ -1292,9 +1461,7 @@ def _its_range(m_start, m_len, abs_start, abs_end, pt0, pdt, coef, half, sds_t, 
                 high_t = 2.0 * high_t - last_t
                 if high_t > end:
                     high_t = end
-        og_t = g_t
-        og_p = g_p
-        g_t = nxt
+        og_t, og_p, g_t = g_t, g_p, nxt
         g_p, k = _its_eval(pt0, pdt, coef, ik, params, period, commanded, k, m_start, nxt)
         g_d = g_p - target
         if abs(g_d) > ITS_CLOSE_MM:
@@ -1303,52 +1470,43 @@ def _its_range(m_start, m_len, abs_start, abs_end, pt0, pdt, coef, half, sds_t, 
                 # past the half-step point: a step lies before this guess
                 if have_bracket and og_t <= low_t:
                     if check_osc:
-                        og_t = g_t
-                        og_p = g_p
+                        # a second time from the same side: forget the older guess (the secant would oscillate)
+                        og_t, og_p = g_t, g_p
                     check_osc = True
-                high_t = g_t
-                have_bracket = True
+                high_t, have_bracket = g_t, True
             elif rel < -(half + half + ITS_REVERSE_MM):
                 # reversal: the next step is back across the last half-step point
                 sdir = not sdir
                 target = target + half + half if sdir else target - half - half
-                low_t = last_t
-                high_t = g_t
-                is_dir_change = True
-                have_bracket = True
+                low_t, high_t = last_t, g_t
+                is_dir_change = have_bracket = True
                 check_osc = False
             else:
                 low_t = g_t
             if (not have_bracket) or high_t - low_t > ITS_CLOSE_S:
                 if (not is_dir_change) and rel >= -half and pend:
                     # the motor reached the held step's position: it can no longer be taken back
-                    if out_n >= cap:
+                    out_n = _its_commit(st, pend_t, out_t, out_dir, out_n)
+                    if out_n < 0:
+                        return -1
+                    pend = False
+                continue
+        # a step at g_t: stepcompress_append as in :func:`_its_append`, written out (measurably faster here)
+        t_step = m_start + g_t
+        if sds_t > 0.0:
+            if pend and sdir != (st[I_DIR] != 0.0) and t_step - pend_t < sds_t:
+                pend = False            # taken back with the held step it undoes
+            else:
+                if pend:
+                    if out_n >= out_t.shape[0]:
                         return -1
                     out_t[out_n] = pend_t
                     out_dir[out_n] = np.int8(1) if st[I_DIR] != 0.0 else np.int8(-1)
                     out_n += 1
-                    pend = False
-                continue
-        # a step at g_t (stepcompress_append)
-        t_step = m_start + g_t
-        taken_back = False
-        if sds_t > 0.0:
-            if pend:
-                pend_dir = st[I_DIR] != 0.0
-                if sdir != pend_dir and t_step - pend_t < sds_t:
-                    pend = False
-                    taken_back = True
-                else:
-                    if out_n >= cap:
-                        return -1
-                    out_t[out_n] = pend_t
-                    out_dir[out_n] = np.int8(1) if pend_dir else np.int8(-1)
-                    out_n += 1
-            if not taken_back:
                 pend = True
                 pend_t = t_step
         else:
-            if out_n >= cap:
+            if out_n >= out_t.shape[0]:
                 return -1
             out_t[out_n] = t_step
             out_dir[out_n] = np.int8(1) if sdir else np.int8(-1)
@@ -1360,125 +1518,19 @@ def _its_range(m_start, m_len, abs_start, abs_end, pt0, pdt, coef, half, sds_t, 
             seek = ITS_CLOSE_S
         if is_dir_change and seek > ITS_SEEK_RESET_S:
             seek = ITS_SEEK_RESET_S
-        last_t = g_t
-        low_t = g_t
+        last_t = low_t = g_t
         high_t = g_t + seek
         if high_t > end:
             high_t = end
-        is_dir_change = False
-        have_bracket = False
-        check_osc = False
-        if ik is not None:
-            continue
-        # Fast path. While the next step is the crossing of a monotone run of quadratic pieces (trapezoid phases,
-        # shaped or not) that Klipper's probes for it cannot leave — they stay below last + 2·max(interval, seek)
-        # — its search finds exactly that crossing: take it in closed form, then hand the search the state
-        # it would have (the step as its last guess, a point just before it as the one before).
-        n_p = pt0.shape[0]
-        t_prev = m_start + last_t
-        while k > 0 and t_prev < pt0[k]:
-            k -= 1
-        while k + 1 < n_p and t_prev >= pt0[k + 1]:
-            k += 1
-        # where the run on which the position keeps moving in direction sdir ends (at most 32 pieces ahead)
-        lim = t_prev
-        kk = k
-        for _ in range(32):
-            if coef[kk, 3] != 0.0 or coef[kk, 4] != 0.0 or coef[kk, 5] != 0.0:
-                break
-            c1 = coef[kk, 1]
-            c2 = coef[kk, 2]
-            s_from = t_prev - pt0[kk]
-            if s_from < 0.0:
-                s_from = 0.0
-            v_from = c1 + 2.0 * c2 * s_from
-            if (v_from > 0.0) != sdir and v_from != 0.0:
-                break
-            s_end = pdt[kk]
-            if c2 != 0.0:
-                s_r = -c1 / (2.0 * c2)
-                if s_from < s_r < s_end:
-                    lim = pt0[kk] + s_r
-                    break
-            lim = pt0[kk] + s_end
-            if kk + 1 >= n_p:
-                break
-            kk += 1
-        taken = 0
-        kc = k
-        base = t_prev
-        s_b = t_prev - pt0[kc]
-        c2 = coef[kc, 2]
-        v_b = coef[kc, 1] + 2.0 * c2 * s_b
-        p_b = coef[kc, 0] + s_b * (coef[kc, 1] + s_b * c2)
-        p_e = coef[kc, 0] + pdt[kc] * (coef[kc, 1] + pdt[kc] * c2)
-        while lim > t_prev and coef[kc, 3] == 0.0 and coef[kc, 4] == 0.0 and coef[kc, 5] == 0.0:
-            if (p_e < target) if sdir else (p_e > target):
-                # not reached on this piece: the next one of the run
-                if kc + 1 >= n_p or pt0[kc + 1] >= lim:
-                    break
-                kc += 1
-                base = pt0[kc]
-                c2 = coef[kc, 2]
-                v_b = coef[kc, 1]
-                p_b = coef[kc, 0]
-                p_e = p_b + pdt[kc] * (v_b + pdt[kc] * c2)
-                continue
-            cc = p_b - target
-            disc = v_b * v_b - 4.0 * c2 * cc
-            if disc < 0.0:
-                disc = 0.0
-            den = v_b + math.sqrt(disc) if sdir else v_b - math.sqrt(disc)
-            if den == 0.0:
-                break
-            t_step = base - 2.0 * cc / den
-            gap = t_step - t_prev
-            if not (gap > 0.0):
-                break
-            reach = gap if gap > seek else seek
-            if t_prev + 2.0 * reach >= lim or t_step - m_start >= end:
-                break
-            if sds_t > 0.0:
-                if pend:
-                    if out_n >= cap:
-                        return -1
-                    out_t[out_n] = pend_t
-                    out_dir[out_n] = np.int8(1) if sdir else np.int8(-1)
-                    out_n += 1
-                pend = True
-                pend_t = t_step
-            else:
-                if out_n >= cap:
-                    return -1
-                out_t[out_n] = t_step
-                out_dir[out_n] = np.int8(1) if sdir else np.int8(-1)
-                out_n += 1
-            g_p = target
-            target = target + half + half if sdir else target - half - half
-            seek = 1.5 * gap
-            if seek < ITS_CLOSE_S:
-                seek = ITS_CLOSE_S
-            t_prev = t_step
-            taken += 1
-        if taken:
-            # the state Klipper's search would hold after this step
-            last_t = t_prev - m_start
-            g_t = last_t
-            delta = seek * (1e-3 / 1.5)
-            og_t = g_t - delta
-            og_p, k = _its_position(pt0, pdt, coef, kc, m_start + og_t)
-            low_t = g_t
-            high_t = g_t + seek
-            if high_t > end:
-                high_t = end
-    commanded = target - half if sdir else target + half
-    if ik is not None and period > 0.0:
-        # Klipper's polar_stepper_angle_post_fixup: the commanded angle back within half a period of 0
-        if commanded < -0.5 * period:
-            commanded += period
-        elif commanded > 0.5 * period:
-            commanded -= period
-    st[I_COMMANDED] = commanded
+        is_dir_change = have_bracket = check_osc = False
+        if ik is None:
+            # gcodeplan's shortcut on polynomial pieces: the steps Klipper's search cannot miss, in closed form
+            out_n, pend, pend_t, target, g_p, g_t, og_t, og_p, last_t, low_t, high_t, k = _its_shortcut(
+                pt0, pdt, coef, k, m_start, end, sdir, target, half, seek, g_p, g_t, og_t, og_p, last_t, low_t,
+                high_t, sds_t, st, pend, pend_t, out_t, out_dir, out_n)
+            if out_n < 0:
+                return -1
+    st[I_COMMANDED] = _its_angle_post_fixup(target - half if sdir else target + half, period)
     st[I_PIECE] = k
     st[I_PENDING] = 1.0 if pend else 0.0
     st[I_PEND_T] = pend_t
