@@ -706,13 +706,7 @@ class Interpreter(StateCommands, MotionCommands, Rs274Commands):
             self._motion(motion, params, used, f, machine_coords)
         elif f is not None:
             st[S.S_FEED] = f * scale / 60.0
-        for k in ("A", "B", "C", "U", "V", "W"):
-            if k in params:
-                used.add(k)
-                self.warn(f"axis {k} is not modelled: ignored")
-        unused = [k for k in params if k not in used and k not in "XYZEF"]
-        if unused and not ms:
-            self.warn("word(s) " + " ".join(unused) + " ignored")
+        self._warn_unused_words(params, used, ms, "XYZEF")
         for mc in ms:
             if mc in (2, 30):
                 self.event(f"M{mc} program end")

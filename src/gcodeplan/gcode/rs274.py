@@ -339,14 +339,19 @@ class Rs274Commands:
         self._convert_tool_select(params, used)
         self._convert_m(ms, mset, params, used, lcnc)
         self._convert_g(gs, gset, params, used, lcnc)
+        self._warn_unused_words(params, used, ms, "XYZEFN")
+        self._convert_stop(ms, params, used)
+
+    def _warn_unused_words(self, params: dict, used: set, ms, known: str) -> None:
+        """Name what the line's executor did not use: rotary/extra axes (not modelled) and, on a line without an M
+        code (whose parameters are its own), any other word outside ``known``."""
         for k in ("A", "B", "C", "U", "V", "W"):
             if k in params:
                 used.add(k)
                 self.warn(f"axis {k} is not modelled: ignored")
-        unused = [k for k in params if k not in used and k not in "XYZEFN"]
+        unused = [k for k in params if k not in used and k not in known]
         if unused and not ms:
             self.warn("word(s) " + " ".join(unused) + " ignored")
-        self._convert_stop(ms, params, used)
 
     def _convert_feed_mode(self, gset: set) -> None:
         """G93 / G95 are refused by name; G94 (units per minute) is the only mode modelled."""
