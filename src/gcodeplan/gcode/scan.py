@@ -323,9 +323,6 @@ def piece_rows_kernel(ends, starts, es, e_starts, d, line, flags, feed_v, rapid,
     return k
 
 
-# _nrt=False: the scanner allocates nothing, and without numba's reference counting the inlined helpers
-# that take arrays cost no atomic incref/decref per word (measured: 66 -> 52 ns per "G1 X Y E" line,
-# 24 -> 2 ns per comment line). error_model="numpy": no zero-division checks in the hot loop.
 @njit(cache=True)
 def relative_sum(current, value, f32):
     """A relative target: ``current + value`` (mm), in float32 when ``f32`` (Marlin's float positions:
@@ -335,6 +332,334 @@ def relative_sum(current, value, f32):
     return current + value
 
 
+# ------------------------------------------------------------------ the scanner, in named parts
+# Every part below is inline="always": numba pastes it into scan_chunk before compiling, so the kernel runs as
+# one function (measured: the same parts as separate calls make the scanner ~45 % slower). Each part that may
+# refuse a line returns ``ok`` (False: the line goes to Python) and changes no state before it is sure.
+
+@njit(cache=True, inline="always")
+def skip_comment_line(buf, p, end, ist, feat_raw, feat_len, feat_idx):
+    """A whole-line comment, ``p`` at its ';'. Returns ``(ok, eol)``: ok False when Python must read it
+    (a marker comment: layer, Z, time, a new ``;TYPE:`` name, object labels); eol is the index of its line
+    feed (or ``end``)."""
+    eol = _to_eol(buf, p, end)
+    c1 = buf[p + 1] if p + 1 < eol else 0
+    # every marker starts with 'T', 'L', 'Z', ' ' or 'M' (tested here: a call costs more than the test)
+    if (c1 == BYTE_T or c1 == BYTE_L or c1 == BYTE_Z or c1 == BYTE_SPACE or c1 == BYTE_M) and \
+            _comment_needs_python(buf, p + 1, eol, ist, feat_raw, feat_len, feat_idx):
+        return False, eol
+    return True, eol
+
+
+@njit(cache=True, inline="always")
+def command_word(buf, p, end, motion):
+    """The command of a line, ``p`` at its first non-blank byte. Returns ``(letter, code, p_after)``:
+    ``G``/``M`` with 1 to 3 digits, or a line starting with an X Y Z E F word, which repeats the modal
+    ``motion`` when it is G0/G1. letter 0: anything else (Python's job)."""
+    lc = _lower(buf[p])
+    if lc == LETTER_G or lc == LETTER_M:
+        p += 1
+        code = 0
+        nd = 0
+        while p < end and BYTE_0 <= buf[p] <= BYTE_9 and nd < 4:
+            code = code * 10 + (buf[p] - BYTE_0)
+            nd += 1
+            p += 1
+        if nd == 0 or nd >= 4 or p >= end or not _is_sep(buf[p]):
+            return 0, -1, p
+        return lc, code, p
+    if lc == LETTER_X or lc == LETTER_Y or lc == LETTER_Z or lc == LETTER_E or lc == LETTER_F:  # no G/M word
+        if motion != 0 and motion != 1:
+            return 0, -1, p
+        return LETTER_G, motion, p
+    return 0, -1, p
+
+
+@njit(cache=True, inline="always")
+def word_bit(w):
+    """The ``has`` bit (WORD_*) of a lower-case word letter the scanner reads; 0 for any other letter."""
+    if w == LETTER_X:
+        return WORD_X
+    if w == LETTER_Y:
+        return WORD_Y
+    if w == LETTER_Z:
+        return WORD_Z
+    if w == LETTER_E:
+        return WORD_E
+    if w == LETTER_F:
+        return WORD_F
+    if w == LETTER_S:
+        return WORD_S
+    if w == LETTER_P:
+        return WORD_P
+    if w == LETTER_T:
+        return WORD_T
+    if w == LETTER_R:
+        return WORD_R
+    return 0
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def scan_words(buf, q, end):
+    """The words after the command, up to the end of the line (a ';' comment ends it): only X Y Z E F S P
+    T R, each at most once, with numbers :func:`parse_decimal` takes. Returns ``(ok, has, vx, vy, vz, ve,
+    vf, vs, vp, vt, vr, eol)``: ``has`` the WORD_* bits present, the values in program units (0 when
+    absent), eol the index of the line feed (or ``end``). ok False: another word, a repeated word or a
+    number left to Python."""
+    has = 0
+    vx = vy = vz = ve = vf = vs = vp = vt = vr = 0.0
+    while True:
+        q = _skip_blank(buf, q, end)
+        if q >= end:
+            break
+        b = buf[q]
+        if b == BYTE_LF:
+            break
+        if b == BYTE_SEMICOLON:
+            q = _to_eol(buf, q, end)
+            break
+        bit = word_bit(_lower(b))
+        if bit == 0 or (has & bit):
+            return False, has, vx, vy, vz, ve, vf, vs, vp, vt, vr, q
+        ok, v, q = parse_decimal(buf, q + 1, end)
+        if not ok:
+            return False, has, vx, vy, vz, ve, vf, vs, vp, vt, vr, q
+        has |= bit
+        if bit == WORD_X:
+            vx = v
+        elif bit == WORD_Y:
+            vy = v
+        elif bit == WORD_Z:
+            vz = v
+        elif bit == WORD_E:
+            ve = v
+        elif bit == WORD_F:
+            vf = v
+        elif bit == WORD_S:
+            vs = v
+        elif bit == WORD_P:
+            vp = v
+        elif bit == WORD_T:
+            vt = v
+        else:
+            vr = v
+    return True, has, vx, vy, vz, ve, vf, vs, vp, vt, vr, q
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def linear_target(st, ist, has, vx, vy, vz, ve, vf):
+    """End of a G0/G1 from its words and the modal state (nothing changed). Returns ``(x1, y1, z1, e1,
+    elog, feed)``: machine position mm, machine E mm (M221 flow applied), the new logical E mm and the
+    modal feed mm/s. Absolute: value × unit + offset; relative: :func:`relative_sum`; E is absolute only
+    under M82 with G90 (or on Marlin 2, where the last of G90/G91/M82/M83 rules E)."""
+    scale = st[S_UNIT]
+    x1 = st[S_X]
+    y1 = st[S_Y]
+    z1 = st[S_Z]
+    e1 = st[S_E]
+    absc = ist[I_ABS_COORD] != 0
+    f32 = ist[I_F32_REL] != 0
+    if has & WORD_X:
+        x1 = vx * scale + st[S_OX] if absc else relative_sum(x1, vx * scale, f32)
+    if has & WORD_Y:
+        y1 = vy * scale + st[S_OY] if absc else relative_sum(y1, vy * scale, f32)
+    if has & WORD_Z:
+        z1 = vz * scale + st[S_OZ] if absc else relative_sum(z1, vz * scale, f32)
+    elog = st[S_ELOG]
+    if has & WORD_E:
+        ev = ve * scale
+        if ist[I_ABS_E] != 0 and (absc or ist[I_G90_SETS_E] != 0):
+            de_log = ev - elog
+            elog = ev
+        else:
+            new_elog = relative_sum(elog, ev, f32)
+            de_log = new_elog - elog if f32 else ev
+            elog = new_elog
+        e1 = e1 + de_log * st[S_FLOW_F]
+    feed = st[S_FEED]
+    if has & WORD_F:
+        feed = vf * scale / 60.0
+    return x1, y1, z1, e1, elog, feed
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def emit_move(out, n_out, line, code, dialect, st, ist, x0, y0, z0, e0, x1, y1, z1, e1, move_d, feed):
+    """Write the MOVE row of a committed G0/G1 that moves something (``move_d`` mm, > 0, or E changes):
+    print / travel / extrude-only, FLAG_RETRACT when E goes back, FLAG_RAPID on G0 (unlimited feed on the
+    CNC dialects), the dialect's accel; the feed mm/s gets the M220 factor. Also raises S_MAX_E."""
+    de = e1 - e0
+    flags = 0
+    if move_d > 0.0:
+        kind = KIND_PRINT if de > 0.0 else KIND_TRAVEL
+    else:
+        kind = KIND_EXTRUDE_ONLY
+        move_d = abs(de)
+    if de < 0.0:
+        flags |= FLAG_RETRACT
+    if e1 > st[S_MAX_E]:
+        st[S_MAX_E] = e1
+    feed_v = feed * st[S_SPEED_F]
+    if code == 0:
+        flags |= FLAG_RAPID
+        if dialect == DIALECT_CNC:
+            feed_v = np.inf
+    accel = move_accel(dialect, kind != KIND_EXTRUDE_ONLY, de, st[S_ACC_P], st[S_ACC_T], st[S_ACC_R])
+    write_row(out, n_out, line, kind, flags, ist, st, x0, y0, z0, e0, x1, y1, z1, e1, move_d, feed_v, accel, 0.0)
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def linear_move(out, n_out, line, code, dialect, st, ist, has, vx, vy, vz, ve, vf):
+    """G0/G1 (``code``) with X Y Z E F words: commits the move to ``st``/``ist`` and writes its row when it
+    moves something. Returns ``(ok, n_out)``; ok False (nothing changed): another word, F <= 0, a printing
+    move that starts a layer by Z or must set the layer's Z, or a non-finite target."""
+    if has & (WORD_S | WORD_P | WORD_T | WORD_R):
+        return False, n_out
+    if (has & WORD_F) and not vf > 0.0:
+        return False, n_out
+    x0 = st[S_X]
+    y0 = st[S_Y]
+    z0 = st[S_Z]
+    e0 = st[S_E]
+    x1, y1, z1, e1, elog, feed = linear_target(st, ist, has, vx, vy, vz, ve, vf)
+    dx = x1 - x0
+    dy = y1 - y0
+    dz = z1 - z0
+    de = e1 - e0
+    move_d = np.sqrt(dx * dx + dy * dy + dz * dz)
+    if move_d > 0.0 and de > 0.0:
+        # a printing move that starts a layer (by Z) or must set the layer's Z: Python's job
+        if ist[I_LAYER_Z_TODO] != 0 or (ist[I_LAYER_BY_Z] != 0 and z1 > st[S_MAXZ]):
+            return False, n_out
+    if not (np.isfinite(x1) and np.isfinite(y1) and np.isfinite(z1) and np.isfinite(e1)
+            and np.isfinite(move_d)):
+        return False, n_out
+    # commit
+    st[S_X] = x1
+    st[S_Y] = y1
+    st[S_Z] = z1
+    st[S_E] = e1
+    st[S_ELOG] = elog
+    st[S_FEED] = feed
+    ist[I_MOTION] = code
+    if move_d > 0.0 or de != 0.0:
+        emit_move(out, n_out, line, code, dialect, st, ist, x0, y0, z0, e0, x1, y1, z1, e1, move_d, feed)
+        n_out += 1
+    return True, n_out
+
+
+@njit(cache=True, inline="always")
+def set_logical_e(line, dialect, st, has, ve, eset_line, eset_v, eset_n):
+    """``G92 E`` alone on a printer (a slicer's "G92 E0" every layer or so): sets the logical E (mm) and
+    notes (line, E) for the firmware models (planner/marlin.py), as the interpreter's _g92 notes it.
+    Returns ok; False for any other G92 (positions and offsets: the interpreter's job), on the CNC dialects,
+    or when the note buffer is full."""
+    if dialect == DIALECT_CNC or has != WORD_E or eset_n[0] >= eset_line.shape[0]:
+        return False
+    st[S_ELOG] = ve * st[S_UNIT]
+    k = eset_n[0]
+    eset_line[k] = line
+    eset_v[k] = st[S_ELOG]
+    eset_n[0] = k + 1
+    return True
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def dwell(out, n_out, line, dialect, st, ist, has, vs, vp):
+    """G4: a KIND_DWELL row of ``dwell_t`` s: P in ms on printers, in s on the CNC dialects; S in s
+    (refused on Klipper, which has no G4 S). Returns ``(ok, n_out)``; ok False: another word or a
+    negative or NaN time."""
+    if has & ~(WORD_S | WORD_P):
+        return False, n_out
+    dwell_t = 0.0
+    if has & WORD_P:
+        dwell_t = vp if dialect == DIALECT_CNC else vp / 1000.0
+    if has & WORD_S:
+        if dialect == DIALECT_KLIPPER:
+            return False, n_out
+        dwell_t = vs
+    if not dwell_t >= 0.0:
+        return False, n_out
+    write_row(out, n_out, line, KIND_DWELL, 0, ist, st, st[S_X], st[S_Y], st[S_Z], st[S_E],
+              st[S_X], st[S_Y], st[S_Z], st[S_E], 0.0, 0.0, 0.0, dwell_t)
+    return True, n_out + 1
+
+
+@njit(cache=True, inline="always")
+def set_accel(dialect, st, ist, has, vs, vp, vt, vr):
+    """M204 on a printer: sets the print / travel / retract accels (mm/s²). Klipper: S, else min(P, T) only
+    when both are given, else the line is counted as ignored ("Invalid M204"); Marlin: S sets print and
+    travel, then P print, R retract, T travel. Returns ok; False: another word or a value <= 0."""
+    if dialect == DIALECT_CNC or (has & ~(WORD_S | WORD_P | WORD_T | WORD_R)):
+        return False
+    if dialect == DIALECT_KLIPPER:
+        a = vs
+        if not (has & WORD_S):
+            a = min(vp, vt)
+        if not (has & WORD_S) and not ((has & WORD_P) and (has & WORD_T)):
+            ist[I_M204_IGNORED] += 1
+        else:
+            if not a > 0.0:
+                return False
+            st[S_ACC_P] = a
+            st[S_ACC_T] = a
+            st[S_ACC_R] = a
+        return True
+    if ((has & WORD_S) and not vs > 0.0) or ((has & WORD_P) and not vp > 0.0) or \
+            ((has & WORD_T) and not vt > 0.0) or ((has & WORD_R) and not vr > 0.0):
+        return False
+    if has & WORD_S:
+        st[S_ACC_P] = vs
+        st[S_ACC_T] = vs
+    if has & WORD_P:
+        st[S_ACC_P] = vp
+    if has & WORD_R:
+        st[S_ACC_R] = vr
+    if has & WORD_T:
+        st[S_ACC_T] = vt
+    return True
+
+
+@njit(cache=True, inline="always")
+def modal_g(code, out, n_out, line, dialect, st, ist, has, ve, vs, vp, eset_line, eset_v, eset_n):
+    """The G commands other than G0/G1 the scanner runs: G90/G91 (alone; on Marlin 2 they also set the E
+    mode), ``G92 E`` (:func:`set_logical_e`), G4 (:func:`dwell`). Returns ``(ok, n_out)``."""
+    if code == 90 or code == 91:
+        if has != 0:
+            return False, n_out
+        ist[I_ABS_COORD] = 1 if code == 90 else 0
+        if ist[I_G90_SETS_E] != 0:
+            ist[I_ABS_E] = ist[I_ABS_COORD]
+        return True, n_out
+    if code == 92:
+        return set_logical_e(line, dialect, st, has, ve, eset_line, eset_v, eset_n), n_out
+    if code == 4:
+        return dwell(out, n_out, line, dialect, st, ist, has, vs, vp)
+    return False, n_out
+
+
+@njit(cache=True, inline="always")
+def printer_m(code, dialect, st, ist, has, vs, vp, vt, vr):
+    """The M commands the scanner runs on printers: M82/M83 (alone), M104/M105/M106/M107/M140 (no motion:
+    nothing to do), M204 (:func:`set_accel`). Returns ok; always False on the CNC dialects, whose lines
+    run every word in RS274NGC's order (gcode/rs274.py)."""
+    if dialect == DIALECT_CNC:
+        return False
+    if code == 82 or code == 83:
+        if has != 0:
+            return False
+        ist[I_ABS_E] = 1 if code == 82 else 0
+        return True
+    if code == 104 or code == 105 or code == 106 or code == 107 or code == 140:
+        # heaters / fan / temperature report: an F here is the command's own parameter on printers
+        return True
+    if code == 204:
+        return set_accel(dialect, st, ist, has, vs, vp, vt, vr)
+    return False
+
+
+# _nrt=False: the scanner allocates nothing, and without numba's reference counting the inlined helpers
+# that take arrays cost no atomic incref/decref per word (measured: 66 -> 52 ns per "G1 X Y E" line,
+# 24 -> 2 ns per comment line). error_model="numpy": no zero-division checks in the hot loop.
 @njit(cache=True, error_model="numpy", _nrt=False)
 def scan_chunk(buf, pos, end, st, ist, out, n_out, feat_raw, feat_len, feat_idx, eset_line, eset_v, eset_n):
     """Interpret lines of ``buf[pos:end]`` until the chunk ends, the output is full, or a line
@@ -360,263 +685,30 @@ def scan_chunk(buf, pos, end, st, ist, out, n_out, feat_raw, feat_len, feat_idx,
             ist[I_LINE] = line
             pos = p + 1
             continue
-        if c == BYTE_SEMICOLON:  # whole-line comment
-            eol = _to_eol(buf, p, end)
-            c1 = buf[p + 1] if p + 1 < eol else 0
-            # every marker starts with 'T', 'L', 'Z', ' ' or 'M' (tested here: a call costs more than the test)
-            if (c1 == BYTE_T or c1 == BYTE_L or c1 == BYTE_Z or c1 == BYTE_SPACE or c1 == BYTE_M) and \
-                    _comment_needs_python(buf, p + 1, eol, ist, feat_raw, feat_len, feat_idx):
+        if c == BYTE_SEMICOLON:
+            ok, eol = skip_comment_line(buf, p, end, ist, feat_raw, feat_len, feat_idx)
+            if not ok:
                 return ST_PYTHON, line_start, n_out
             ist[I_LINE] = line
             pos = eol + 1
             continue
-        lc = _lower(c)
-        code = -1
-        letter = 0
-        if lc == LETTER_G or lc == LETTER_M:
-            letter = lc
-            p += 1
-            code = 0
-            nd = 0
-            while p < end and BYTE_0 <= buf[p] <= BYTE_9 and nd < 4:
-                code = code * 10 + (buf[p] - BYTE_0)
-                nd += 1
-                p += 1
-            if nd == 0 or nd >= 4 or p >= end or not _is_sep(buf[p]):
-                return ST_PYTHON, line_start, n_out
-        elif lc == LETTER_X or lc == LETTER_Y or lc == LETTER_Z or lc == LETTER_E or lc == LETTER_F:  # no G/M word
-            motion = ist[I_MOTION]
-            if motion != 0 and motion != 1:
-                return ST_PYTHON, line_start, n_out
-            letter = LETTER_G
-            code = motion
-        else:
+        letter, code, p = command_word(buf, p, end, ist[I_MOTION])
+        if letter == 0:
             return ST_PYTHON, line_start, n_out
-
-        # ---- the words of the line (only X Y Z E F S P T R, each at most once)
-        has = 0
-        vx = vy = vz = ve = vf = vs = vp = vt = vr = 0.0
-        q = p
-        while True:
-            q = _skip_blank(buf, q, end)
-            if q >= end:
-                break
-            b = buf[q]
-            if b == BYTE_LF:
-                break
-            if b == BYTE_SEMICOLON:
-                q = _to_eol(buf, q, end)
-                break
-            w = _lower(b)
-            if w == LETTER_X:
-                bit = WORD_X
-            elif w == LETTER_Y:
-                bit = WORD_Y
-            elif w == LETTER_Z:
-                bit = WORD_Z
-            elif w == LETTER_E:
-                bit = WORD_E
-            elif w == LETTER_F:
-                bit = WORD_F
-            elif w == LETTER_S:
-                bit = WORD_S
-            elif w == LETTER_P:
-                bit = WORD_P
-            elif w == LETTER_T:
-                bit = WORD_T
-            elif w == LETTER_R:
-                bit = WORD_R
-            else:
-                return ST_PYTHON, line_start, n_out
-            if has & bit:
-                return ST_PYTHON, line_start, n_out
-            ok, v, q = parse_decimal(buf, q + 1, end)
-            if not ok:
-                return ST_PYTHON, line_start, n_out
-            has |= bit
-            if bit == WORD_X:
-                vx = v
-            elif bit == WORD_Y:
-                vy = v
-            elif bit == WORD_Z:
-                vz = v
-            elif bit == WORD_E:
-                ve = v
-            elif bit == WORD_F:
-                vf = v
-            elif bit == WORD_S:
-                vs = v
-            elif bit == WORD_P:
-                vp = v
-            elif bit == WORD_T:
-                vt = v
-            else:
-                vr = v
-        eol = q
-        nxt = eol + 1 if eol < end else end
-
+        ok, has, vx, vy, vz, ve, vf, vs, vp, vt, vr, eol = scan_words(buf, p, end)
+        if not ok:
+            return ST_PYTHON, line_start, n_out
         if letter == LETTER_G and (code == 0 or code == 1):
-            if has & (WORD_S | WORD_P | WORD_T | WORD_R):
-                return ST_PYTHON, line_start, n_out
-            if (has & WORD_F) and not vf > 0.0:
-                return ST_PYTHON, line_start, n_out
-            scale = st[S_UNIT]
-            x0 = st[S_X]
-            y0 = st[S_Y]
-            z0 = st[S_Z]
-            e0 = st[S_E]
-            x1 = x0
-            y1 = y0
-            z1 = z0
-            e1 = e0
-            absc = ist[I_ABS_COORD] != 0
-            f32 = ist[I_F32_REL] != 0
-            if has & WORD_X:
-                x1 = vx * scale + st[S_OX] if absc else relative_sum(x0, vx * scale, f32)
-            if has & WORD_Y:
-                y1 = vy * scale + st[S_OY] if absc else relative_sum(y0, vy * scale, f32)
-            if has & WORD_Z:
-                z1 = vz * scale + st[S_OZ] if absc else relative_sum(z0, vz * scale, f32)
-            elog = st[S_ELOG]
-            if has & WORD_E:
-                ev = ve * scale
-                if ist[I_ABS_E] != 0 and (absc or ist[I_G90_SETS_E] != 0):
-                    de_log = ev - elog
-                    elog = ev
-                else:
-                    new_elog = relative_sum(elog, ev, f32)
-                    de_log = new_elog - elog if f32 else ev
-                    elog = new_elog
-                e1 = e0 + de_log * st[S_FLOW_F]
-            feed = st[S_FEED]
-            if has & WORD_F:
-                feed = vf * scale / 60.0
-            dx = x1 - x0
-            dy = y1 - y0
-            dz = z1 - z0
-            de = e1 - e0
-            move_d = np.sqrt(dx * dx + dy * dy + dz * dz)
-            if move_d > 0.0 and de > 0.0:
-                # a printing move that starts a layer (by Z) or must set the layer's Z: Python's job
-                if ist[I_LAYER_Z_TODO] != 0 or (ist[I_LAYER_BY_Z] != 0 and z1 > st[S_MAXZ]):
-                    return ST_PYTHON, line_start, n_out
-            if not (np.isfinite(x1) and np.isfinite(y1) and np.isfinite(z1) and np.isfinite(e1)
-                    and np.isfinite(move_d)):
-                return ST_PYTHON, line_start, n_out
-            # commit
-            st[S_X] = x1
-            st[S_Y] = y1
-            st[S_Z] = z1
-            st[S_E] = e1
-            st[S_ELOG] = elog
-            st[S_FEED] = feed
-            ist[I_MOTION] = code
-            if move_d > 0.0 or de != 0.0:
-                flags = 0
-                if move_d > 0.0:
-                    kind = KIND_PRINT if de > 0.0 else KIND_TRAVEL
-                else:
-                    kind = KIND_EXTRUDE_ONLY
-                    move_d = abs(de)
-                if de < 0.0:
-                    flags |= FLAG_RETRACT
-                if e1 > st[S_MAX_E]:
-                    st[S_MAX_E] = e1
-                feed_v = feed * st[S_SPEED_F]
-                if code == 0:
-                    flags |= FLAG_RAPID
-                    if dialect == DIALECT_CNC:
-                        feed_v = np.inf
-                accel = move_accel(dialect, kind != KIND_EXTRUDE_ONLY, de, st[S_ACC_P], st[S_ACC_T],
-                                   st[S_ACC_R])
-                write_row(out, n_out, line, kind, flags, ist, st, x0, y0, z0, e0, x1, y1, z1, e1, move_d,
-                           feed_v, accel, 0.0)
-                n_out += 1
-            ist[I_LINE] = line
-            pos = nxt
-            continue
-
-        if letter == LETTER_G:
-            if code == 90 or code == 91:
-                if has != 0:
-                    return ST_PYTHON, line_start, n_out
-                ist[I_ABS_COORD] = 1 if code == 90 else 0
-                if ist[I_G90_SETS_E] != 0:
-                    ist[I_ABS_E] = ist[I_ABS_COORD]
-            elif code == 92:
-                # G92 E alone on a printer (a slicer's "G92 E0" every layer or so) sets the logical E: here, and
-                # noted for the firmware models (planner/marlin.py) as the interpreter's _g92 notes it. Any other
-                # G92 sets positions and offsets: the interpreter's job
-                if dialect == DIALECT_CNC or has != WORD_E or eset_n[0] >= eset_line.shape[0]:
-                    return ST_PYTHON, line_start, n_out
-                st[S_ELOG] = ve * st[S_UNIT]
-                k = eset_n[0]
-                eset_line[k] = line
-                eset_v[k] = st[S_ELOG]
-                eset_n[0] = k + 1
-            elif code == 4:
-                if has & ~(WORD_S | WORD_P):
-                    return ST_PYTHON, line_start, n_out
-                dwell_t = 0.0
-                if has & WORD_P:
-                    dwell_t = vp if dialect == DIALECT_CNC else vp / 1000.0
-                if has & WORD_S:
-                    if dialect == DIALECT_KLIPPER:
-                        return ST_PYTHON, line_start, n_out
-                    dwell_t = vs
-                if not dwell_t >= 0.0:
-                    return ST_PYTHON, line_start, n_out
-                write_row(out, n_out, line, KIND_DWELL, 0, ist, st, st[S_X], st[S_Y], st[S_Z], st[S_E],
-                           st[S_X], st[S_Y], st[S_Z], st[S_E], 0.0, 0.0, 0.0, dwell_t)
-                n_out += 1
-            else:
-                return ST_PYTHON, line_start, n_out
-        else:  # 'm'
-            if dialect == DIALECT_CNC:
-                # CNC lines run every word in RS274NGC's order (gcode/rs274.py): Python's job
-                return ST_PYTHON, line_start, n_out
-            if code == 82 or code == 83:
-                if has != 0:
-                    return ST_PYTHON, line_start, n_out
-                ist[I_ABS_E] = 1 if code == 82 else 0
-            elif code == 104 or code == 105 or code == 106 or code == 107 or code == 140:
-                # heaters / fan / temperature report: no motion. An F here is the command's own parameter on
-                # printers (CNC dialects never get here)
-                pass
-            elif code == 204:
-                if dialect == DIALECT_CNC or (has & ~(WORD_S | WORD_P | WORD_T | WORD_R)):
-                    return ST_PYTHON, line_start, n_out
-                if dialect == DIALECT_KLIPPER:
-                    # Klipper: S, else min(P, T) only when both are given, else "Invalid M204"
-                    a = vs
-                    if not (has & WORD_S):
-                        a = min(vp, vt)
-                    if not (has & WORD_S) and not ((has & WORD_P) and (has & WORD_T)):
-                        ist[I_M204_IGNORED] += 1
-                    else:
-                        if not a > 0.0:
-                            return ST_PYTHON, line_start, n_out
-                        st[S_ACC_P] = a
-                        st[S_ACC_T] = a
-                        st[S_ACC_R] = a
-                else:
-                    # Marlin M204: S sets print and travel, then P print, R retract, T travel
-                    if ((has & WORD_S) and not vs > 0.0) or ((has & WORD_P) and not vp > 0.0) or \
-                            ((has & WORD_T) and not vt > 0.0) or ((has & WORD_R) and not vr > 0.0):
-                        return ST_PYTHON, line_start, n_out
-                    if has & WORD_S:
-                        st[S_ACC_P] = vs
-                        st[S_ACC_T] = vs
-                    if has & WORD_P:
-                        st[S_ACC_P] = vp
-                    if has & WORD_R:
-                        st[S_ACC_R] = vr
-                    if has & WORD_T:
-                        st[S_ACC_T] = vt
-            else:
-                return ST_PYTHON, line_start, n_out
+            ok, n_out = linear_move(out, n_out, line, code, dialect, st, ist, has, vx, vy, vz, ve, vf)
+        elif letter == LETTER_G:
+            ok, n_out = modal_g(code, out, n_out, line, dialect, st, ist, has, ve, vs, vp, eset_line, eset_v,
+                                eset_n)
+        else:
+            ok = printer_m(code, dialect, st, ist, has, vs, vp, vt, vr)
+        if not ok:
+            return ST_PYTHON, line_start, n_out
         ist[I_LINE] = line
-        pos = nxt
+        pos = eol + 1 if eol < end else end
     return ST_DONE, pos, n_out
 
 
