@@ -1,5 +1,5 @@
-"""The block durations the estimate path sums phase by phase (stepper.marlin_isr: ``block_ticks_isr``,
-``block_ticks_scurve_isr``, ``block_ticks_kernel_bugfix``) against Marlin's interrupt run one event at a time
+"""The block durations the estimate path sums phase by phase (stepper.marlin_isr: ``block_ticks_kernel``,
+``block_ticks_scurve_kernel``, ``block_ticks_kernel_bugfix``) against Marlin's interrupt run one event at a time
 (``block_pickup`` + ``block_phase_isr``, and bugfix-2.1.x's ``block_step_times_kernel_bugfix``): the same integer
 ticks, in total and per phase, on hand-chosen blocks (ramps that reach the cap or the floor, no cruise,
 one step, rates of 1 and of millions of steps/s) and on random ones, for the trapezoid, S-curve and bugfix's
@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from gcodeplan.stepper.marlin_isr import (MARLIN_TIMER_HZ, N_ISR, acceleration_rate, block_phase_isr, block_pickup,
-                                          block_step_times_kernel_bugfix, block_ticks_isr, block_ticks_kernel_bugfix,
-                                          block_ticks_scurve_isr)
+                                          block_step_times_kernel_bugfix, block_ticks_kernel, block_ticks_kernel_bugfix,
+                                          block_ticks_scurve_kernel)
 
 HZ = MARLIN_TIMER_HZ
 
@@ -91,24 +91,22 @@ def _hand_blocks():
 @pytest.mark.parametrize("blocks", [_hand_blocks(), _random_blocks(1, 400), _random_blocks(2, 400)],
                          ids=["hand", "random1", "random2"])
 def test_trapezoid_sum_equals_the_interrupt_event_by_event(blocks):
-    isr = np.zeros(N_ISR, np.int64)
     ph = np.zeros(3, np.int64)
     for b in blocks:
         sec, init, nom, fin, au, da, ar = b[:7]
         want_ph, want = _event_by_event(b, False)
-        assert block_ticks_isr(isr, sec, init, nom, fin, au, da, ar, HZ, ph) == want, b
+        assert block_ticks_kernel(sec, init, nom, fin, au, da, ar, HZ, ph) == want, b
         assert list(ph) == want_ph, b
 
 
 @pytest.mark.parametrize("blocks", [_hand_blocks(), _random_blocks(3, 400), _random_blocks(4, 400)],
                          ids=["hand", "random3", "random4"])
 def test_scurve_sum_equals_the_interrupt_event_by_event(blocks):
-    isr = np.zeros(N_ISR, np.int64)
     ph = np.zeros(3, np.int64)
     for b in blocks:
         sec, init, nom, fin, au, da, ar, cruise, at, dt, ati, dti = b
         want_ph, want = _event_by_event(b, True)
-        assert block_ticks_scurve_isr(isr, sec, init, nom, fin, au, da, cruise, at, dt, ati, dti, HZ, ph) == want, b
+        assert block_ticks_scurve_kernel(sec, init, nom, fin, au, da, cruise, at, dt, ati, dti, HZ, ph) == want, b
         assert list(ph) == want_ph, b
 
 

@@ -47,7 +47,7 @@ import math
 import numpy as np
 
 from .._jit import njit
-from ..stepper.marlin_isr import N_ISR, block_ticks_isr, block_ticks_kernel_bugfix, block_ticks_scurve_isr
+from ..stepper.marlin_isr import N_ISR, block_ticks_kernel, block_ticks_kernel_bugfix, block_ticks_scurve_kernel
 
 BLOCK_BUFFER_SIZE = 16
 MIN_STEPS_PER_SEGMENT = 6
@@ -846,7 +846,7 @@ def _classic_jerk_sqr_bugfix(gf, current_speed, nominal_speed, moves_queued, jer
 
 
 @njit(cache=True)
-def _pick_and_run(bf, bi, gi, out_i, out_f, timer_hz, acc_rate_scale, row_base, s_curve, scratch_i, isr,
+def _pick_and_run(bf, bi, gi, out_i, out_f, timer_hz, acc_rate_scale, row_base, s_curve, scratch_i,
                   version=VERSION_2_1_2):
     """The stepper: finish the busy block, skip sync blocks, pick up the next move block and time it
     (get_current_block + block_phase_isr). Returns False when the buffer is empty."""
@@ -869,18 +869,18 @@ def _pick_and_run(bf, bi, gi, out_i, out_f, timer_hz, acc_rate_scale, row_base, 
         acc_rate = np.int64(F32(F32(acc_steps) * acc_rate_scale))
         ph = scratch_i[3]
         if s_curve:
-            ticks = block_ticks_scurve_isr(isr, bi[t, BI_SEC], bi[t, BI_INITIAL_RATE], bi[t, BI_NOMINAL_RATE],
-                                           bi[t, BI_FINAL_RATE], bi[t, BI_ACCEL_UNTIL], bi[t, BI_DECEL_AFTER],
-                                           bi[t, BI_CRUISE_RATE], bi[t, BI_ACC_TIME], bi[t, BI_DEC_TIME],
-                                           bi[t, BI_ACC_TIME_INV], bi[t, BI_DEC_TIME_INV], timer_hz, ph)
+            ticks = block_ticks_scurve_kernel(bi[t, BI_SEC], bi[t, BI_INITIAL_RATE], bi[t, BI_NOMINAL_RATE],
+                                              bi[t, BI_FINAL_RATE], bi[t, BI_ACCEL_UNTIL], bi[t, BI_DECEL_AFTER],
+                                              bi[t, BI_CRUISE_RATE], bi[t, BI_ACC_TIME], bi[t, BI_DEC_TIME],
+                                              bi[t, BI_ACC_TIME_INV], bi[t, BI_DEC_TIME_INV], timer_hz, ph)
         elif version == VERSION_BUGFIX:
             ticks = block_ticks_kernel_bugfix(bi[t, BI_SEC], bi[t, BI_INITIAL_RATE], bi[t, BI_NOMINAL_RATE],
                                               bi[t, BI_FINAL_RATE], bi[t, BI_ACCEL_UNTIL], bi[t, BI_DECEL_AFTER],
                                               acc_rate, timer_hz, ph)
         else:
-            ticks = block_ticks_isr(isr, bi[t, BI_SEC], bi[t, BI_INITIAL_RATE], bi[t, BI_NOMINAL_RATE],
-                                    bi[t, BI_FINAL_RATE], bi[t, BI_ACCEL_UNTIL], bi[t, BI_DECEL_AFTER], acc_rate,
-                                    timer_hz, ph)
+            ticks = block_ticks_kernel(bi[t, BI_SEC], bi[t, BI_INITIAL_RATE], bi[t, BI_NOMINAL_RATE],
+                                       bi[t, BI_FINAL_RATE], bi[t, BI_ACCEL_UNTIL], bi[t, BI_DECEL_AFTER], acc_rate,
+                                       timer_hz, ph)
         out_i[r, OI_HAS_BLOCK] = 1
         out_i[r, OI_T_PICK] = gi[GI_CLOCK]
         gi[GI_CLOCK] += ticks
@@ -928,8 +928,9 @@ def marlin_run_kernel(kind, tgt, reset_bits, reset_pos, fr, acc_p, acc_t, acc_r,
     numbers); times are ticks of ``timer_hz`` from the first pick-up. ``lim``: each row's LIMITS row, which
     indexes the settings tables ``vmax`` … ``min_travel``, ``amax_mm``, ``jdev``, ``advance_k``. Returns the
     absolute number of the first row whose block has not run yet (rows before it are final). ``version``: whose rules run
-    (VERSION_2_1_2, VERSION_BUGFIX). ``scratch_f``, ``scratch_i``, ``isr``: working rows (:func:`new_scratch`);
-    compiled without numba's reference counting, so nothing it calls allocates."""
+    (VERSION_2_1_2, VERSION_BUGFIX). ``scratch_f``, ``scratch_i``, ``isr``: working rows (:func:`new_scratch`;
+    ``isr`` is left untouched: the block sums keep their interrupt state in locals); compiled without numba's
+    reference counting, so nothing it calls allocates."""
     n = len(kind)
     end_row = row_base + n
     while True:
@@ -981,7 +982,7 @@ def marlin_run_kernel(kind, tgt, reset_bits, reset_pos, fr, acc_p, acc_t, acc_r,
             gi[GI_NEXT_ROW] += 1
         if not final and gi[GI_NEXT_ROW] >= end_row and _queued(gi) < BLOCK_BUFFER_SIZE - 1:
             break                              # the host would queue more: wait for the next rows
-        if not _pick_and_run(bf, bi, gi, out_i, out_f, timer_hz, acc_rate_scale, row_base, s_curve, scratch_i, isr,
+        if not _pick_and_run(bf, bi, gi, out_i, out_f, timer_hz, acc_rate_scale, row_base, s_curve, scratch_i,
                              version):
             if gi[GI_NEXT_ROW] >= end_row:
                 break

@@ -192,7 +192,7 @@ def block_ticks_per_event(isr, first_interval, timer_hz, phase_ticks):
     """Ticks from pick-up to the last step of the block picked up into ``isr`` (first interval given),
     summed interrupt by interrupt through :func:`block_phase_isr` (a cruise is counted, not looped), split
     into ``phase_ticks`` (accelerating, cruising, decelerating). The reference the ramp sums of
-    :func:`block_ticks_isr` / :func:`block_ticks_scurve_isr` are held to (tests/test_marlin_isr_sums.py)."""
+    :func:`block_ticks_kernel` / :func:`block_ticks_scurve_kernel` are held to (tests/test_marlin_isr_sums.py)."""
     n_steps = isr[ISR_SEC]
     phase_ticks[0] = first_interval
     phase_ticks[1] = 0
@@ -296,16 +296,8 @@ def block_ticks_kernel(n_steps, initial_rate, nominal_rate, final_rate, accelera
     """Ticks from a block's pick-up to its last step (Marlin 2.1.2 trapezoid ISR, see the module docstring).
 
     ``phase_ticks`` (3 int64, out): ticks spent before steps of the accelerating, cruising and decelerating
-    phases (the first interval counts as accelerating). Returns the total."""
-    return block_ticks_isr(np.empty(N_ISR, np.int64), n_steps, initial_rate, nominal_rate, final_rate,
-                           accelerate_until, decelerate_after, acc_rate, timer_hz, phase_ticks)
-
-
-@njit(cache=True)
-def block_ticks_isr(isr, n_steps, initial_rate, nominal_rate, final_rate, accelerate_until, decelerate_after,
-                    acc_rate, timer_hz, phase_ticks):
-    """:func:`block_ticks_kernel` in the caller's interrupt state ``isr`` (N_ISR int64, overwritten): no
-    allocation, so a planner kernel compiled without numba's reference counting can call it per block."""
+    phases (the first interval counts as accelerating). Returns the total. Allocates nothing, so a planner
+    kernel compiled without numba's reference counting can call it per block."""
     if n_steps <= 0:
         phase_ticks[0] = 0
         phase_ticks[1] = 0
@@ -335,19 +327,7 @@ def block_ticks_scurve_kernel(n_steps, initial_rate, nominal_rate, final_rate, a
     """Ticks from pick-up to last step with S_CURVE_ACCELERATION: each ramp's rate follows Marlin's quintic
     Bézier in time (initial → cruise over ``acceleration_time`` ticks, cruise → final over
     ``deceleration_time``), read at the start of each step interval; the same phase switching by step count
-    as :func:`block_ticks_kernel`."""
-    return block_ticks_scurve_isr(np.empty(N_ISR, np.int64), n_steps, initial_rate, nominal_rate, final_rate,
-                                  accelerate_until, decelerate_after, cruise_rate, acceleration_time,
-                                  deceleration_time, acceleration_time_inverse, deceleration_time_inverse, timer_hz,
-                                  phase_ticks)
-
-
-@njit(cache=True)
-def block_ticks_scurve_isr(isr, n_steps, initial_rate, nominal_rate, final_rate, accelerate_until,
-                           decelerate_after, cruise_rate, acceleration_time, deceleration_time,
-                           acceleration_time_inverse, deceleration_time_inverse, timer_hz, phase_ticks):
-    """:func:`block_ticks_scurve_kernel` in the caller's interrupt state ``isr`` (N_ISR int64, overwritten):
-    no allocation (see :func:`block_ticks_isr`)."""
+    as :func:`block_ticks_kernel`; allocates nothing either."""
     if n_steps <= 0:
         phase_ticks[0] = 0
         phase_ticks[1] = 0
