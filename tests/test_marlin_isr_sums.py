@@ -136,3 +136,34 @@ def test_the_hand_blocks_exercise_the_closed_forms():
     block_pickup(isr, sec, init, nom, fin, au, da, acceleration_rate(accel), nom, 0, 0, 0, 0, False, HZ)
     iv = [block_phase_isr(isr, n, HZ) for n in range(1, sec)]
     assert iv[-4000:] == [HZ // fin] * 4000
+
+
+def test_the_run_kernels_memo_gives_each_block_its_own_sum():
+    """The Marlin run kernel's block-time memo (planner.marlin_kernels): blocks met again, in another order,
+    under another stepper mode (2.1.2, bugfix, S-curve: the same fields, other times) or another timer rate,
+    get the time their own sum gives, never a neighbour's."""
+    from gcodeplan.planner import marlin_kernels as mk
+
+    memo = mk.new_scratch()[2]
+    key = memo[mk.MEMO_ROWS]
+    ph = np.zeros(3, np.int64)
+    blocks = _random_blocks(7, 300) + _hand_blocks()
+    order = np.random.default_rng(8).permutation(np.tile(np.arange(len(blocks)), 3))
+    seen_hit = False
+    for i in order:
+        b = blocks[i]
+        sec, init, nom, fin, au, da, ar, cruise, at, dt, ati, dti = b
+        for mode, hz in ((0, HZ), (1, HZ), (2, HZ), (0, HZ // 2)):
+            key[:12] = b
+            if mode == 2:
+                want = block_ticks_scurve_kernel(sec, init, nom, fin, au, da, cruise, at, dt, ati, dti, hz, ph)
+            elif mode == 1:
+                want = block_ticks_kernel_bugfix(sec, init, nom, fin, au, da, ar, hz, ph)
+            else:
+                want = block_ticks_kernel(sec, init, nom, fin, au, da, ar, hz, ph)
+            want_ph = list(ph)
+            filled = np.count_nonzero(memo[:mk.MEMO_ROWS, 0])
+            assert mk._block_ticks_memo(memo, mode, key, hz, ph) == want, (mode, hz, b)
+            assert list(ph) == want_ph
+            seen_hit |= np.count_nonzero(memo[:mk.MEMO_ROWS, 0]) == filled and filled > 0
+    assert seen_hit
