@@ -188,9 +188,11 @@ def block_phase_isr(isr, n, timer_hz):
 
 
 @njit(cache=True)
-def _block_ticks(isr, first_interval, timer_hz, phase_ticks):
+def block_ticks_per_event(isr, first_interval, timer_hz, phase_ticks):
     """Ticks from pick-up to the last step of the block picked up into ``isr`` (first interval given),
-    split into ``phase_ticks`` (accelerating, cruising, decelerating); a cruise is counted, not looped."""
+    summed interrupt by interrupt through :func:`block_phase_isr` (a cruise is counted, not looped), split
+    into ``phase_ticks`` (accelerating, cruising, decelerating). The reference the ramp sums of
+    :func:`block_ticks_kernel` / :func:`block_ticks_scurve_kernel` are held to (tests/test_marlin_isr_sums.py)."""
     n_steps = isr[ISR_SEC]
     phase_ticks[0] = first_interval
     phase_ticks[1] = 0
@@ -217,29 +219,105 @@ def _block_ticks(isr, first_interval, timer_hz, phase_ticks):
 
 
 @njit(cache=True)
+def _phase_counts(n_steps, accelerate_until, decelerate_after):
+    """How many of the events 1 .. n_steps − 1 after pick-up :func:`block_phase_isr` times as accelerating
+    (``n <= accelerate_until``), cruising and decelerating (``n > decelerate_after``, tested after the first)."""
+    last = n_steps - 1
+    n_acc = accelerate_until if accelerate_until < last else last
+    if n_acc < 0:
+        n_acc = 0
+    cruise_end = decelerate_after if decelerate_after < last else last
+    n_cruise = cruise_end - n_acc
+    if n_cruise < 0:
+        n_cruise = 0
+    n_dec = last - n_acc - n_cruise
+    return n_acc, n_cruise, n_dec
+
+
+@njit(cache=True)
+def accel_ramp_ticks(acc_time, n_events, initial_rate, nominal_rate, acc_rate, timer_hz):
+    """``n_events`` accelerating events of the trapezoid interrupt from the acceleration clock ``acc_time``
+    (ticks): returns the clock after them and the last rate (steps/s; ``initial_rate`` if none), exactly as
+    :func:`block_phase_isr` steps them. The rate only grows with the clock, so once it reaches
+    ``nominal_rate`` every further event is ``timer_hz // nominal_rate`` ticks: the rest is one product."""
+    T = np.int64(timer_hz)
+    r = np.int64(initial_rate)
+    k = np.int64(0)
+    while k < n_events:
+        r = ((acc_time * acc_rate + _HALF_24) >> 24) + initial_rate
+        if r >= nominal_rate:
+            r = np.int64(nominal_rate)
+            return acc_time + (T // r) * (n_events - k), r
+        acc_time += T // r
+        k += 1
+    return acc_time, r
+
+
+@njit(cache=True)
+def decel_ramp_ticks(dec_time, n_events, acc_step_rate, final_rate, acc_rate, timer_hz):
+    """``n_events`` decelerating events of the trapezoid interrupt from the deceleration clock ``dec_time``
+    (ticks), down from ``acc_step_rate``: returns the clock after them, exactly as :func:`block_phase_isr`
+    steps them. The rate only falls as the clock grows, so once it is held at ``final_rate`` every further
+    event is ``timer_hz // final_rate`` ticks: the rest is one product."""
+    T = np.int64(timer_hz)
+    k = np.int64(0)
+    while k < n_events:
+        s = (dec_time * acc_rate + _HALF_24) >> 24
+        if s < acc_step_rate and acc_step_rate - s > final_rate:
+            dec_time += T // (acc_step_rate - s)
+            k += 1
+        else:
+            return dec_time + (T // np.int64(final_rate)) * (n_events - k)
+    return dec_time
+
+
+@njit(cache=True)
+def _bezier_ramp_ticks(t, n_events, v0, v1, av, ramp_ticks, timer_hz):
+    """``n_events`` events of an S-curve ramp v0 → v1 from its clock ``t`` (ticks): each reads the Bézier at
+    its start while ``t < ramp_ticks`` and ``v1`` after, as :func:`block_phase_isr`; returns the clock after
+    them. Past the ramp time the rate stays ``v1``: the rest is one product."""
+    T = np.int64(timer_hz)
+    a = 768 * (v1 - v0)
+    b = 1920 * (v0 - v1)
+    c = 1280 * (v1 - v0)
+    f = 128 * v0
+    k = np.int64(0)
+    while k < n_events:
+        if t >= ramp_ticks:
+            return t + (T // v1) * (n_events - k)
+        t += T // _eval_bezier_curve(a, b, c, f, av, t)
+        k += 1
+    return t
+
+
+@njit(cache=True)
 def block_ticks_kernel(n_steps, initial_rate, nominal_rate, final_rate, accelerate_until, decelerate_after,
                        acc_rate, timer_hz, phase_ticks):
     """Ticks from a block's pick-up to its last step (Marlin 2.1.2 trapezoid ISR, see the module docstring).
 
     ``phase_ticks`` (3 int64, out): ticks spent before steps of the accelerating, cruising and decelerating
-    phases (the first interval counts as accelerating). Returns the total."""
-    return block_ticks_isr(np.empty(N_ISR, np.int64), n_steps, initial_rate, nominal_rate, final_rate,
-                           accelerate_until, decelerate_after, acc_rate, timer_hz, phase_ticks)
-
-
-@njit(cache=True)
-def block_ticks_isr(isr, n_steps, initial_rate, nominal_rate, final_rate, accelerate_until, decelerate_after,
-                    acc_rate, timer_hz, phase_ticks):
-    """:func:`block_ticks_kernel` in the caller's interrupt state ``isr`` (N_ISR int64, overwritten): no
-    allocation, so a planner kernel compiled without numba's reference counting can call it per block."""
+    phases (the first interval counts as accelerating). Returns the total. Allocates nothing, so a planner
+    kernel compiled without numba's reference counting can call it per block."""
     if n_steps <= 0:
         phase_ticks[0] = 0
         phase_ticks[1] = 0
         phase_ticks[2] = 0
         return np.int64(0)
-    first = block_pickup(isr, n_steps, initial_rate, nominal_rate, final_rate, accelerate_until, decelerate_after,
-                         acc_rate, nominal_rate, 0, 0, 0, 0, False, timer_hz)
-    return _block_ticks(isr, first, timer_hz, phase_ticks)
+    # the interrupt's sum phase by phase (what block_ticks_per_event adds event by event, the same integers)
+    T = np.int64(timer_hz)
+    n_acc, n_cruise, n_dec = _phase_counts(n_steps, accelerate_until, decelerate_after)
+    first = T // np.int64(initial_rate)
+    acc_end, acc_step_rate = accel_ramp_ticks(first, n_acc, initial_rate, nominal_rate, acc_rate, timer_hz)
+    cruise_t = np.int64(0)
+    if n_cruise > 0:
+        # the first cruising event restarts the braking clock and brakes from nominal
+        cruise_t = (T // np.int64(nominal_rate)) * n_cruise
+        acc_step_rate = np.int64(nominal_rate)
+    dec_t = decel_ramp_ticks(np.int64(0), n_dec, acc_step_rate, final_rate, acc_rate, timer_hz)
+    phase_ticks[0] = acc_end
+    phase_ticks[1] = cruise_t
+    phase_ticks[2] = dec_t
+    return acc_end + cruise_t + dec_t
 
 
 @njit(cache=True)
@@ -249,28 +327,29 @@ def block_ticks_scurve_kernel(n_steps, initial_rate, nominal_rate, final_rate, a
     """Ticks from pick-up to last step with S_CURVE_ACCELERATION: each ramp's rate follows Marlin's quintic
     Bézier in time (initial → cruise over ``acceleration_time`` ticks, cruise → final over
     ``deceleration_time``), read at the start of each step interval; the same phase switching by step count
-    as :func:`block_ticks_kernel`."""
-    return block_ticks_scurve_isr(np.empty(N_ISR, np.int64), n_steps, initial_rate, nominal_rate, final_rate,
-                                  accelerate_until, decelerate_after, cruise_rate, acceleration_time,
-                                  deceleration_time, acceleration_time_inverse, deceleration_time_inverse, timer_hz,
-                                  phase_ticks)
-
-
-@njit(cache=True)
-def block_ticks_scurve_isr(isr, n_steps, initial_rate, nominal_rate, final_rate, accelerate_until,
-                           decelerate_after, cruise_rate, acceleration_time, deceleration_time,
-                           acceleration_time_inverse, deceleration_time_inverse, timer_hz, phase_ticks):
-    """:func:`block_ticks_scurve_kernel` in the caller's interrupt state ``isr`` (N_ISR int64, overwritten):
-    no allocation (see :func:`block_ticks_isr`)."""
+    as :func:`block_ticks_kernel`; allocates nothing either."""
     if n_steps <= 0:
         phase_ticks[0] = 0
         phase_ticks[1] = 0
         phase_ticks[2] = 0
         return np.int64(0)
-    first = block_pickup(isr, n_steps, initial_rate, nominal_rate, final_rate, accelerate_until, decelerate_after,
-                         0, cruise_rate, acceleration_time, deceleration_time, acceleration_time_inverse,
-                         deceleration_time_inverse, True, timer_hz)
-    return _block_ticks(isr, first, timer_hz, phase_ticks)
+    # the interrupt's sum phase by phase (what block_ticks_per_event adds event by event, the same integers)
+    T = np.int64(timer_hz)
+    n_acc, n_cruise, n_dec = _phase_counts(n_steps, accelerate_until, decelerate_after)
+    first = T // np.int64(initial_rate)
+    acc_end = _bezier_ramp_ticks(first, n_acc, np.int64(initial_rate), np.int64(cruise_rate),
+                                 np.int64(acceleration_time_inverse), acceleration_time, timer_hz)
+    cruise_t = (T // np.int64(nominal_rate)) * n_cruise
+    dec_t = np.int64(0)
+    if n_dec > 0:
+        # the first braking event runs at the cruise rate, then the second ramp's curve from clock 0
+        dec_t = _bezier_ramp_ticks(T // np.int64(cruise_rate), n_dec - 1, np.int64(cruise_rate),
+                                   np.int64(final_rate), np.int64(deceleration_time_inverse), deceleration_time,
+                                   timer_hz)
+    phase_ticks[0] = acc_end
+    phase_ticks[1] = cruise_t
+    phase_ticks[2] = dec_t
+    return acc_end + cruise_t + dec_t
 
 
 @njit(cache=True)
@@ -371,18 +450,16 @@ def block_ticks_kernel_bugfix(n_steps, initial_rate, nominal_rate, final_rate, a
     acc_time = interval // 2
     dec_time = interval // 2
     acc_step_rate = np.int64(initial_rate)
-    # steps 1 .. accelerate_before − 1 accelerate, then cruise up to decelerate_start − 1, then brake
+    # steps 1 .. accelerate_before − 1 accelerate (each restarting the braking clock), then cruise up to
+    # decelerate_start − 1, then brake; each ramp summed as the interrupt steps it (accel_ramp_ticks,
+    # decel_ramp_ticks: the same integers)
     acc_end = accelerate_before - 1 if accelerate_before - 1 < n_steps - 1 else n_steps - 1
-    for n in range(1, acc_end + 1):
-        r = ((acc_time * acc_rate + _HALF_24) >> 24) + initial_rate
-        if r > nominal_rate:
-            r = nominal_rate
-        acc_step_rate = r
-        interval = np.int64(timer_hz) // r
-        acc_time += interval
+    if acc_end > 0:
+        acc_clock, acc_step_rate = accel_ramp_ticks(acc_time, acc_end, initial_rate, nominal_rate, acc_rate,
+                                                    timer_hz)
+        phase_ticks[0] += acc_clock - acc_time
+        total += acc_clock - acc_time
         dec_time = 0
-        phase_ticks[0] += interval
-        total += interval
     cruise_lo = accelerate_before if accelerate_before > 1 else 1
     cruise_hi = decelerate_start if decelerate_start < n_steps else n_steps
     if cruise_hi > cruise_lo:
@@ -394,18 +471,11 @@ def block_ticks_kernel_bugfix(n_steps, initial_rate, nominal_rate, final_rate, a
     dec_lo = decelerate_start if decelerate_start > 1 else 1
     if accelerate_before > dec_lo:
         dec_lo = accelerate_before
-    for n in range(dec_lo, n_steps):
-        s = (dec_time * acc_rate + _HALF_24) >> 24
-        if s < acc_step_rate:
-            s = acc_step_rate - s
-            if s < final_rate:
-                s = final_rate
-        else:
-            s = final_rate
-        interval = np.int64(timer_hz) // s
-        dec_time += interval
-        phase_ticks[2] += interval
-        total += interval
+    if n_steps > dec_lo:
+        dec_ticks = decel_ramp_ticks(dec_time, n_steps - dec_lo, acc_step_rate, final_rate, acc_rate,
+                                     timer_hz) - dec_time
+        phase_ticks[2] += dec_ticks
+        total += dec_ticks
     return total
 
 
