@@ -142,7 +142,7 @@ class MotionCommands:
         for k, v in given.items():
             if k == "E":
                 st[S.S_ELOG] = v * scale
-                if self._keep_e_sets:
+                if self.keeps_e_sets:
                     self.e_position_sets.append((self.line, v * scale))
             else:
                 a = "XYZ".index(k)

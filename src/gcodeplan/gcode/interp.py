@@ -120,7 +120,8 @@ class Interpreter(StateCommands, MotionCommands, Rs274Commands):
         # (line, logical E in mm) of each "G92 E": a firmware model (planner/marlin.py) takes them in order, as
         # Marlin resets its E position there; kept only for such machines, and emptied as they are used
         self.e_position_sets: deque[tuple[int, float]] = deque()
-        self._keep_e_sets = getattr(machine, "firmware", "generic") in OWN_PLANNER_FIRMWARES
+        #: True when ``e_position_sets`` is kept (a firmware model that plans on its own, e.g. Marlin's, reads it)
+        self.keeps_e_sets: bool = getattr(machine, "firmware", "generic") in OWN_PLANNER_FIRMWARES
         self.warnings: list[str] = []
         self.warning_count = 0
         self.arcs = 0

@@ -287,7 +287,7 @@ class GcodeReader:
         eset_line = np.empty(S.ESET_MAX, np.int64)
         eset_v = np.empty(S.ESET_MAX)
         eset_n = np.zeros(1, np.int64)
-        keep_e_sets = interp._keep_e_sets
+        keep_e_sets = interp.keeps_e_sets
         while True:
             if ist[S.I_STOPPED]:
                 ist[S.I_LINE] += S.count_lines(buf, pos, end)
