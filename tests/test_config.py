@@ -74,7 +74,7 @@ def test_gear_ratio_product():
 # ============================================================================ presets
 
 def test_preset_names():
-    assert preset_names() == ["grbl", "klipper", "marlin", "marlin-2.1.2", "marlin-bugfix"]
+    assert preset_names() == ["grbl", "klipper", "linuxcnc", "marlin", "marlin-2.1.2", "marlin-bugfix"]
 
 
 def test_klipper_preset_equals_klipper_reference_cfg():
@@ -294,7 +294,7 @@ def test_permission_denied(tmp_path):
 
 
 def test_unknown_preset_and_cfg_hint(tmp_path):
-    with pytest.raises(ConfigError, match=r"neither a file nor a preset; presets: grbl, klipper, marlin, "
+    with pytest.raises(ConfigError, match=r"neither a file nor a preset; presets: grbl, klipper, linuxcnc, marlin, "
                                           r"marlin-2.1.2, marlin-bugfix "
                                           r"\(did you mean 'marlin'\?\)"):
         load_machine("marlen")
