@@ -41,6 +41,10 @@ from .commands_state import StateCommands
 from .rs274 import Rs274Commands
 
 
+#: letters a printer line may start with (after its N line number): G, M and T commands, and the X Y Z E F words
+#: gcodeplan reads as a repeat of the modal G0/G1
+PRINTER_LINE_LETTERS = frozenset("GMTXYZEF")
+
 class Interpreter(StateCommands, MotionCommands, Rs274Commands):
     """Modal state and the Python side of the interpretation of a file."""
 
@@ -524,6 +528,11 @@ class Interpreter(StateCommands, MotionCommands, Rs274Commands):
         return words
 
     def _classic(self, code: str) -> None:
+        if not self.machine.is_cnc and code[:1].upper() not in PRINTER_LINE_LETTERS:
+            # Marlin's and Klipper's parsers take a line's first word as its command: a line led by another
+            # letter (a CNC post's ``O100 call``, ``O100 sub``) is an unknown command, reported and ignored
+            self._unknown_or_macro(code.split(None, 1)[0][:40].upper())
+            return
         m486 = M486_RE.match(code)
         if m486:
             self._m486(m486.group(1))
