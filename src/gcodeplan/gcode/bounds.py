@@ -146,6 +146,21 @@ def box(acc: np.ndarray, base: int) -> dict[str, list[float]] | None:
     return {a: [float(acc[base + k]), float(acc[base + 3 + k])] for k, a in enumerate("xyz")}
 
 
+def firmware_refusal(machine) -> str:
+    """What the machine's firmware does with a move past its travel, for the out-of-range error."""
+    if machine.flavor == "klipper" or machine.firmware == "klipper":
+        return "Klipper refuses this move"
+    if machine.flavor == "linuxcnc":
+        return "LinuxCNC refuses it: the move exceeds the axis' soft limit"
+    if machine.flavor == "grbl":
+        return ("grbl halts there with ALARM:2 when its soft limits are on ($20=1), else the machine runs into the "
+                "end of its travel")
+    if machine.flavor == "marlin":
+        return ("Marlin's software endstops would clamp the move to them, but they are off (M211 S0, or not "
+                "modelled for this kinematics): the machine would run into the end of its travel")
+    return "the machine cannot go there"
+
+
 class MotionChecker:
     """Running checks of one file (see the module docstring); :meth:`check` per MOVE batch."""
 
@@ -178,7 +193,7 @@ class MotionChecker:
             raise GcodeError(
                 f"Move out of range: {mv['x1']:.3f} {mv['y1']:.3f} {mv['z1']:.3f} [{mv['e1']:.3f}] "
                 f"({name.upper()} {v:.3f} is outside position_min {self.lo[axis]:g} … position_max "
-                f"{self.hi[axis]:g}: Klipper refuses this move; --no-bounds turns the check off)",
+                f"{self.hi[axis]:g}: {firmware_refusal(self.machine)}; --no-bounds turns the check off)",
                 self.path, int(mv["line"]))
         if code == TOO_LONG:
             mv = batch[row]

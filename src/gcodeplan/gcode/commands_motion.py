@@ -210,6 +210,35 @@ class MotionCommands:
                 self.layer_z[layer] = z1
             ist[S.I_LAYER_Z_TODO] = 0
 
+    def _soft_clamp(self, x: float, y: float, z: float) -> tuple[float, float, float]:
+        """Marlin's apply_motion_limits: a target beyond the software endstops goes to them instead (every
+        axis, moving or not). Counted, and the first one is a warning naming its line."""
+        st = self.st
+        out = [x, y, z]
+        for a in range(3):
+            lo, hi = float(st[S.S_SOFT_LO + a]), float(st[S.S_SOFT_HI + a])
+            v = out[a]
+            if v < lo or v > hi:
+                out[a] = lo if v < lo else hi
+                if self.soft_clamped_first_line is None:
+                    name = "XYZ"[a]
+                    self.warn(f"{name} {v:.3f} is beyond the software endstop ({name} {'min' if v < lo else 'max'} "
+                              f"{out[a]:g}): Marlin moves to {out[a]:g} instead (apply_motion_limits), and so does "
+                              f"gcodeplan; the summary counts such moves (M211 S0 turns the endstops off)")
+                    self.soft_clamped_first_line = int(self.line)
+        if out[0] != x or out[1] != y or out[2] != z:
+            self.soft_clamped += 1
+        return out[0], out[1], out[2]
+
+    def _soft_clamp_points(self, pts: np.ndarray) -> None:
+        """:meth:`_soft_clamp` on each row of ``pts`` (x, y, z in its first columns; Marlin's plan_arc clamps
+        every segment end), in place."""
+        if not self.ist[S.I_SOFT_CLAMP]:
+            return
+        for i in range(pts.shape[0]):
+            pts[i, 0], pts[i, 1], pts[i, 2] = self._soft_clamp(float(pts[i, 0]), float(pts[i, 1]),
+                                                               float(pts[i, 2]))
+
     def _linear(self, code: int, params: dict[str, Word], used: set[str], f: float | None,
                 machine_coords: bool) -> None:
         st = self.st
@@ -217,6 +246,8 @@ class MotionCommands:
         scale = float(st[S.S_UNIT])
         x0, y0, z0, e0 = float(st[S.S_X]), float(st[S.S_Y]), float(st[S.S_Z]), float(st[S.S_E])
         x1, y1, z1 = self._targets(params, machine_coords)
+        if self.ist[S.I_SOFT_CLAMP] and all(math.isfinite(v) for v in (x1, y1, z1)):
+            x1, y1, z1 = self._soft_clamp(x1, y1, z1)
         e1, elog = self._e_target(params)
         feed = float(st[S.S_FEED])
         if f is not None:
@@ -309,6 +340,7 @@ class MotionCommands:
                                  units_mm=float(st[S.S_UNIT]) == 1.0)
         except (ArcError, ValueError) as err:
             self.error(str(err))
+        self._soft_clamp_points(pts)
         self.arcs += 1
         n = pts.shape[0]
         de = e1 - e0
@@ -362,6 +394,8 @@ class MotionCommands:
         e1 = end[3]
         ends = np.ascontiguousarray(pts[:, :3])
         ends[-1] = end[:3]               # the target as the file gives it (the model rounds it as Marlin does)
+        self._soft_clamp_points(ends)
+        end = (float(ends[-1, 0]), float(ends[-1, 1]), float(ends[-1, 2])) + tuple(end[3:])
         starts, d, es, e_starts = pieces_through_kernel(ends, x0, y0, z0, e0, e1)
         # E at each segment end: Marlin's float steps of the logical E, carried into the machine's E
         es[:-1] = e0 + (pts[:-1, 3] - elog0) * float(st[S.S_FLOW_F])

@@ -211,6 +211,13 @@ class StateCommands:
                     self._set_e_scale()
         elif mc == 200 and self.dialect == S.DIALECT_MARLIN:
             self._m200(params, used)
+        elif mc == 211 and m.flavor == "marlin":
+            used.update(params)
+            s = self._value(params, "S")
+            if s is not None:
+                # M211 S0 / S1: Marlin's software endstops off / on (on: targets beyond them are clamped)
+                self.ist[S.I_SOFT_CLAMP] = 1 if (s != 0.0 and self.soft_endstops) else 0
+                self.event(f"M211 software endstops {'on' if s != 0.0 else 'off'}")
         elif mc == 600:
             used.update(params)
             self._wait("M600", self._macros.get("M600", float(getattr(m, "filament_change_time", 0.0))))

@@ -81,6 +81,16 @@ class Interpreter(StateCommands, MotionCommands, Rs274Commands):
         ist[S.I_G90_SETS_E] = 1 if m.flavor == "marlin" else 0
         ist[S.I_OBJECT] = -1
         st[S.S_MAX_E] = -math.inf
+        for a, k in enumerate("xyz"):
+            st[S.S_SOFT_LO + a] = m.axes[k].position_min
+            st[S.S_SOFT_HI + a] = m.axes[k].position_max
+        #: Marlin clamps a target to its software endstops (apply_motion_limits) where Klipper refuses the move
+        self.soft_endstops = (m.flavor == "marlin" and m.kinematics in ("cartesian", "corexy", "corexz")
+                              and any(math.isfinite(st[S.S_SOFT_LO + a]) or math.isfinite(st[S.S_SOFT_HI + a])
+                                      for a in range(3)))
+        ist[S.I_SOFT_CLAMP] = 1 if self.soft_endstops else 0
+        self.soft_clamped = 0               # moves (and arc chords) clamped to them
+        self.soft_clamped_first_line: int | None = None
         self.st, self.ist = st, ist
 
         self.feat_raw = np.zeros((S.FEAT_MAX, S.FEAT_NAME_MAX), dtype=np.uint8)

@@ -418,6 +418,8 @@ class GcodeReader:
             ignored["G64 Q"] = it.g64_q_ignored
         s.ignored_commands = ignored
         s.skipped_lines = it.skipped_lines
+        s.soft_clamped_moves = it.soft_clamped
+        s.soft_clamped_first_line = it.soft_clamped_first_line
         s.events = list(it.events)
         s.warnings = list(it.warnings)
         s.warning_count = it.warning_count

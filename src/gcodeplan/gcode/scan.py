@@ -38,7 +38,9 @@ S_MAXZ = 16                         # mm, highest Z of a printing move (layer de
 S_BLEND_Q = 17                      # mm, G64 Q naive-CAM tolerance in force (0 = none)
 S_MAX_E = 18                        # mm, highest machine E a move reached since the exclude_object transform
                                     # last went dormant (gcode/objects.py: Klipper's max_position_extruded)
-N_ST = 19
+S_SOFT_LO = 19                      # mm, x y z at 19..21: Marlin's software endstops (min), see I_SOFT_CLAMP
+S_SOFT_HI = 22                      # mm, x y z at 22..24: the same, max
+N_ST = 25
 
 # ------------------------------------------------------------------ int state (ist)
 I_LINE = 0          # number of the last line fully processed (1-based lines)
@@ -62,7 +64,10 @@ I_TO_PYTHON = 16    # 1: every line goes to the Python interpreter (inside or ju
                     # a pending start wait): the scanner returns at once
 I_F32_REL = 17      # 1 on a Marlin-model machine: a relative X/Y/Z/E target is current + value in float32, as
                     # Marlin's get_destination_from_command sums (its positions are floats)
-N_IST = 18
+I_SOFT_CLAMP = 18   # 1 on a Marlin machine with software endstops on (M211 S1): a G0/G1/G2/G3 target outside
+                    # [S_SOFT_LO, S_SOFT_HI] is clamped to it (Marlin's apply_motion_limits); the scanner hands
+                    # such a line to Python (commands_motion.py), which clamps and counts it
+N_IST = 19
 
 DIALECT_KLIPPER = 0   # M204: S, else min(P, T) when both; one accel for every move
 DIALECT_MARLIN = 1    # marlin / reprap: M204 S/P/T/R, accel chosen by the move's kind
@@ -533,6 +538,10 @@ def linear_move(out, n_out, line, code, dialect, st, ist, has, vx, vy, vz, ve, v
     if not (np.isfinite(x1) and np.isfinite(y1) and np.isfinite(z1) and np.isfinite(e1)
             and np.isfinite(move_d)):
         return False, n_out
+    if ist[I_SOFT_CLAMP] != 0 and not (st[S_SOFT_LO] <= x1 <= st[S_SOFT_HI]
+                                       and st[S_SOFT_LO + 1] <= y1 <= st[S_SOFT_HI + 1]
+                                       and st[S_SOFT_LO + 2] <= z1 <= st[S_SOFT_HI + 2]):
+        return False, n_out     # beyond Marlin's software endstops: clamped by the interpreter
     # commit
     st[S_X] = x1
     st[S_Y] = y1

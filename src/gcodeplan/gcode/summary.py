@@ -27,6 +27,13 @@ def capped_text(count: int, first_line: int | None) -> str:
             f"{'were' if count != 1 else 'was'} capped to it, as the firmware does (first at line {first_line})")
 
 
+def clamped_text(count: int, first_line: int | None) -> str:
+    """The one note about moves Marlin's software endstops clamped (Marlin's apply_motion_limits)."""
+    return (f"{count} move{'s' if count != 1 else ''} (or arc chord{'s' if count != 1 else ''}) went past the software "
+            f"endstops and {'were' if count != 1 else 'was'} clamped to them, as Marlin does (first at line "
+            f"{first_line})")
+
+
 @dataclass
 class ParseSummary:
     file: str = ""
@@ -64,6 +71,8 @@ class ParseSummary:
     travel_bounds_mm: dict[str, list[float]] | None = None
     speed_capped_moves: int = 0                    # moves whose feed was above the speed limit: capped
     speed_capped_first_line: int | None = None
+    soft_clamped_moves: int = 0                    # targets clamped to Marlin's software endstops
+    soft_clamped_first_line: int | None = None
     # what the file says it is (gcode/dialect.py): {"kind": "printer"|"cnc", "program", "evidence", "flavor" (the
     # flavor its G-code was read with), "switched" (the default preset's flavor was changed for it),
     # "volumetric_filament_mm" (UltiGCode), "warning"}; None when the file names no slicer/CAM program
@@ -97,6 +106,8 @@ class ParseSummary:
                 lines.append(f"{what:<16}{box_text(b)}")
         if self.speed_capped_moves:
             lines.append(f"speed capped    {capped_text(self.speed_capped_moves, self.speed_capped_first_line)}")
+        if self.soft_clamped_moves:
+            lines.append(f"clamped         {clamped_text(self.soft_clamped_moves, self.soft_clamped_first_line)}")
         if self.dwell_s:
             lines.append(f"dwells          {self.dwell_s:.3f} s")
         if self.waits:

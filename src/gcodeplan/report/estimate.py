@@ -158,13 +158,15 @@ def _print_times(est: Estimate, w) -> None:
     w(f"  accelerating {100 * t.accel_t / motion:.1f} %, cruising {100 * t.cruise_t / motion:.1f} %, "
       f"decelerating {100 * t.decel_t / motion:.1f} %{blending}\n")
     w(f"  moves {s.moves}, full stops {t.stops}, peak speed {t.peak_v:.1f} mm/s (line {t.peak_v_line})\n")
-    from ..gcode.summary import box_text, capped_text
+    from ..gcode.summary import box_text, capped_text, clamped_text
 
     for what, b in (("print", getattr(s, "print_bounds_mm", None)), ("travel", getattr(s, "travel_bounds_mm", None))):
         if b:
             w(f"  {what + ' box':<16}{box_text(b)}\n")
     if getattr(s, "speed_capped_moves", 0):
         w(f"  {capped_text(s.speed_capped_moves, s.speed_capped_first_line)}\n")
+    if getattr(s, "soft_clamped_moves", 0):
+        w(f"  {clamped_text(s.soft_clamped_moves, s.soft_clamped_first_line)}\n")
 
 
 def _print_shares(est: Estimate, w) -> None:
