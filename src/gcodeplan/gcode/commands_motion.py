@@ -258,7 +258,9 @@ class MotionCommands:
         de = e1 - e0
         move_d = math.sqrt(dx * dx + dy * dy + dz * dz)
         if not all(math.isfinite(v) for v in (x1, y1, z1, e1, move_d)):
-            self.error("coordinate out of range")
+            bad = [f"{k} {v:g}" for k, v in zip("XYZE", (x1, y1, z1, e1)) if not math.isfinite(v)]
+            self.error("coordinate out of range: " + (", ".join(bad) if bad else
+                       f"the move from X{x0:g} Y{y0:g} Z{z0:g} to X{x1:g} Y{y1:g} Z{z1:g} has no finite length"))
         if move_d > 0.0 and de > 0.0:
             self._layer_check(z1)
         st[S.S_X] = x1
