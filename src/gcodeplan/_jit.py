@@ -26,6 +26,7 @@ import sys
 import threading
 from contextlib import contextmanager
 from time import perf_counter
+from types import FunctionType, ModuleType
 
 import numpy as np
 
@@ -532,8 +533,6 @@ def _defining_module(obj):
     """The name of the module ``obj`` comes from (a module, a function or kernel, a class, an instance's class);
     None when it does not say."""
     try:
-        from types import FunctionType, ModuleType
-
         if isinstance(obj, ModuleType):
             return obj.__name__
         if isinstance(obj, (Kernel, FunctionType, type)):
