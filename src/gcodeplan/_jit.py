@@ -19,6 +19,10 @@ numba returns inf/nan/garbage, a kernel may use something only numba offers — 
 kernel call restores its array arguments from a copy taken before the call and runs the compiled kernel
 instead; so does a run that has interpreted for :data:`INTERPRET_BUDGET_S` (checked at every kernel call).
 A wrong answer cannot come from the interpreted path, only a slower start.
+
+numba's disk cache stamps a kernel with its own file only; gcodeplan's kernels are stamped with every module
+they depend on (inlined functions, called kernels, imported constants, transitively), so an edit anywhere
+recompiles exactly the kernels that can see it (:func:`_install_dependency_stamps`, design.md section 15).
 """
 from __future__ import annotations
 
