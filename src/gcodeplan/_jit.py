@@ -19,6 +19,10 @@ numba returns inf/nan/garbage, a kernel may use something only numba offers — 
 kernel call restores its array arguments from a copy taken before the call and runs the compiled kernel
 instead; so does a run that has interpreted for :data:`INTERPRET_BUDGET_S` (checked at every kernel call).
 A wrong answer cannot come from the interpreted path, only a slower start.
+
+numba's disk cache stamps a kernel with its own file only; gcodeplan's kernels are stamped with every module
+they depend on (inlined functions, called kernels, imported constants, transitively), so an edit anywhere
+recompiles exactly the kernels that can see it (:func:`_install_dependency_stamps`, design.md section 15).
 """
 from __future__ import annotations
 
@@ -26,6 +30,7 @@ import sys
 import threading
 from contextlib import contextmanager
 from time import perf_counter
+from types import FunctionType, ModuleType
 
 import numpy as np
 
@@ -353,6 +358,7 @@ def njit(*args, **options):
     options.setdefault("nogil", True)    # kernels touch no Python object: other threads run meanwhile
 
     def wrap(fn):
+        _STAMPED_PACKAGES.add((getattr(fn, "__module__", None) or "").partition(".")[0])
         if _numba is not None:           # a module imported after activation
             dispatcher = _numba.njit(**options)(fn)
             if command_process:
@@ -412,6 +418,7 @@ def activate() -> None:
         gc.disable()
     try:
         _import_numba()
+        _install_dependency_stamps()
         import numba
         from numba.extending import typeof_impl
 
@@ -504,6 +511,287 @@ def _nrt_symbols(target_context) -> None:
         for py_name, address in helpers.items():       # the names numba's rtsys.initialize gives them
             ll.add_symbol(py_name if py_name.startswith("_") else "NRT_" + py_name, address)
     _nrt_ready = True
+
+
+# ---------------------------------------------------------------- cache stamps that follow dependencies
+# numba stamps a cached kernel with its own source file only (its index key adds the function's bytecode):
+# a kernel that inlines a function (``inline="always"``), calls a kernel or reads a constant of another
+# module (numba freezes global constants into the machine code) would keep loading its old code after that
+# module changed. Every kernel of gcodeplan (and of any package that makes kernels with this njit) is
+# stamped with the content of every module it depends on instead (design.md, section 15).
+
+#: top-level packages whose cached kernels get dependency stamps: gcodeplan, and any package that made a kernel
+#: with :func:`njit` (a developer's prototype planner)
+_STAMPED_PACKAGES = {"gcodeplan"}
+_MODULE_INFO: dict = {}     # module name -> (sha256 of its file, the stamped modules it uses directly)
+_STAMPS: dict = {}          # frozenset of root module names -> stamp (hex) of their dependency closure
+_MISSING = object()
+_from_import = None         # compiled on first use: an import statement (:func:`_import_statements`)
+
+
+def _stamped(name) -> bool:
+    return isinstance(name, str) and name.partition(".")[0] in _STAMPED_PACKAGES and name in sys.modules
+
+
+def _defining_module(obj):
+    """The name of the module ``obj`` comes from (a module, a function or kernel, a class, an instance's class);
+    None when it does not say."""
+    try:
+        if isinstance(obj, ModuleType):
+            return obj.__name__
+        if isinstance(obj, (Kernel, FunctionType, type)):
+            return obj.__module__
+        cls_module = type(obj).__module__
+        if cls_module.startswith("numba."):          # a dispatcher: the module of its Python function
+            return getattr(getattr(obj, "py_func", None), "__module__", None)
+        return cls_module
+    except Exception:          # an object with odd attributes cannot be placed: nothing to add
+        return None
+
+
+def _imported_names(clause: bytes):
+    """(name, bound name) of each name of the ``import`` clause of a ``from X import ...`` statement."""
+    text = clause.decode("utf-8", "replace").replace("\\\n", " ")
+    text = " ".join(line.split("#", 1)[0] for line in text.splitlines()).strip().strip("()")
+    for part in text.split(","):
+        words = part.split()
+        if len(words) == 1:
+            yield words[0], words[0]
+        elif len(words) == 3 and words[1] == "as":
+            yield words[0], words[2]
+
+
+def _import_statements(data: bytes):
+    """Matches of the lines of ``data`` that start an import statement: group 1 the module of ``from X import``
+    (None for ``import X``), group 2 what is imported. Each "import" word is looked up with bytes.find and
+    only its line matched (a multi-line regular expression tried at every byte took 7 times as long)."""
+    global _from_import
+    if _from_import is None:
+        import re
+
+        _from_import = re.compile(rb"[ \t]*(?:from[ \t]+(\.*[\w.]*)[ \t]+)?import[ \t]+"
+                                  rb"(\([^)]*\)|(?:[^\n\\]|\\\n)*)")
+    pos = data.find(b"import")
+    while pos != -1:
+        m = _from_import.match(data, data.rfind(b"\n", 0, pos) + 1)
+        if m is not None and m.end() > pos:
+            yield m
+            pos = data.find(b"import", m.end())
+        else:
+            pos = data.find(b"import", pos + 6)
+
+
+def _module_info(name: str):
+    """(sha256 of the module's file, frozenset of the stamped modules its globals come from), once per process.
+
+    A module's kernels see its globals only: a global bound to a module, a function, a kernel, a class or an
+    instance names its module; a constant (a number, a tuple, an array) does not, so the file's
+    ``from X import name`` statements whose name is bound, to that very object, in the module's globals name
+    it (an import inside a function binds no global and adds nothing).
+    """
+    info = _MODULE_INFO.get(name)
+    if info is not None:
+        return info
+    import hashlib
+    import os
+
+    mod = sys.modules.get(name)
+    g = getattr(mod, "__dict__", None) or {}
+    data = b""
+    path = g.get("__file__")
+    if path:
+        try:
+            with open(path, "rb") as f:
+                data = f.read()
+        except OSError:
+            try:
+                data = g["__loader__"].get_data(path)       # a zip archive's module
+            except Exception:
+                data = None
+    # a file that cannot be read cannot be compared: a stamp that never matches (compiled in every process)
+    digest = hashlib.sha256(data).digest() if data is not None else os.urandom(32)
+    uses = set()
+    for key, obj in list(g.items()):
+        dep = _defining_module(obj)
+        # a package's submodules are bound in its globals by the import system, whoever imported them: only its
+        # own import statements (below) make them its dependencies
+        if dep != name and _stamped(dep) and dep != f"{name}.{key}":
+            uses.add(dep)
+    if data:
+        from importlib.util import resolve_name
+
+        package = g.get("__package__") or name.rpartition(".")[0]
+        for m in _import_statements(data):
+            if m.group(1) is None:               # import a.b.c: the kernel reads a.b.c.name through global a
+                for dotted, bound in _imported_names(m.group(2)):
+                    if dotted == bound and _stamped(dotted) and \
+                            g.get(dotted.partition(".")[0]) is sys.modules.get(dotted.partition(".")[0]):
+                        uses.add(dotted)
+                continue
+            try:
+                source = resolve_name(m.group(1).decode("ascii"), package)
+            except (ImportError, ValueError, UnicodeDecodeError):
+                continue
+            if not _stamped(source):
+                continue
+            members = sys.modules[source].__dict__
+            for member, bound in _imported_names(m.group(2)):
+                if member == "*":
+                    uses.add(source)
+                    continue
+                obj = g.get(bound, _MISSING)
+                if obj is _MISSING:
+                    continue
+                if sys.modules.get(f"{source}.{member}") is obj:
+                    uses.add(f"{source}.{member}")
+                elif members.get(member, _MISSING) is obj:
+                    uses.add(source)
+    uses.discard(name)
+    info = (digest, frozenset(uses))
+    if not getattr(getattr(mod, "__spec__", None), "_initializing", False):
+        _MODULE_INFO[name] = info           # a module still being imported may bind more globals
+    return info
+
+
+def _dependency_stamp(roots) -> str:
+    """sha256 (hex) of the files of ``roots`` and of every stamped module they use, transitively."""
+    key = frozenset(roots)
+    stamp = _STAMPS.get(key)
+    if stamp is not None:
+        return stamp
+    import hashlib
+
+    seen = set()
+    todo = [r for r in key if r in sys.modules]
+    while todo:
+        name = todo.pop()
+        if name not in seen:
+            seen.add(name)
+            todo.extend(_module_info(name)[1])
+    h = hashlib.sha256()
+    for name in sorted(seen):
+        h.update(name.encode() + b"\0" + _module_info(name)[0])
+    stamp = h.hexdigest()
+    if all(name in _MODULE_INFO for name in seen):
+        _STAMPS[key] = stamp
+    return stamp
+
+
+def _kernel_stamp(py_func, py_file: str, own_file_stamp) -> str:
+    """The cache stamp of ``py_func`` (numba's index key adds its bytecode): the closure of its module and of the
+    modules of what its closure cells hold; numba's stamp of ``py_file`` (``own_file_stamp()``) joins in when
+    that is not the module's file."""
+    import os
+
+    g = getattr(py_func, "__globals__", None) or {}
+    root = g.get("__name__")
+    roots = {root} if root in sys.modules else set()
+    for cell in getattr(py_func, "__closure__", None) or ():
+        try:
+            dep = _defining_module(cell.cell_contents)
+        except ValueError:        # an empty cell
+            continue
+        if _stamped(dep):
+            roots.add(dep)
+    stamp = _dependency_stamp(roots)
+    own = getattr(sys.modules.get(root), "__file__", None)
+    if not own or os.path.normcase(os.path.abspath(own)) != os.path.normcase(os.path.abspath(py_file)):
+        import hashlib
+
+        stamp = hashlib.sha256((stamp + repr(own_file_stamp())).encode()).hexdigest()
+    return stamp
+
+
+class _LazyStamp:
+    """A cache stamp computed when numba first compares or saves it (numba asks for it when it makes the
+    dispatcher, before the module has finished importing, and for every kernel whether it runs or not). It
+    equals its value and pickles as that plain string, so a saved index holds no gcodeplan object."""
+
+    __slots__ = ("_compute", "_value")
+
+    def __init__(self, compute):
+        self._compute = compute
+        self._value = None
+
+    def value(self) -> str:
+        if self._value is None:
+            self._value = self._compute()
+        return self._value
+
+    def __eq__(self, other):
+        if isinstance(other, _LazyStamp):
+            other = other.value()
+        return self.value() == other
+
+    def __ne__(self, other):
+        return not self.__eq__(other)
+
+    def __hash__(self):
+        return hash(self.value())
+
+    def __reduce__(self):
+        return (str, (self.value(),))
+
+    def __repr__(self) -> str:
+        return f"<gcodeplan cache stamp {self.value()}>"
+
+
+_stamp_locator = None
+
+
+def _install_dependency_stamps() -> None:
+    """Put a cache locator in front of numba's own ones for the kernels of :data:`_STAMPED_PACKAGES`: it keeps
+    the directory numba would choose (``NUMBA_CACHE_DIR``, the ``__pycache__`` beside the file, the user-wide
+    directory when that is not writable...) and stamps with :func:`_kernel_stamp`. Other functions, and
+    ``NUMBA_CACHE_LOCATOR_CLASSES`` when set, keep numba's behaviour. Skipped (numba's own stamps) if numba's
+    caching module does not look as expected."""
+    global _stamp_locator
+    if _stamp_locator is not None:
+        return
+    try:
+        from numba.core import caching
+
+        impl = getattr(caching, "CacheImpl", None) or caching._CacheImpl
+        base = caching._CacheLocator
+        numba_locators = [c for c in impl._locator_classes if not getattr(c, "_gcodeplan_stamps", False)]
+    except (ImportError, AttributeError, TypeError):
+        return
+
+    class DependencyStampLocator(base):
+        """numba's locator for the function, with :func:`_kernel_stamp` as its source stamp."""
+
+        _gcodeplan_stamps = True
+
+        def __init__(self, inner, py_func, py_file):
+            self._inner = inner
+            self._py_func = py_func
+            self._py_file = py_file
+
+        def ensure_cache_path(self):
+            return self._inner.ensure_cache_path()
+
+        def get_cache_path(self):
+            return self._inner.get_cache_path()
+
+        def get_disambiguator(self):
+            return self._inner.get_disambiguator()
+
+        def get_source_stamp(self):
+            return _LazyStamp(lambda: _kernel_stamp(self._py_func, self._py_file, self._inner.get_source_stamp))
+
+        @classmethod
+        def from_function(cls, py_func, py_file):
+            module = getattr(py_func, "__module__", None)
+            if not isinstance(module, str) or module.partition(".")[0] not in _STAMPED_PACKAGES:
+                return None
+            for locator_class in numba_locators:
+                inner = locator_class.from_function(py_func, py_file)
+                if inner is not None:
+                    return cls(inner, py_func, py_file)
+            return None
+
+    impl._locator_classes = [DependencyStampLocator, *numba_locators]
+    _stamp_locator = DependencyStampLocator
 
 
 def rebind() -> None:
