@@ -555,6 +555,7 @@ class Interpreter(StateCommands, MotionCommands, Rs274Commands):
         ms: list[int] = []
         params: dict[str, Word] = {}
         tool = None
+        repeated = None
         for w in words:
             if w.letter == "G":
                 if w.value is None:
@@ -576,8 +577,12 @@ class Interpreter(StateCommands, MotionCommands, Rs274Commands):
                 params["T"] = w
             else:
                 if w.letter in params:
+                    if self.dialect == S.DIALECT_CNC and self.machine.flavor != "linuxcnc":
+                        repeated = repeated or w.letter    # grbl's error:25, in its order (rs274.py)
+                        continue
                     self.error(f"word {w.letter} repeated")
                 params[w.letter] = w
+        self.grbl_repeated = repeated
         self._execute(gs, ms, params, tool)
 
     def _known(self, letter: str, num: int) -> bool:
