@@ -39,9 +39,11 @@ from __future__ import annotations
 import math
 import re
 
+import numpy as np
+
 from ..schema import FLAG_RAPID, KIND_TRAVEL
 from . import scan as S
-from .lexing import FREE_TEXT_M, QUIET_G, Word
+from .lexing import FREE_TEXT_M, MAX_WARNINGS, QUIET_G, Word
 
 CYCLE_G = (73, 81, 82, 83, 85, 86, 89)
 MOTION_G = {0.0, 1.0, 2.0, 3.0, 33.0, 33.1, 38.2, 38.3, 38.4, 38.5, 73.0, 76.0, 80.0, 81.0, 82.0, 83.0, 84.0, 85.0,
@@ -172,6 +174,10 @@ class Rs274Commands:
         self.grbl_repeated = None        # the first value word repeated on the line being run (grbl: error:25)
         if not m.is_cnc:
             return
+        # grbl: the scanner rejects inert lines itself (scan.I_GRBL_INERT, grbl_rejected_lines); --strict and a
+        # pending start wait take the full path (the scanner hands every line over while one is pending)
+        self.ist[S.I_GRBL_INERT] = 1 if (m.flavor != "linuxcnc" and not self.strict) else 0
+        self._inert_warnings: dict[int, str] = {}
         from .ngc import NgcParams
 
         self.params = NgcParams()
@@ -284,6 +290,28 @@ class Rs274Commands:
         self.warn(warning)           # as _grbl_check_block
         self.unknown[name] = self.unknown.get(name, 0) + 1
         return True
+
+    def grbl_rejected_lines(self, lines: np.ndarray, codes: np.ndarray) -> None:
+        """The inert grbl lines the scanner skipped (scan.py ``grbl_inert_words``; ``lines`` their numbers,
+        ``codes`` their M codes), each warned about and counted as :meth:`grbl_inert_line` does (``warn``'s
+        arithmetic in bulk: tens of thousands of such lines in a printer's file)."""
+        texts = self._inert_warnings
+        codes_l = codes.astype(np.int64).tolist()
+        lines_l = lines.tolist()
+        room = MAX_WARNINGS - len(self.warnings)
+        if room > 0:
+            path = self.path
+            for line, code in zip(lines_l[:room], codes_l[:room]):
+                warning = texts.get(code)
+                if warning is None:
+                    warning = texts[code] = _grbl_reject_warning([f"M{code}"])
+                self.warnings.append(f"{path}:{line}: {warning}")
+        self.warning_count += len(lines_l)
+        unknown = self.unknown
+        for code in dict.fromkeys(codes_l):      # first appearance first, as line by line
+            name = f"M{code}"
+            unknown[name] = unknown.get(name, 0) + codes_l.count(code)
+        self.line = lines_l[-1]
 
     @staticmethod
     def _grbl_inert_effect(raw: bytes):
