@@ -60,6 +60,8 @@ CASES = [
     ("G59.1", 23, "G59.1"),
     ("G61.1 X5", 20, "G61.1"),
     ("G90.1 X5", 20, "G90.1"),
+    ("G92 E0", 20, "word E"),                                      # E is no grbl word
+    ("M3 S2000 E1", 20, "word E"),
 ]
 TEXT = {4: "negative value", 20: "unsupported command", 21: "modal group violation", 22: "undefined feed rate",
         23: "command value not integer", 24: "axis command conflict", 25: "word repeated", 26: "no axis words",

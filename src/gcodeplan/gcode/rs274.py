@@ -6,10 +6,18 @@ order): comments/messages, feed mode, F, S, T, M6, M3–M5, M7–M9, overrides, 
 units, cutter compensation, tool length offset, coordinate system, path mode, distance mode, retract mode,
 G28/G30/G10/G92, motion, stop. Axis words on a line with a non-motion G or M code move in the modal motion
 mode unless a G10/G28/G30/G43.1/G92 on the line uses them; nothing is dropped. Two codes of one modal group
-on a line are refused as LinuxCNC ("Two G codes used from same modal group") and grbl (error:21) refuse
-them. A line with a code or word grbl does not have is rejected whole, as grbl's gc_execute_line rejects
-it before executing any of it: nothing of the line happens, and one warning names the line and grbl's
-error:20 (an error under ``--strict``).
+on a line stop a LinuxCNC program ("Two G codes used from same modal group"), as its other block errors do.
+
+grbl checks a whole line before it executes any of it (gcode.c gc_execute_line, steps 2 and 3) and answers
+the first error with ``error:N``; a sender shows it and sends the next line. So on grbl a line that fails
+one of those checks is rejected whole — a code or word grbl does not have (20), a fraction (23), a modal
+group twice (21), two commands wanting the axis words (24), a repeated word (25), a negative F N P S T (4),
+T above 255 (38), a missing P or L (28), G10 P above 6 (29), no axis words (26), G53 outside G0/G1 (30),
+axis words under G80 (31), F0 on a feed move (22), an arc without its plane's words (32, 35), an R too
+short (34) or an end off the circle (33), a probe to where it is (33), G43.1 with other than Z (37), a
+value word no command of the line reads (36) — by :meth:`Rs274Commands._grbl_block_error`, run before
+anything of the line: no mode, offset, feed, spindle or position changes, one warning names the line and
+grbl's error (an error under ``--strict``), and the program goes on.
 
 LinuxCNC specifics kept: F is read before G20/G21 on the same line, so ``G20 F10`` keeps the old units
 for its feed (interp_convert.cc convert_feed_rate runs before convert_length_units; grbl converts F
@@ -390,9 +398,13 @@ class Rs274Commands:
                 mgroups.add(group)
         if first is None and self.grbl_repeated:
             first = (25, f"word {self.grbl_repeated} repeated")
+        # E is no grbl word: on a line that moves, the grbl model refuses the E move by name (a printer's file
+        # is not for this machine); elsewhere (G92 E0, M codes) the line is grbl's error:20 like any other word
+        moving = axis_cmd == "motion" or (axis_cmd is None and any(k in params for k in "XYZ"))
+        unsupported = [k for k in params if k not in GRBL_WORDS or (k == "E" and not moving)]
         if first is None:
             for k, w in params.items():
-                if k not in GRBL_WORDS:
+                if k in unsupported:
                     first = (20, f"word {k}")
                 elif w.value is None:
                     first = (2, f"word {k} without a number")
@@ -408,7 +420,7 @@ class Rs274Commands:
             # error:20 names everything on the line grbl does not have, and counts its codes as unknown
             bad = ([_gname(g) for g in gs if _grbl_g_word(g)[1] == 20]
                    + [f"M{mc}" for mc in ms if mc not in GRBL_M])
-            return 20, " ".join(bad + [f"word {k}" for k in params if k not in GRBL_WORDS]), bad
+            return 20, " ".join(bad + [f"word {k}" for k in unsupported]), bad
         return self._grbl_block_check(set(gs), params, axis_cmd)
 
     def _grbl_block_check(self, gset: set, params: dict[str, Word], axis_cmd):
