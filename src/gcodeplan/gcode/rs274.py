@@ -398,9 +398,10 @@ class Rs274Commands:
                 mgroups.add(group)
         if first is None and self.grbl_repeated:
             first = (25, f"word {self.grbl_repeated} repeated")
-        # E is no grbl word: on a line that moves, the grbl model refuses the E move by name (a printer's file
-        # is not for this machine); elsewhere (G92 E0, M codes) the line is grbl's error:20 like any other word
-        moving = axis_cmd == "motion" or (axis_cmd is None and any(k in params for k in "XYZ"))
+        # E is no grbl word: on a line that moves (E alone moves too, as the scanner reads it), the grbl model
+        # refuses the E move by name (a printer's file is not for this machine); with a G code that takes the
+        # axis words (G92 E0, G10, G28) the line is grbl's error:20 like any other word
+        moving = axis_cmd == "motion" or (axis_cmd is None and any(k in params for k in "XYZE"))
         unsupported = [k for k in params if k not in GRBL_WORDS or (k == "E" and not moving)]
         if first is None:
             for k, w in params.items():
