@@ -123,14 +123,17 @@ def grbl_arc_kernel(position, target, offset, radius, use_r, a0, a1, lin, clockw
 
 def _kernel_args(start, end, ijk, r, plane: int, clockwise: bool, arc_tolerance: float):
     """grbl_arc_kernel's arguments (all but ``out``) for one arc, in grbl's floats, and the arc's radius (mm)."""
-    from ..planner.grbl import grbl_float
+    from ..planner.grbl import grbl_floats
 
     a0, a1, lin = PLANE_AXES[plane]
-    pos = np.array([grbl_float(v) for v in start], dtype=np.float32)
-    tgt = np.array([grbl_float(v) for v in end], dtype=np.float32)
-    off = np.zeros(3, np.float32) if ijk is None else np.array([grbl_float(v) for v in ijk], dtype=np.float32)
+    # every number in one call of the rounding kernel (each value rounded on its own, as grbl_float does)
+    vals = grbl_floats(np.array([*start, *end, *(ijk if ijk is not None else (0.0, 0.0, 0.0)),
+                                 0.0 if r is None else r], dtype=np.float64))
+    pos = vals[0:3].copy()
+    tgt = vals[3:6].copy()
+    off = np.zeros(3, np.float32) if ijk is None else vals[6:9].copy()
     if r is not None:
-        r = grbl_float(r)
+        r = vals[9]
     use_r = ijk is None
     radius = abs(float(r)) if use_r else math.hypot(float(off[a0]), float(off[a1]))
     args = (pos, tgt, off, np.float32(0.0 if r is None else r), use_r, a0, a1, lin, clockwise,
