@@ -56,7 +56,7 @@ CASES = [
     ("G38.2 X2 Y1", 33, "G38.2 to where the probe is"),           # the probe already at the target
     ("G43.1 X1 Z1", 37, "G43.1 X Z (the tool length offset takes Z alone)"),
     ("T300", 38, "T300 (tools 0..255)"),
-    ("G1 X5 F0", 22, "F0 (feed rate undefined)"),
+    ("G1 X5 F0", 22, "F0 (no feed rate in force)"),
     ("G1.5 X5", 23, "G1.5"),
     ("G59.1", 23, "G59.1"),
     ("G61.1 X5", 20, "G61.1"),
@@ -204,3 +204,18 @@ def test_random_lines_rejected_by_grbl_change_nothing(tmp_path):
         want, _ = rows_of(tmp_path, blanked, name="q.nc")
         assert same_rows(got, want), lines
     assert rejected_lines > 300
+
+
+def test_a_feed_move_before_any_f_is_error_22(tmp_path):
+    # grbl powers up with no feed rate (gc_state.feed_rate 0): G1 X5 before any F is rejected (error:22), so
+    # is G1 X3 after F0 (grbl reads F0 as a feed: only a feed move needs it non-zero); G0 does not need one
+    a, s = rows_of(tmp_path, "G21 G90\nG1 X5\nG0 X1 F0\nG1 X3\nG1 X4 F600\n")
+    keep = a[(a["kind"] != KIND_WAIT) & (a["kind"] != KIND_DWELL)]
+    assert [(int(m["line"]), float(m["x1"]), float(m["feed_v"])) for m in keep] == [
+        (3, 1.0, float("inf")), (5, 4.0, 10.0)]
+    assert [w.split("p.nc:")[1] for w in s.warnings] == [
+        f"{n}: G1 without F (no feed rate in force): grbl rejects it (error:22, undefined feed rate); "
+        "the line is skipped" for n in (2, 4)]
+    # LinuxCNC keeps its own start (unchanged): the same first move runs
+    lc, _ = rows_of(tmp_path, "G21 G90\nG1 X5\nM2\n", Machine(flavor="linuxcnc", max_velocity=100.0), "q.ngc")
+    assert [float(x) for x in lc[lc["kind"] != KIND_WAIT]["x1"]] == [5.0]

@@ -54,6 +54,8 @@ class Interpreter(StateCommands, MotionCommands, Rs274Commands):
         st = np.zeros(S.N_ST)
         ist = np.zeros(S.N_IST, dtype=np.int64)
         st[S.S_FEED] = 25.0                 # Klipper's and Marlin's initial 1500 mm/min
+        if m.flavor == "grbl":
+            st[S.S_FEED] = 0.0              # grbl's feed is undefined until an F (a feed move before: error:22)
         st[S.S_SPEED_F] = 1.0
         st[S.S_FLOW_F] = 1.0
         st[S.S_UNIT] = 1.0

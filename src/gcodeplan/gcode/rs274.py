@@ -13,7 +13,7 @@ the first error with ``error:N``; a sender shows it and sends the next line. So 
 one of those checks is rejected whole — a code or word grbl does not have (20), a fraction (23), a modal
 group twice (21), two commands wanting the axis words (24), a repeated word (25), a negative F N P S T (4),
 T above 255 (38), a missing P or L (28), G10 P above 6 (29), no axis words (26), G53 outside G0/G1 (30),
-axis words under G80 (31), F0 on a feed move (22), an arc without its plane's words (32, 35), an R too
+axis words under G80 (31), a feed move with no feed rate (22: before the first F, or after F0), an arc without its plane's words (32, 35), an R too
 short (34) or an end off the circle (33), a probe to where it is (33), G43.1 with other than Z (37), a
 value word no command of the line reads (36) — by :meth:`Rs274Commands._grbl_block_error`, run before
 anything of the line: no mode, offset, feed, spindle or position changes, one warning names the line and
@@ -463,8 +463,10 @@ class Rs274Commands:
             if axes:
                 return 31, " ".join(axes) + " with G80 in force (axis words without a motion)", ()
         elif axis_cmd == "motion" and motion != 0:
-            if "F" in params and params["F"].value == 0.0:
-                return 22, "F0 (feed rate undefined)", ()
+            feed = params["F"].value if "F" in params else float(self.st[S.S_FEED])
+            if feed == 0.0:
+                name = "F0" if "F" in params else f"G{motion if motion < 100 else motion / 10:g} without F"
+                return 22, name + " (no feed rate in force)", ()
             if motion in (2, 3):
                 err = self._grbl_arc_check(motion, gset, params, axes, used)
                 if err is not None:
@@ -627,8 +629,9 @@ class Rs274Commands:
         if f is None:
             return
         used.add("F")
-        if not f > 0.0:
+        if not f > 0.0 and (lcnc or f != 0.0):
             self.error(f"feed rate F must be > 0, got {params['F'].text}")
+        # grbl: F0 is a feed like any other (the next feed move without F is its error:22)
         unit_before = float(st[S.S_UNIT])
         unit_line = 25.4 if 20 in gset else (1.0 if 21 in gset else unit_before)
         st[S.S_FEED] = f * (unit_before if lcnc else unit_line) / 60.0

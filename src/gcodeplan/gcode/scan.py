@@ -530,6 +530,8 @@ def linear_move(out, n_out, line, code, dialect, st, ist, has, vx, vy, vz, ve, v
     z0 = st[S_Z]
     e0 = st[S_E]
     x1, y1, z1, e1, elog, feed = linear_target(st, ist, has, vx, vy, vz, ve, vf)
+    if code == 1 and not feed > 0.0:
+        return False, n_out      # grbl before its first F (feed 0): its error:22, gcode/rs274.py
     dx = x1 - x0
     dy = y1 - y0
     dz = z1 - z0
