@@ -13,6 +13,8 @@ import pytest
 
 from gcodeplan.errors import GcodeError
 from gcodeplan.gcode import rs274
+from gcodeplan.gcode import scan as S
+from gcodeplan.gcode.lexing import FREE_TEXT_M
 from gcodeplan.gcode.reader import read_moves
 from gcodeplan.machine import Machine
 
@@ -35,7 +37,15 @@ def _read(tmp_path, text, machine, **kw):
 
 
 def _full_path(monkeypatch):
+    """Both fast paths off: the reader's memo (grbl_inert_line) and the scanner's (scan.I_GRBL_INERT)."""
     monkeypatch.setattr(rs274.Rs274Commands, "grbl_inert_line", lambda self, raw, lineno: False)
+    init = rs274.Rs274Commands._cnc_init
+
+    def init_without_scanner_path(self):
+        init(self)
+        if self.machine.is_cnc:
+            self.ist[S.I_GRBL_INERT] = 0
+    monkeypatch.setattr(rs274.Rs274Commands, "_cnc_init", init_without_scanner_path)
 
 
 @pytest.mark.parametrize("force_python", [False, True])
@@ -71,8 +81,10 @@ def test_fast_path_takes_only_inert_lines():
         assert inert(line) is False, line
 
 
+# a repeated word after an M code grbl lacks: gcode.c's word loop meets the M code first (error:20)
 @pytest.mark.parametrize("text,match", [("G0 X1\nM204 P1000\n", "M204: grbl error:20"),
-                                        ("M204 P1 P2\n", "repeated")])
+                                        ("M204 P1 P2\n", "M204: grbl error:20"),
+                                        ("G0 X1\nG1 X2 X3\n", "word X repeated: grbl error:25")])
 def test_strict_and_errors_are_the_full_paths(tmp_path, monkeypatch, text, match):
     g = Machine(flavor="grbl", max_velocity=100.0)
     strict = "grbl error" in match
@@ -89,3 +101,41 @@ def test_linuxcnc_lines_go_the_full_path(tmp_path):
     _, warnings, count, unknown, _, _ = _read(tmp_path, "M204 P1000\nM204 P1000\n", lc)
     # LinuxCNC counts an unknown M code and warns of nothing; grbl's error:20 is no LinuxCNC word
     assert unknown == {"M204": 2} and count == 0 and not warnings
+
+
+def test_the_scanner_rejects_only_lines_the_memo_path_rejects():
+    """scan.py's grbl_inert_words accepts a subset of rs274's _INERT_LINE, and its M code table is rs274's
+    GRBL_M, the free-text M codes and M486: a line the scanner skips is one the Python path skips with the
+    same warning (checked on edge cases and on random word strings)."""
+    not_inert = {c for c in range(1000) if S.GRBL_NOT_INERT_M[c]}
+    assert not_inert == (rs274.GRBL_M | FREE_TEXT_M | {486})
+    rng = np.random.default_rng(3)
+    pieces = [" ", "\t", "P", "R", "I", "L", "Q", "S", "p", "1", "12", "1234567890", ".", "-", "+", "5", ";",
+              "\r", "0.123456789", ".1234567890", "P1", " R2"]
+    tails = ["", " P1000", " P1000\r", " P1 R2", " P1 P2", " P-.5", " P.", " P1.", "\tp800 ", " P1;c", " P1R2",
+             " P1000*10"] + ["".join(rng.choice(pieces, rng.integers(1, 8))) for _ in range(4000)]
+    accepted = 0
+    for tail in tails:
+        raw = ("M204" + tail).encode()
+        buf = np.frombuffer(raw + b"\n", dtype=np.uint8)
+        ok, eol = S.grbl_inert_words(buf, 4, len(buf))
+        if ok:
+            accepted += 1
+            assert eol == len(buf) - 1, tail
+            assert rs274.Rs274Commands._grbl_inert_effect(raw) == (
+                "M204", "M204: grbl rejects it (error:20, unsupported command); the line is skipped"), tail
+    assert accepted > 100
+
+
+def test_the_scanner_takes_printer_m_lines_on_grbl(tmp_path, monkeypatch):
+    """On grbl the scanner itself skips "M204 P1000" (no trip to Python per line), with the same warnings."""
+    calls = []
+    inert = rs274.Rs274Commands.grbl_inert_line
+    monkeypatch.setattr(rs274.Rs274Commands, "grbl_inert_line",
+                        lambda self, raw, lineno: calls.append(lineno) or inert(self, raw, lineno))
+    g = Machine(flavor="grbl", max_velocity=100.0)
+    _, warnings, count, unknown, _, _ = _read(tmp_path, "G0 X1\nM204 P1000\nG1 X2 F600\nM204 P800\nM107\n", g)
+    assert calls == [] and unknown == {"M204": 2, "M107": 1} and count == 3
+    assert [w.split("p.nc:")[1] for w in warnings] == [
+        f"{n}: M{c}: grbl rejects it (error:20, unsupported command); the line is skipped"
+        for n, c in ((2, 204), (4, 204), (5, 107))]

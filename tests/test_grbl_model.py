@@ -288,7 +288,7 @@ def test_random_arcs_never_crash_and_end_on_the_target():
             pts = grbl_arc_chords(tuple(s), tuple(e), ijk, r, int(rng.choice([17, 18, 19])), bool(rng.random() < .5),
                                   float(rng.choice([0.002, 1e-6, 1.0])))
         except ValueError as err:
-            assert "error:33" in str(err)
+            assert "error:33" in str(err) or "error:34" in str(err)    # invalid target, arc radius error
             continue
         assert 1 <= len(pts) <= 65536
         assert np.array_equal(pts[-1], np.array(e, dtype=np.float32).astype(np.float64))

@@ -77,8 +77,10 @@ def test_f_is_modal_on_any_cnc_line(tmp_path, flavor):
         assert e.line == 2 and "feed rate" in str(e)
     else:
         assert any("t.gcode:4: M106: grbl rejects it (error:20" in w for w in r.summary.warnings)
-        e = _err(tmp_path, "G1 X1 F600\nG1 X2 F-5\n", flavor)
-        assert e.line == 2 and "feed rate" in str(e)
+        # a negative F is grbl's error:4: the line is rejected whole and the program goes on
+        m2, r2 = _parse(tmp_path, "G1 X1 F600\nG1 X2 F-5\n", flavor)
+        assert [float(x) for x in m2[m2["kind"] != KIND_WAIT]["x1"]] == [1.0]
+        assert any("t.gcode:2: F-5: grbl rejects it (error:4, negative value)" in w for w in r2.summary.warnings)
 
 
 # ------------------------------------------------------------------ E mode: G90/G91 against M82/M83

@@ -204,8 +204,15 @@ def test_modal_group_conflicts_are_errors(tmp_path, line, match):
 
 def test_grbl_names_its_own_errors(tmp_path):
     g = Machine(flavor="grbl", max_velocity=100.0)
-    with pytest.raises(GcodeError, match="grbl error:21"):
-        moves(tmp_path, "G0 G1 X1\n", g)
+    # grbl rejects the line (nothing of it happens) and runs the next: a warning, an error under --strict
+    got, _, r = moves(tmp_path, "G0 G1 X1\nG0 X2\n", g)
+    assert [x[1] for x in got] == [2.0]
+    # gcode.c meets G1's axis command conflict with G0 (error:24) before the modal group (error:21)
+    assert any("p.ngc:1: G1: grbl rejects it (error:24, axis command conflict)" in w for w in r.summary.warnings)
+    path = tmp_path / "g.nc"
+    path.write_text("G17 G18 X1\n")
+    with pytest.raises(GcodeError, match="g.nc:1: G18: grbl error:21"):
+        read_moves(str(path), g, strict=True)
     _, _, r = moves(tmp_path, "G81 X1 Z-1 R1\nM6\n", g)
     assert any("G81: grbl rejects it (error:20" in w for w in r.summary.warnings)
     assert any("M6: grbl rejects it (error:20" in w for w in r.summary.warnings)

@@ -121,31 +121,49 @@ def grbl_arc_kernel(position, target, offset, radius, use_r, a0, a1, lin, clockw
     return n + 1
 
 
+def _kernel_args(start, end, ijk, r, plane: int, clockwise: bool, arc_tolerance: float):
+    """grbl_arc_kernel's arguments (all but ``out``) for one arc, in grbl's floats, and the arc's radius (mm)."""
+    from ..planner.grbl import grbl_floats
+
+    a0, a1, lin = PLANE_AXES[plane]
+    # every number in one call of the rounding kernel (each value rounded on its own, as grbl_float does)
+    vals = grbl_floats(np.array([*start, *end, *(ijk if ijk is not None else (0.0, 0.0, 0.0)),
+                                 0.0 if r is None else r], dtype=np.float64))
+    pos = vals[0:3].copy()
+    tgt = vals[3:6].copy()
+    off = np.zeros(3, np.float32) if ijk is None else vals[6:9].copy()
+    if r is not None:
+        r = vals[9]
+    use_r = ijk is None
+    radius = abs(float(r)) if use_r else math.hypot(float(off[a0]), float(off[a1]))
+    args = (pos, tgt, off, np.float32(0.0 if r is None else r), use_r, a0, a1, lin, clockwise,
+            np.float32(arc_tolerance))
+    return args, radius
+
+
+def grbl_arc_error(start, end, ijk, r, plane: int, clockwise: bool, arc_tolerance: float) -> int:
+    """grbl's error number for one G2/G3 (arguments as :func:`grbl_arc_chords`), found as gcode.c's block
+    check finds it, before anything of the line runs: 0 (none), 34 (arc radius error: R shorter than half the
+    chord) or 33 (invalid target: an R arc to its own start, an end point off the circle)."""
+    args, _ = _kernel_args(start, end, ijk, r, plane, clockwise, arc_tolerance)
+    n = grbl_arc_kernel(*args, np.empty((0, 3), np.float32))    # no room: the checks run, nothing is cut
+    return 34 if n == -1 else 33 if n == -2 else 0
+
+
 def grbl_arc_chords(start, end, ijk, r, plane: int, clockwise: bool, arc_tolerance: float) -> np.ndarray:
     """The chord end points (n, 3) grbl makes for one G2/G3, the last one the target. ``start``/``end`` mm;
     ``ijk`` the centre offset from the start (mm) or None with ``r`` the R word (mm). Raises ValueError with
-    grbl's error for an impossible arc."""
-    from ..planner.grbl import grbl_float
-
-    a0, a1, lin = PLANE_AXES[plane]
-    pos = np.array([grbl_float(v) for v in start], dtype=np.float32)
-    tgt = np.array([grbl_float(v) for v in end], dtype=np.float32)
-    off = np.zeros(3, np.float32) if ijk is None else np.array([grbl_float(v) for v in ijk], dtype=np.float32)
-    if r is not None:
-        r = grbl_float(r)
-    use_r = ijk is None
-    radius = abs(float(r)) if use_r else math.hypot(float(off[a0]), float(off[a1]))
+    grbl's error for an impossible arc (the grbl interpreter rejects such a line first: gcode/rs274.py)."""
+    args, radius = _kernel_args(start, end, ijk, r, plane, clockwise, arc_tolerance)
     q = arc_tolerance * (2 * radius - arc_tolerance)
     bound = MAX_CHORDS if not q > 0 else int(min(MAX_CHORDS, math.pi * radius * 1.001 / math.sqrt(q) + 2))
     out = np.empty((bound + 2, 3), np.float32)
-    args = (pos, tgt, off, np.float32(0.0 if r is None else r), use_r, a0, a1, lin, clockwise,
-            np.float32(arc_tolerance))
     n = grbl_arc_kernel(*args, out)
     if n <= -10:                        # the estimate above was short (single precision): exactly what it needs
         out = np.empty((-n - 10 + 1, 3), np.float32)
         n = grbl_arc_kernel(*args, out)
     if n == -1:
-        raise ValueError("arc radius error: R is shorter than half the chord (grbl error:33)")
+        raise ValueError("arc radius error: R is shorter than half the chord (grbl error:34)")
     if n == -2:
         raise ValueError("invalid arc target: the end point is off the circle (grbl error:33)")
     return out[:n].astype(np.float64)

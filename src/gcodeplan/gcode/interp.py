@@ -58,6 +58,8 @@ class Interpreter(StateCommands, MotionCommands, Rs274Commands):
         st = np.zeros(S.N_ST)
         ist = np.zeros(S.N_IST, dtype=np.int64)
         st[S.S_FEED] = 25.0                 # Klipper's and Marlin's initial 1500 mm/min
+        if m.flavor == "grbl":
+            st[S.S_FEED] = 0.0              # grbl's feed is undefined until an F (a feed move before: error:22)
         st[S.S_SPEED_F] = 1.0
         st[S.S_FLOW_F] = 1.0
         st[S.S_UNIT] = 1.0
@@ -575,6 +577,7 @@ class Interpreter(StateCommands, MotionCommands, Rs274Commands):
         ms: list[int] = []
         params: dict[str, Word] = {}
         tool = None
+        repeated = None
         for w in words:
             if w.letter == "G":
                 if w.value is None:
@@ -596,8 +599,12 @@ class Interpreter(StateCommands, MotionCommands, Rs274Commands):
                 params["T"] = w
             else:
                 if w.letter in params:
+                    if self.dialect == S.DIALECT_CNC and self.machine.flavor != "linuxcnc":
+                        repeated = repeated or w.letter    # grbl's error:25, in its order (rs274.py)
+                        continue
                     self.error(f"word {w.letter} repeated")
                 params[w.letter] = w
+        self.grbl_repeated = repeated
         self._execute(gs, ms, params, tool)
 
     def _known(self, letter: str, num: int) -> bool:

@@ -300,8 +300,10 @@ class GcodeReader:
                 status, pos, n = S.scan_chunk(buf, pos, end, st, ist, out, n, interp.feat_raw,
                                               interp.feat_len, interp.feat_idx, eset_line, eset_v, eset_n)
                 if eset_n[0]:
-                    if keep_e_sets:
-                        k = int(eset_n[0])
+                    k = int(eset_n[0])
+                    if cnc:      # grbl lines the scanner rejected (scan.I_GRBL_INERT): warned in file order
+                        interp.grbl_rejected_lines(eset_line[:k], eset_v[:k])
+                    elif keep_e_sets:
                         interp.e_position_sets.extend(zip(eset_line[:k].tolist(), eset_v[:k].tolist()))
                     eset_n[0] = 0
                 if status == S.ST_DONE:

@@ -6,10 +6,18 @@ order): comments/messages, feed mode, F, S, T, M6, M3–M5, M7–M9, overrides, 
 units, cutter compensation, tool length offset, coordinate system, path mode, distance mode, retract mode,
 G28/G30/G10/G92, motion, stop. Axis words on a line with a non-motion G or M code move in the modal motion
 mode unless a G10/G28/G30/G43.1/G92 on the line uses them; nothing is dropped. Two codes of one modal group
-on a line are refused as LinuxCNC ("Two G codes used from same modal group") and grbl (error:21) refuse
-them. A line with a code or word grbl does not have is rejected whole, as grbl's gc_execute_line rejects
-it before executing any of it: nothing of the line happens, and one warning names the line and grbl's
-error:20 (an error under ``--strict``).
+on a line stop a LinuxCNC program ("Two G codes used from same modal group"), as its other block errors do.
+
+grbl checks a whole line before it executes any of it (gcode.c gc_execute_line, steps 2 and 3) and answers
+the first error with ``error:N``; a sender shows it and sends the next line. So on grbl a line that fails
+one of those checks is rejected whole — a code or word grbl does not have (20), a fraction (23), a modal
+group twice (21), two commands wanting the axis words (24), a repeated word (25), a negative F N P S T (4),
+T above 255 (38), a missing P or L (28), G10 P above 6 (29), no axis words (26), G53 outside G0/G1 (30),
+axis words under G80 (31), a feed move with no feed rate (22: before the first F, or after F0), an arc without its plane's words (32, 35), an R too
+short (34) or an end off the circle (33), a probe to where it is (33), G43.1 with other than Z (37), a
+value word no command of the line reads (36) — by :meth:`Rs274Commands._grbl_block_error`, run before
+anything of the line: no mode, offset, feed, spindle or position changes, one warning names the line and
+grbl's error (an error under ``--strict``), and the program goes on.
 
 LinuxCNC specifics kept: F is read before G20/G21 on the same line, so ``G20 F10`` keeps the old units
 for its feed (interp_convert.cc convert_feed_rate runs before convert_length_units; grbl converts F
@@ -39,9 +47,11 @@ from __future__ import annotations
 import math
 import re
 
+import numpy as np
+
 from ..schema import FLAG_RAPID, KIND_TRAVEL
 from . import scan as S
-from .lexing import FREE_TEXT_M, QUIET_G, Word
+from .lexing import FREE_TEXT_M, MAX_WARNINGS, QUIET_G, Word
 
 CYCLE_G = (73, 81, 82, 83, 85, 86, 89)
 MOTION_G = {0.0, 1.0, 2.0, 3.0, 33.0, 33.1, 38.2, 38.3, 38.4, 38.5, 73.0, 76.0, 80.0, 81.0, 82.0, 83.0, 84.0, 85.0,
@@ -80,6 +90,19 @@ GRBL_M = {0, 1, 2, 3, 4, 5, 7, 8, 9, 30, 56}
 # the value words grbl 1.1 reads (gcode.c); any other letter is its error:20. E is kept for the grbl model,
 # which refuses an E move by name (planner/grbl.py)
 GRBL_WORDS = frozenset("EFIJKLNPRSTXYZ")
+# grbl 1.1's status texts of the errors a block can fail with (report.h, the grbl wiki's error table)
+GRBL_ERRORS = {2: "bad number format", 4: "negative value", 20: "unsupported command",
+               21: "modal group violation", 22: "undefined feed rate", 23: "command value not integer",
+               24: "axis command conflict", 25: "word repeated", 26: "no axis words", 28: "value word missing",
+               29: "unsupported coordinate system", 30: "G53 invalid motion mode", 31: "axis words exist",
+               32: "no axis words in plane", 33: "invalid target", 34: "arc radius error",
+               35: "no offsets in plane", 36: "unused words", 37: "G43 dynamic axis error",
+               38: "max value exceeded"}
+GRBL_MAX_TOOL = 255          # gcode.c MAX_TOOL_NUMBER (T is a uint8)
+GRBL_N_COORD = 6             # G54..G59 (nuts_bolts.h N_COORDINATE_SYSTEM)
+GRBL_MOTION_G = {0.0, 1.0, 2.0, 3.0, 38.2, 38.3, 38.4, 38.5, 80.0}
+# grbl's M modal groups (gcode.h): stopping, spindle, coolant (M7 and M8 one group), override
+GRBL_M_GROUP = {0: 4, 1: 4, 2: 4, 30: 4, 3: 7, 4: 7, 5: 7, 7: 8, 8: 8, 9: 8, 56: 9}
 # modal motion codes with a fraction are kept in I_MOTION as ten times the code (G38.2 -> 382, G33.1 -> 331)
 MOTION_CODE = {38.2: 382, 38.3: 383, 38.4: 384, 38.5: 385, 33.1: 331}
 PROBE_MOTION = (382, 383, 384, 385)
@@ -96,6 +119,41 @@ _INERT_MEMO_MAX = 256        # distinct inert lines remembered (a program has a 
 
 def _gname(g: float) -> str:
     return f"G{g:g}"
+
+
+def _grbl_g_word(g: float) -> tuple[int, int, str | None]:
+    """gcode.c step 2 for one G word: (grbl's modal group, error number or 0, the axis command it makes or
+    None). ``g`` has one decimal (the interpreter rounds G words so)."""
+    iv = int(g)
+    frac = round((g - iv) * 10)
+    if g < 0:
+        return -1, 20, None
+    if iv in (10, 28, 30, 92, 4, 53):
+        axis_use = "non-modal" if iv in (10, 28, 30, 92) and frac == 0 else None
+        if iv in (28, 30, 92):
+            return 0, (0 if frac in (0, 1) else 20), axis_use
+        return 0, (23 if frac else 0), axis_use
+    if iv in (0, 1, 2, 3, 38):
+        if iv == 38:
+            return 1, (0 if frac in (2, 3, 4, 5) else 20), "motion"
+        return 1, (23 if frac else 0), "motion"
+    if iv == 80:
+        return 1, (23 if frac else 0), None
+    if iv in (90, 91):
+        if frac == 0:
+            return 3, 0, None
+        return 4, (20 if frac != 1 or iv == 90 else 0), None
+    if iv in (43, 49):
+        ok = (iv == 49 and frac == 0) or (iv == 43 and frac == 1)
+        status = 23 if iv == 49 and frac else (0 if ok else 20)
+        return 8, status, "tlo"
+    if iv == 61:
+        return 13, (20 if frac else 0), None
+    group = {17: 2, 18: 2, 19: 2, 93: 5, 94: 5, 20: 6, 21: 6, 40: 7, 54: 12, 55: 12, 56: 12, 57: 12, 58: 12,
+             59: 12}.get(iv)
+    if group is None:
+        return -1, 20, None
+    return group, (23 if frac else 0), None
 
 
 def _grbl_reject_warning(bad: list[str]) -> str:
@@ -121,8 +179,13 @@ class Rs274Commands:
         self.spindle_dir = 5         # M3 / M4 / M5 in force
         self.spindle_rpm = 0.0       # the last S word (rpm)
         self._noted: set[str] = set()   # named warnings given once per file
+        self.grbl_repeated = None        # the first value word repeated on the line being run (grbl: error:25)
         if not m.is_cnc:
             return
+        # grbl: the scanner rejects inert lines itself (scan.I_GRBL_INERT, grbl_rejected_lines); --strict and a
+        # pending start wait take the full path (the scanner hands every line over while one is pending)
+        self.ist[S.I_GRBL_INERT] = 1 if (m.flavor != "linuxcnc" and not self.strict) else 0
+        self._inert_warnings: dict[int, str] = {}
         from .ngc import NgcParams
 
         self.params = NgcParams()
@@ -236,6 +299,28 @@ class Rs274Commands:
         self.unknown[name] = self.unknown.get(name, 0) + 1
         return True
 
+    def grbl_rejected_lines(self, lines: np.ndarray, codes: np.ndarray) -> None:
+        """The inert grbl lines the scanner skipped (scan.py ``grbl_inert_words``; ``lines`` their numbers,
+        ``codes`` their M codes), each warned about and counted as :meth:`grbl_inert_line` does (``warn``'s
+        arithmetic in bulk: tens of thousands of such lines in a printer's file)."""
+        texts = self._inert_warnings
+        codes_l = codes.astype(np.int64).tolist()
+        lines_l = lines.tolist()
+        room = MAX_WARNINGS - len(self.warnings)
+        if room > 0:
+            path = self.path
+            for line, code in zip(lines_l[:room], codes_l[:room]):
+                warning = texts.get(code)
+                if warning is None:
+                    warning = texts[code] = _grbl_reject_warning([f"M{code}"])
+                self.warnings.append(f"{path}:{line}: {warning}")
+        self.warning_count += len(lines_l)
+        unknown = self.unknown
+        for code in dict.fromkeys(codes_l):      # first appearance first, as line by line
+            name = f"M{code}"
+            unknown[name] = unknown.get(name, 0) + codes_l.count(code)
+        self.line = lines_l[-1]
+
     @staticmethod
     def _grbl_inert_effect(raw: bytes):
         """(M code name, the warning of its rejected line) when ``raw`` is an inert grbl line
@@ -255,31 +340,207 @@ class Rs274Commands:
 
     # ------------------------------------------------------------------ checks
     def _grbl_check_block(self, gs: list[float], ms: list[int], params: dict[str, Word]) -> bool:
-        """grbl's gc_execute_line checks every word of a line before it executes any (gcode.c, steps 1-3): a
-        G or M code or a word letter grbl does not have (and G10 with an L other than 2 / 20 or none, G10 L2
-        with R) is its error:20, and nothing of the line happens, as a sender shows ``error:20`` and sends the
-        next line. Such a line is skipped with one warning naming the line, grbl's error and what it rejected
-        (an error under ``--strict``); returns True then. E words are left to the grbl model, which names
-        them. grbl's other errors stay gcodeplan errors (the file and line named), as before."""
-        bad = [_gname(g) for g in gs if g not in GRBL_G] + [f"M{mc}" for mc in ms if mc not in GRBL_M]
-        if 10.0 in gs:
-            ell = params["L"].value if "L" in params else None
-            if ell is None and "L" not in params and "P" in params:
-                bad.append("G10 without L")      # gcode.c reads a missing L as 0: no L0
-            elif ell is not None and ell not in (2, 20):
-                bad.append(f"G10 L{ell:g}")
-            elif ell == 2 and "R" in params:
-                bad.append("G10 L2 R")
-        codes = len(bad)
-        bad += [f"word {k}" for k in params if k not in GRBL_WORDS]
-        if not bad:
+        """grbl's gc_execute_line checks every word of a line before it executes any (gcode.c, steps 1-3) and
+        on the first error answers ``error:N`` and executes nothing of the line: no mode, offset, feed or
+        position changes, as if the line were absent; a sender shows the error and sends the next line. Such
+        a line is skipped with one warning naming the line and grbl's error (an error under ``--strict``);
+        returns True then. E words are left to the grbl model, which names them (a printer's file is not for
+        this machine)."""
+        err = self._grbl_block_error(gs, ms, params)
+        if err is None:
             return False
-        if self.strict:
-            self.error(f"{bad[0]}: grbl error:20 (unsupported command)")
-        self.warn(_grbl_reject_warning(bad))
-        for name in bad[:codes]:
-            self.unknown[name] = self.unknown.get(name, 0) + 1
+        self.grbl_reject(*err)
         return True
+
+    def grbl_reject(self, code: int, what: str, unknown=()) -> None:
+        """A line grbl answers with ``error:<code>`` (``what``: the words at fault) is skipped whole: one
+        warning naming the line and the error, the codes in ``unknown`` counted as unknown commands; an
+        error naming file and line under ``--strict``."""
+        text = GRBL_ERRORS[code]
+        if self.strict:
+            self.error(f"{what.split(' word ')[0] if code == 20 else what}: grbl error:{code} ({text})")
+        self.warn(f"{what}: grbl rejects it (error:{code}, {text}); the line is skipped")
+        for name in unknown:
+            self.unknown[name] = self.unknown.get(name, 0) + 1
+
+    def _grbl_block_error(self, gs: list[float], ms: list[int], params: dict[str, Word]):
+        """The first error grbl's gc_execute_line finds in a line, in its order (gcode.c step 2, the words:
+        unsupported or fractional codes, modal groups, axis command conflicts, value words; step 3, the
+        checks of the block against the modal state), as ``(error number, what, codes to count as
+        unknown)``; None for a line grbl runs. The words are taken G codes first, then M codes, then value
+        words (grbl goes word by word: a line with two errors may name the other one on grbl)."""
+        # step 2: the command words
+        axis_cmd = None                # grbl's axis_command: "non-modal" (G10/28/30/92), "motion", "tlo" (G43.1/49)
+        groups: set[int] = set()
+        first = None
+        for g in gs:
+            group, status, axis_use = _grbl_g_word(g)
+            if status == 0 and axis_use is not None:
+                if axis_cmd is not None:
+                    status = 24
+                axis_cmd = axis_use
+            if status == 0 and group in groups:
+                status = 21
+            groups.add(group)
+            if status:
+                first = (status, _gname(g))
+                break
+        if first is None:
+            mgroups: set[int] = set()
+            for mc in ms:
+                group = GRBL_M_GROUP.get(mc)
+                if group is None or mc not in GRBL_M:
+                    first = (20, f"M{mc}")
+                elif group in mgroups:
+                    first = (21, " ".join(f"M{m}" for m in ms if GRBL_M_GROUP.get(m) == group))
+                if first is not None:
+                    break
+                mgroups.add(group)
+        if first is None and self.grbl_repeated:
+            first = (25, f"word {self.grbl_repeated} repeated")
+        # E is no grbl word: on a line that moves (E alone moves too, as the scanner reads it), the grbl model
+        # refuses the E move by name (a printer's file is not for this machine); with a G code that takes the
+        # axis words (G92 E0, G10, G28) the line is grbl's error:20 like any other word
+        moving = axis_cmd == "motion" or (axis_cmd is None and any(k in params for k in "XYZE"))
+        unsupported = [k for k in params if k not in GRBL_WORDS or (k == "E" and not moving)]
+        if first is None:
+            for k, w in params.items():
+                if k in unsupported:
+                    first = (20, f"word {k}")
+                elif w.value is None:
+                    first = (2, f"word {k} without a number")
+                elif k == "T" and w.value > GRBL_MAX_TOOL:
+                    first = (38, f"T{w.text} (tools 0..{GRBL_MAX_TOOL})")
+                elif k in "FNPST" and w.value < 0.0:
+                    first = (4, f"{k}{w.text}")
+                if first is not None:
+                    break
+        if first is not None:
+            if first[0] != 20:
+                return first[0], first[1], ()
+            # error:20 names everything on the line grbl does not have, and counts its codes as unknown
+            bad = ([_gname(g) for g in gs if _grbl_g_word(g)[1] == 20]
+                   + [f"M{mc}" for mc in ms if mc not in GRBL_M])
+            return 20, " ".join(bad + [f"word {k}" for k in unsupported]), bad
+        return self._grbl_block_check(set(gs), params, axis_cmd)
+
+    def _grbl_block_check(self, gset: set, params: dict[str, Word], axis_cmd):
+        """gcode.c step 3 on a line whose words passed step 2: (error number, what, codes counted as unknown)
+        or None."""
+        axes = [k for k in "XYZ" if k in params]
+        if axes and axis_cmd is None:
+            axis_cmd = "motion"           # axis words alone move in the modal motion mode
+        used = set("NFSTE")               # single-meaning words (E: the grbl model names it)
+        if 4.0 in gset:
+            if "P" not in params:
+                return 28, "G4 without P", ()
+            used.add("P")
+        if axis_cmd == "tlo" and 43.1 in gset and axes != ["Z"]:
+            return 37, "G43.1 " + " ".join(axes) + " (the tool length offset takes Z alone)", ()
+        motion = next((MOTION_CODE.get(g, int(g)) for g in gset if g in GRBL_MOTION_G),
+                      int(self.ist[S.I_MOTION]))
+        if 10.0 in gset:
+            if not axes:
+                return 26, "G10 without axis words", ()
+            if "P" not in params and "L" not in params:
+                return 28, "G10 without P and L", ()
+            p_sys = int(params["P"].value) if "P" in params else 0
+            if p_sys > GRBL_N_COORD:
+                return 29, f"G10 P{params['P'].text} (coordinate systems 1..{GRBL_N_COORD}, 0: the one in use)", ()
+            ell = int(params["L"].value) if "L" in params else 0
+            if ell == 2 and "R" in params:
+                return 20, "G10 L2 R", ["G10 L2 R"]
+            if ell not in (2, 20):
+                name = f"G10 L{params['L'].text}" if "L" in params else "G10 without L"   # read as L0
+                return 20, name, [name]
+            used.update("LP")
+        elif 92.0 in gset:
+            if not axes:
+                return 26, "G92 without axis words", ()
+        elif 53.0 in gset and motion not in (0, 1):
+            return 30, "G53 needs G0 or G1 in force", ()
+        if motion == 80:
+            if axes:
+                return 31, " ".join(axes) + " with G80 in force (axis words without a motion)", ()
+        elif axis_cmd == "motion" and motion != 0:
+            feed = params["F"].value if "F" in params else float(self.st[S.S_FEED])
+            if feed == 0.0:
+                name = "F0" if "F" in params else f"G{motion if motion < 100 else motion / 10:g} without F"
+                return 22, name + " (no feed rate in force)", ()
+            if motion in (2, 3):
+                err = self._grbl_arc_check(motion, gset, params, axes, used)
+                if err is not None:
+                    return err
+            elif motion in PROBE_MOTION:
+                if not axes:
+                    return 26, f"G38.{motion - 380} without axis words", ()
+                from ..planner.grbl import grbl_floats
+                here = [float(self.st[S.S_X + a]) for a in range(3)]
+                if (grbl_floats(self._grbl_block_target(gset, params)) == grbl_floats(here)).all():
+                    return 33, f"G38.{motion - 380} to where the probe is", ()
+        if axis_cmd is not None:
+            used.update("XYZ")
+        unused = [k for k in params if k not in used]
+        if unused:
+            return 36, "word(s) " + " ".join(unused) + " unused", ()
+        return None
+
+    def _grbl_arc_check(self, motion: int, gset: set, params: dict[str, Word], axes: list[str], used: set):
+        """gcode.c's G2/G3 checks (step 3, motion modes): axis words, in the plane; the radius (R) or the
+        centre offsets (I J K) against the end point, in grbl's floats (arcs_grbl.py). Adds the words the
+        arc uses to ``used``; returns (error number, what, ()) or None."""
+        from .arcs_grbl import PLANE_AXES, grbl_arc_error
+
+        name = f"G{motion}"
+        if not axes:
+            return 26, f"{name} without axis words", ()
+        plane = next((int(g) for g in (17.0, 18.0, 19.0) if g in gset), self.plane)
+        a0, a1, _ = PLANE_AXES[plane]
+        if not any("XYZ"[a] in params for a in (a0, a1)):
+            return 32, f"{name} without axis words in the G{plane} plane", ()
+        scale = 25.4 if 20.0 in gset else 1.0 if 21.0 in gset else float(self.st[S.S_UNIT])
+        here = [float(self.st[S.S_X + a]) for a in range(3)]
+        target = self._grbl_block_target(gset, params)
+        if "R" in params:
+            used.add("R")
+            err = grbl_arc_error(here, target, None, params["R"].value * scale, plane, motion == 2,
+                                 self.machine.arc_tolerance)
+        else:
+            if not any("IJK"[a] in params for a in (a0, a1)):
+                return 35, f"{name} without centre offsets in the G{plane} plane", ()
+            used.update("IJK")
+            ijk = [params[k].value * scale if k in params else 0.0 for k in "IJK"]
+            err = grbl_arc_error(here, target, ijk, None, plane, motion == 2, self.machine.arc_tolerance)
+        if err == 34:
+            return 34, f"{name} R{params['R'].text} (shorter than half the chord)", ()
+        if err == 33:
+            return 33, f"{name} (the end point is not on the circle)", ()
+        return None
+
+    def _grbl_block_target(self, gset: set, params: dict[str, Word]) -> list[float]:
+        """The end point (machine mm) of the line's motion with the line's own units, distance mode and
+        coordinate system, as gcode.c computes it before anything runs (the executor's :meth:`_targets`
+        arithmetic once those modes are in force)."""
+        st, ist = self.st, self.ist
+        scale = 25.4 if 20.0 in gset else 1.0 if 21.0 in gset else float(st[S.S_UNIT])
+        absc = 90.0 in gset or (91.0 not in gset and ist[S.I_ABS_COORD] != 0)
+        idx = next((i for i, g in enumerate((54.0, 55.0, 56.0, 57.0, 58.0, 59.0)) if g in gset), self.work_index)
+        origin = (self.work[idx].tolist() if idx == self.work_index or self.params is None
+                  else self._origin_from_params(idx))
+        off = [origin[a] + float(self.g92[a]) for a in range(3)]
+        off[2] += self.tool_z
+        out = [float(st[S.S_X + a]) for a in range(3)]
+        for a, k in enumerate("XYZ"):
+            if k not in params:
+                continue
+            v = params[k].value * scale
+            if 53.0 in gset:
+                out[a] = v
+            elif absc:
+                out[a] = v + off[a]
+            else:
+                out[a] = float(S.relative_sum(out[a], v, ist[S.I_F32_REL] != 0))
+        return out
 
     def _check_groups(self, gs: list[float], ms: list[int], lcnc: bool) -> None:
         for name, codes in G_GROUPS.items():
@@ -368,8 +629,9 @@ class Rs274Commands:
         if f is None:
             return
         used.add("F")
-        if not f > 0.0:
+        if not f > 0.0 and (lcnc or f != 0.0):
             self.error(f"feed rate F must be > 0, got {params['F'].text}")
+        # grbl: F0 is a feed like any other (the next feed move without F is its error:22)
         unit_before = float(st[S.S_UNIT])
         unit_line = 25.4 if 20 in gset else (1.0 if 21 in gset else unit_before)
         st[S.S_FEED] = f * (unit_before if lcnc else unit_line) / 60.0
@@ -428,7 +690,10 @@ class Rs274Commands:
         motion."""
         st = self.st
         if 4 in gset:
-            self._dwell(params, used)
+            if lcnc:
+                self._dwell(params, used)
+            else:       # grbl: G4 P seconds; an S on the line is the spindle speed (read above), not a time
+                self._dwell({"P": params["P"]}, used)
         self._set_plane(gset)
         st[S.S_UNIT] = 25.4 if 20 in gset else (1.0 if 21 in gset else float(st[S.S_UNIT]))
         for g in (41.0, 42.0, 41.1, 42.1):
@@ -589,10 +854,13 @@ class Rs274Commands:
             self.error(f"I J words not allowed with G10 L{ell}")
         p = self._value(params, "P")
         if p is None:
-            self.error(f"G10 L{ell} needs P (the coordinate system)" + ("" if lcnc else " (grbl error:28)"))
-        p_int = int(p + 0.0001)
-        n_sys = 9 if lcnc else 6
-        if not 0 <= p_int <= n_sys or abs(p - p_int) > 0.0001:
+            if lcnc:
+                self.error(f"G10 L{ell} needs P (the coordinate system)")
+            p = 0.0         # grbl reads an absent P as 0, the system in use (gcode.c)
+        # grbl truncates P (its block check has refused P > 6 already)
+        p_int = int(p + 0.0001) if lcnc else int(p)
+        n_sys = 9 if lcnc else GRBL_N_COORD
+        if not 0 <= p_int <= n_sys or (lcnc and abs(p - p_int) > 0.0001):
             self.error(f"G10 L{ell} P must be 0..{n_sys} (the coordinate system)"
                        + ("" if lcnc else " (grbl error:29)"))
         idx = self.work_index if p_int == 0 else p_int - 1

@@ -64,10 +64,13 @@ I_TO_PYTHON = 16    # 1: every line goes to the Python interpreter (inside or ju
                     # a pending start wait): the scanner returns at once
 I_F32_REL = 17      # 1 on a Marlin-model machine: a relative X/Y/Z/E target is current + value in float32, as
                     # Marlin's get_destination_from_command sums (its positions are floats)
-I_SOFT_CLAMP = 18   # 1 on a Marlin machine with software endstops on (M211 S1): a G0/G1/G2/G3 target outside
+I_GRBL_INERT = 18   # 1 on grbl (not --strict): the scanner rejects a grbl line of one M code grbl does not have
+                    # and I J K L P R words (a printer's "M204 P1000") as gcode/rs274.py's fast path does,
+                    # noting (line, M code) in the reader's note buffer (see scan_chunk)
+I_SOFT_CLAMP = 19   # 1 on a Marlin machine with software endstops on (M211 S1): a G0/G1/G2/G3 target outside
                     # [S_SOFT_LO, S_SOFT_HI] is clamped to it (Marlin's apply_motion_limits); the scanner hands
                     # such a line to Python (commands_motion.py), which clamps and counts it
-N_IST = 19
+N_IST = 20
 
 DIALECT_KLIPPER = 0   # M204: S, else min(P, T) when both; one accel for every move
 DIALECT_MARLIN = 1    # marlin / reprap: M204 S/P/T/R, accel chosen by the move's kind
@@ -81,6 +84,11 @@ ST_FULL = 2      # the output array is full; the line at pos is not processed ye
 #: G92 E lines the scanner notes per call (line, logical E mm) for the reader to hand on (GcodeReader._scan):
 #: firmware models re-round Marlin's E there (planner/marlin.py); a fuller buffer sends the line to Python
 ESET_MAX = 256
+
+# M codes grbl 1.1 runs (gcode/rs274.py GRBL_M) or that carry free text or object labels (lexing.FREE_TEXT_M,
+# M486): never rejected by the scanner (tests/test_grbl_inert_lines.py checks the table against those sets)
+GRBL_NOT_INERT_M = np.zeros(1000, np.bool_)
+GRBL_NOT_INERT_M[[0, 1, 2, 3, 4, 5, 7, 8, 9, 30, 56, 23, 28, 32, 117, 118, 550, 929, 486]] = True
 
 FEAT_MAX = 64        # ;TYPE: name table rows
 FEAT_NAME_MAX = 48   # bytes per name; longer names always go through Python
@@ -97,6 +105,7 @@ BYTE_L, BYTE_M, BYTE_T = ord("L"), ord("M"), ord("T")   # first letters of the c
 LETTER_G, LETTER_M = ord("g"), ord("m")
 LETTER_X, LETTER_Y, LETTER_Z, LETTER_E, LETTER_F = ord("x"), ord("y"), ord("z"), ord("e"), ord("f")
 LETTER_S, LETTER_P, LETTER_T, LETTER_R = ord("s"), ord("p"), ord("t"), ord("r")
+LETTER_I, LETTER_J, LETTER_K, LETTER_L = ord("i"), ord("j"), ord("k"), ord("l")
 
 # the words scan_chunk reads, as bits of its ``has`` mask (each word at most once per line)
 WORD_X, WORD_Y, WORD_Z, WORD_E, WORD_F = 1, 2, 4, 8, 16
@@ -526,6 +535,8 @@ def linear_move(out, n_out, line, code, dialect, st, ist, has, vx, vy, vz, ve, v
     z0 = st[S_Z]
     e0 = st[S_E]
     x1, y1, z1, e1, elog, feed = linear_target(st, ist, has, vx, vy, vz, ve, vf)
+    if code == 1 and not feed > 0.0:
+        return False, n_out      # grbl before its first F (feed 0): its error:22, gcode/rs274.py
     dx = x1 - x0
     dy = y1 - y0
     dz = z1 - z0
@@ -579,6 +590,8 @@ def dwell(out, n_out, line, dialect, st, ist, has, vs, vp):
     negative or NaN time."""
     if has & ~(WORD_S | WORD_P):
         return False, n_out
+    if dialect == DIALECT_CNC and has != WORD_P:
+        return False, n_out      # grbl: G4 without P is its error:28, S is the spindle speed (gcode/rs274.py)
     dwell_t = 0.0
     if has & WORD_P:
         dwell_t = vp if dialect == DIALECT_CNC else vp / 1000.0
@@ -666,6 +679,64 @@ def printer_m(code, dialect, st, ist, has, vs, vp, vt, vr):
     return False
 
 
+@njit(cache=True, inline="always")
+def grbl_inert_words(buf, p, end):
+    """The rest of a grbl line after its M code (``p`` just past the code's digits): blank-separated I J K L P
+    R words, each at most once, a letter directly followed by ``[+-]`` and 1-9 digits with an optional
+    fraction of 0-9 digits (or ``.`` and 1-9 digits), then blanks, an optional CR and the line's end; no
+    comment. A subset of gcode/rs274.py's _INERT_LINE, so the scanner rejects no line the Python path would
+    not. Returns ``(ok, eol)``, eol the index of the line feed (or ``end``)."""
+    seen = 0
+    while True:
+        q = p
+        while p < end and (buf[p] == BYTE_SPACE or buf[p] == BYTE_TAB):
+            p += 1
+        if p >= end or buf[p] == BYTE_LF:
+            return True, p
+        if buf[p] == BYTE_CR:
+            if p + 1 >= end or buf[p + 1] == BYTE_LF:
+                return True, p + 1
+            return False, p
+        if p == q:
+            return False, p               # a word must follow blanks
+        c = _lower(buf[p])
+        bit = 0
+        if c == LETTER_I:
+            bit = 1
+        elif c == LETTER_J:
+            bit = 2
+        elif c == LETTER_K:
+            bit = 4
+        elif c == LETTER_L:
+            bit = 8
+        elif c == LETTER_P:
+            bit = 16
+        elif c == LETTER_R:
+            bit = 32
+        if bit == 0 or (seen & bit):
+            return False, p
+        seen |= bit
+        p += 1
+        if p < end and (buf[p] == BYTE_PLUS or buf[p] == BYTE_MINUS):
+            p += 1
+        n_int = 0
+        while p < end and BYTE_0 <= buf[p] <= BYTE_9:
+            n_int += 1
+            p += 1
+        n_frac = -1
+        if p < end and buf[p] == BYTE_DOT:
+            p += 1
+            n_frac = 0
+            while p < end and BYTE_0 <= buf[p] <= BYTE_9:
+                n_frac += 1
+                p += 1
+        if n_int > 9 or n_frac > 9 or (n_int == 0 and n_frac < 1):
+            return False, p
+        if p < end and not (buf[p] == BYTE_SPACE or buf[p] == BYTE_TAB or buf[p] == BYTE_CR
+                            or buf[p] == BYTE_LF):
+            return False, p
+
+
 # _nrt=False: the scanner allocates nothing, and without numba's reference counting the inlined helpers
 # that take arrays cost no atomic incref/decref per word (measured: 66 -> 52 ns per "G1 X Y E" line,
 # 24 -> 2 ns per comment line). error_model="numpy": no zero-division checks in the hot loop.
@@ -675,7 +746,8 @@ def scan_chunk(buf, pos, end, st, ist, out, n_out, feat_raw, feat_len, feat_idx,
     needs Python. Returns ``(status, pos, n_out)``; for ST_PYTHON/ST_FULL ``pos`` is the start
     of the line not processed (its number is ``ist[I_LINE] + 1``). Each ``G92 E`` line it interprets
     is appended to ``eset_line`` / ``eset_v`` (its line, the logical E set in mm; ``eset_n[0]``: how many,
-    at most :data:`ESET_MAX`)."""
+    at most :data:`ESET_MAX`); on grbl (no G92 E there) they note instead each line it rejects as grbl does
+    (its line, its M code; see :data:`I_GRBL_INERT`)."""
     cap = out.shape[0]
     dialect = ist[I_DIALECT]
     while pos < end:
@@ -704,6 +776,18 @@ def scan_chunk(buf, pos, end, st, ist, out, n_out, feat_raw, feat_len, feat_idx,
         letter, code, p = command_word(buf, p, end, ist[I_MOTION])
         if letter == 0:
             return ST_PYTHON, line_start, n_out
+        if letter == LETTER_M and ist[I_GRBL_INERT] != 0 and not GRBL_NOT_INERT_M[code]:
+            # grbl rejects the line whole (error:20): noted for the reader, which warns as rs274.py does
+            ok, eol = grbl_inert_words(buf, p, end)
+            if not ok or eset_n[0] >= eset_line.shape[0]:
+                return ST_PYTHON, line_start, n_out
+            k = eset_n[0]
+            eset_line[k] = line
+            eset_v[k] = code
+            eset_n[0] = k + 1
+            ist[I_LINE] = line
+            pos = eol + 1 if eol < end else end
+            continue
         ok, has, vx, vy, vz, ve, vf, vs, vp, vt, vr, eol = scan_words(buf, p, end)
         if not ok:
             return ST_PYTHON, line_start, n_out

@@ -1203,7 +1203,12 @@ class _GrblStreamMode:
         self.no_dirs = np.zeros((3, 0), np.int8)
 
     def prepare(self, moves_chunk, limits):
-        """The checks grbl's parser makes on a chunk (E words, int32 step positions); PREP rows it does not use."""
+        """The checks grbl's parser makes on a chunk (E words, int32 step positions); PREP rows it does not use.
+
+        An E move stays an error that stops the run, not one rejected line among others (as grbl's other block
+        errors are, gcode/rs274.py): E is no grbl word (error:20 on every line that has one), so a file with E
+        moves is a printer's file, not a program for this machine; timing it without its extrusions would be
+        a silent wrong answer for the printer it was made for."""
         from ..errors import GcodeError
 
         e_move = _first_e_move(moves_chunk["e0"], moves_chunk["e1"])
