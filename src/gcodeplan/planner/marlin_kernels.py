@@ -620,7 +620,7 @@ def _junction_deviation_sqr(gf, dist, inverse_millimeters, esteps, millimeters, 
     return vmax_junction_sqr
 
 
-@njit(cache=True)
+@njit(cache=True, inline=INLINE)
 def _use_advance_lead_accel(accel, tgt, gf, e_jerk, advance_k, steps_per_mm):
     """LIN_ADVANCE's acceleration cap (planner.cpp, where ``use_advance_lead`` is decided for a print move that
     extrudes forward): the acceleration (steps/s²) at which the extruder can jump to the advance speed within its
@@ -659,6 +659,67 @@ def _limit_accel(accel, steps, sec, cutoff, amax_steps):
 
 
 @njit(cache=True, inline=INLINE)
+def _steps_to_target(gi, tgt, spm, da, target, steps):
+    """_populate_block's "number of steps for each axis": the target in whole steps (``lround(mm · steps/mm)``)
+    into ``target``, the signed and absolute step deltas from the planner's position into ``da`` and
+    ``steps``; returns the block's step_event_count (the most steps of any axis)."""
+    sec = np.int64(0)
+    for a in range(4):
+        target[a] = _lroundf(F32(tgt[a] * spm[a]))
+        da[a] = target[a] - gi[GI_PX + a]
+        steps[a] = abs(da[a])
+        if steps[a] > sec:
+            sec = steps[a]
+    return sec
+
+
+@njit(cache=True, inline=INLINE)
+def _slowdown(inverse_secs, moves_queued, min_segment_time_us):
+    """_populate_block's SLOWDOWN: with 2 to 7 blocks queued, a segment shorter than MIN_SEGMENT_TIME (µs) is
+    slowed towards it, by twice the shortfall over the blocks queued; returns 1 / segment time (1/s)."""
+    segment_time_us = _lroundf(F32(F32(1000000) / inverse_secs))
+    if moves_queued >= 2 and moves_queued <= BLOCK_BUFFER_SIZE // SLOWDOWN_DIVISOR - 1:
+        time_diff = min_segment_time_us - segment_time_us
+        if time_diff > 0:
+            # int32 division, as the firmware's LROUND(2 * time_diff / moves_queued)
+            nst = segment_time_us + (2 * time_diff) // moves_queued
+            inverse_secs = F32(F32(1000000) / F32(nst))
+    return inverse_secs
+
+
+@njit(cache=True, inline=INLINE)
+def _limit_speed(dist, inverse_secs, vmax, current_speed):
+    """_populate_block's "calculate and limit speed in mm/sec": each axis' speed (mm/s, into
+    ``current_speed``) from its distance (mm) and 1 / segment time; returns the factor (≤ 1) that keeps every
+    axis within its M203 limit ``vmax`` (mm/s)."""
+    speed_factor = F32(1)
+    for a in range(4):
+        current_speed[a] = F32(dist[a] * inverse_secs)
+        cs = F32(abs(current_speed[a]))
+        if cs > vmax[a]:
+            q = F32(vmax[a] / cs)
+            if q < speed_factor:
+                speed_factor = q
+    return speed_factor
+
+
+@njit(cache=True, inline=INLINE)
+def _acceleration_steps(steps, da, sec, steps_per_mm, acc_p, acc_t, acc_r, tgt, gf, jerk, advance_k, cutoff,
+                        amax_steps):
+    """_populate_block's "compute and limit the acceleration rate for the trapezoid generator" (steps/s²): M204
+    R for a move of E alone, P for a print move, T for a travel (mm/s² × the block's steps/mm, rounded up),
+    capped by linear advance's rule (:func:`_use_advance_lead_accel`) and by each axis' M201 limit
+    (:func:`_limit_accel`)."""
+    if steps[0] == 0 and steps[1] == 0 and steps[2] == 0:
+        return _ceilf(F32(acc_r * steps_per_mm))
+    esteps = steps[3]
+    accel = _ceilf(F32((acc_p if esteps != 0 else acc_t) * steps_per_mm))
+    if advance_k > 0 and esteps != 0 and da[3] > 0:
+        accel = _use_advance_lead_accel(accel, tgt, gf, jerk[3], advance_k, steps_per_mm)
+    return _limit_accel(accel, steps, sec, cutoff, amax_steps)
+
+
+@njit(cache=True, inline=INLINE)
 def _populate_block(bf, bi, gi, gf, row, tgt, fr_mm_s, acc_p, acc_t, acc_r, vmax, amax_steps, cutoff, jerk,
                     min_feed, min_travel, spm, mm_per_step, min_segment_time_us, junction_mode, amax_mm, jdev,
                     advance_k, scratch_f, scratch_i, version=VERSION_2_1_2):
@@ -670,13 +731,7 @@ def _populate_block(bf, bi, gi, gf, row, tgt, fr_mm_s, acc_p, acc_t, acc_r, vmax
     da = scratch_i[0]
     target = scratch_i[1]
     steps = scratch_i[2]
-    sec = np.int64(0)
-    for a in range(4):
-        target[a] = _lroundf(F32(tgt[a] * spm[a]))
-        da[a] = target[a] - gi[GI_PX + a]
-        steps[a] = abs(da[a])
-        if steps[a] > sec:
-            sec = steps[a]
+    sec = _steps_to_target(gi, tgt, spm, da, target, steps)
     if sec < MIN_STEPS_PER_SEGMENT:
         return False
     dist = scratch_f[0]
@@ -696,38 +751,19 @@ def _populate_block(bf, bi, gi, gf, row, tgt, fr_mm_s, acc_p, acc_t, acc_r, vmax
     inverse_millimeters = F32(F32(1) / millimeters)
     inverse_secs = F32(fr * inverse_millimeters)
     moves_queued = _nonbusy_queued(gi)
-    segment_time_us = _lroundf(F32(F32(1000000) / inverse_secs))
-    if moves_queued >= 2 and moves_queued <= BLOCK_BUFFER_SIZE // SLOWDOWN_DIVISOR - 1:
-        time_diff = min_segment_time_us - segment_time_us
-        if time_diff > 0:
-            # int32 division, as the firmware's LROUND(2 * time_diff / moves_queued)
-            nst = segment_time_us + (2 * time_diff) // moves_queued
-            inverse_secs = F32(F32(1000000) / F32(nst))
+    inverse_secs = _slowdown(inverse_secs, moves_queued, min_segment_time_us)
     nominal_speed = F32(millimeters * inverse_secs)
     nominal_rate = _ceilf(F32(F32(sec) * inverse_secs))
     current_speed = scratch_f[1]
-    speed_factor = F32(1)
-    for a in range(4):
-        current_speed[a] = F32(dist[a] * inverse_secs)
-        cs = F32(abs(current_speed[a]))
-        if cs > vmax[a]:
-            q = F32(vmax[a] / cs)
-            if q < speed_factor:
-                speed_factor = q
+    speed_factor = _limit_speed(dist, inverse_secs, vmax, current_speed)
     if speed_factor < F32(1):
         for a in range(4):
             current_speed[a] = F32(current_speed[a] * speed_factor)
         nominal_rate = np.int64(F32(F32(nominal_rate) * speed_factor))
         nominal_speed = F32(nominal_speed * speed_factor)
-    # acceleration in steps/s², limited per axis
     steps_per_mm = F32(F32(sec) * inverse_millimeters)
-    if steps[0] == 0 and steps[1] == 0 and steps[2] == 0:
-        accel = _ceilf(F32(acc_r * steps_per_mm))
-    else:
-        accel = _ceilf(F32((acc_p if esteps != 0 else acc_t) * steps_per_mm))
-        if advance_k > 0 and esteps != 0 and da[3] > 0:
-            accel = _use_advance_lead_accel(accel, tgt, gf, jerk[3], advance_k, steps_per_mm)
-        accel = _limit_accel(accel, steps, sec, cutoff, amax_steps)
+    accel = _acceleration_steps(steps, da, sec, steps_per_mm, acc_p, acc_t, acc_r, tgt, gf, jerk, advance_k, cutoff,
+                                amax_steps)
     acceleration = F32(F32(accel) / steps_per_mm)
     if version == VERSION_BUGFIX:
         # bugfix-2.1.x: the average speed over one step accelerating from rest, v² = a / (2 · steps/mm), is the
