@@ -46,6 +46,12 @@ _AXES = ("x", "y", "z", "e")
 #: junction policies a Marlin build has: CLASSIC_JERK on, or off (junction deviation)
 JUNCTIONS = ("classic-jerk", "junction-deviation")
 _UINT32_MAX = 4294967295
+_FLOAT_MAX = float(np.finfo(np.float64).max)       # numpy's nan_to_num bound for an infinite dwell
+#: the window's per-row arrays (MarlinModel._row_arrays): name, dtype, shape of one row
+_WINDOW = (("kind", np.int64, ()), ("tgt", np.float32, (4,)), ("reset_bits", np.int64, ()),
+           ("reset_pos", np.float32, (4,)), ("fr", np.float32, ()), ("acc_p", np.float32, ()),
+           ("acc_t", np.float32, ()), ("acc_r", np.float32, ()), ("lim", np.int64, ()), ("wait_ticks", np.int64, ()),
+           ("line", np.int64, ()), ("move_kind", np.uint8, ()), ("move_d", np.float64, ()))
 
 
 @njit(cache=True)
@@ -56,16 +62,21 @@ def _mark_beyond(v, reach, bad, c, r):
 
 
 @njit(cache=True)
-def row_inputs_kernel(line, kind, x0, y0, z0, e0, x1, y1, z1, e1, feed_v, accel, set_line, set_v, carry, tgt,
-                      reset_pos, reset_bits, fr, acc, reach, bad):
-    """Per MOVE row, what Marlin's planner is handed (out: ``tgt``, ``reset_pos``, ``reset_bits``, ``fr``, ``acc``).
+def row_inputs_kernel(line, kind, x0, y0, z0, e0, x1, y1, z1, e1, feed_v, accel, dwell_t, timer_hz, set_line, set_v,
+                      carry, row_kind, wait_ticks, tgt, reset_pos, reset_bits, fr, acc_p, acc_t, acc_r, reach, bad):
+    """Per MOVE row, what Marlin's planner is handed (out: ``row_kind``, ``wait_ticks``, ``tgt``, ``reset_pos``,
+    ``reset_bits``, ``fr``, ``acc_p``/``acc_t``/``acc_r``).
+
+    ``row_kind``: ROW_WAIT for a wait or dwell (the buffer drains first), else ROW_MOVE; ``wait_ticks``: a
+    wait's dwell (``dwell_t`` s, NaN as 0) in ticks of ``timer_hz``, rounded up (0 for a move).
 
     ``tgt``: the target in Marlin's float32 mm, E logical (machine E minus the offset of the G92 E lines before
     the row); ``reset_bits``: X/Y/Z (bits 0..2) jumped between rows (homing sets the position), E (bit 3) set by a
     G92 E that changes it (``gcode/feature/G92``: not within NEAR_ZERO, 1e-6), to ``reset_pos``; ``fr``: F (mm/min)
     in float32, /60, then Marlin's MMS_SCALED (·0.01·100 %), an absurd or infinite F taken as 1e9 mm/min (the
     axes' M203 limits decide: Marlin's uint32 rate arithmetic cannot overflow); ``acc`` (3 × rows): the M204
-    P / T / R in force, each the accel of the last row of its class (print, travel, retract) up to the row.
+    P / T / R in force (``acc_p``, ``acc_t``, ``acc_r``), each the accel of the last row of its class (print,
+    travel, retract) up to the row.
     ``set_line``/``set_v``: the G92 E lines before the batch's last row and their logical E (mm). ``carry``
     (in/out): the previous row's end X/Y/Z/E (mm), the E offset (mm), the three accels (mm/s²). ``reach``
     (4, mm): Marlin's int32 step positions' reach per axis; ``bad`` (out, 8: x0, x1, y0, y1, z0, z1, e0, e1):
@@ -94,6 +105,16 @@ def row_inputs_kernel(line, kind, x0, y0, z0, e0, x1, y1, z1, e1, feed_v, accel,
         bad[c] = -1
     px, py, pz = carry[0], carry[1], carry[2]
     for r in range(n):
+        k = kind[r]
+        if k == KIND_WAIT or k == KIND_DWELL:
+            row_kind[r] = mk.ROW_WAIT
+            dw = dwell_t[r]
+            if dw != dw:
+                dw = 0.0
+            wait_ticks[r] = np.int64(np.ceil(max(min(dw, _FLOAT_MAX), -_FLOAT_MAX) * timer_hz))
+        else:
+            row_kind[r] = mk.ROW_MOVE
+            wait_ticks[r] = 0
         _mark_beyond(x0[r], reach[0], bad, 0, r)
         _mark_beyond(x1[r], reach[0], bad, 1, r)
         _mark_beyond(y0[r], reach[1], bad, 2, r)
@@ -117,12 +138,12 @@ def row_inputs_kernel(line, kind, x0, y0, z0, e0, x1, y1, z1, e1, feed_v, accel,
         f_mm_min = F32(min(fv * 60.0, 1e9)) if np.isfinite(fv) else F32(1e9)
         f = F32(f_mm_min / F32(60))
         fr[r] = F32(F32(f * F32(0.01)) * F32(100))
-        k = kind[r]
         if k != KIND_WAIT and k != KIND_DWELL and np.isfinite(accel[r]):
             c = 2 if k == KIND_EXTRUDE_ONLY else (0 if e1[r] != e0[r] else 1)
             carry[5 + c] = accel[r]
-        for c in range(3):
-            acc[c, r] = F32(carry[5 + c])
+        acc_p[r] = F32(carry[5])
+        acc_t[r] = F32(carry[6])
+        acc_r[r] = F32(carry[7])
     if n:
         carry[0], carry[1], carry[2], carry[3] = x1[n - 1], y1[n - 1], z1[n - 1], e1[n - 1]
 
@@ -211,14 +232,11 @@ class MarlinModel:
 
     # ------------------------------------------------------------------ inputs
     def _row_arrays(self, moves: np.ndarray, limits: np.ndarray) -> dict:
+        """The batch's per-row arrays (:data:`_WINDOW`), written into the window's buffers after its rows
+        (:meth:`_reserve`); returns views of them. The window's row count is not advanced here."""
         n = len(moves)
-        kind = np.full(n, mk.ROW_MOVE, dtype=np.int64)
+        a = self._reserve(n)
         k = moves["kind"]
-        kind[(k == KIND_WAIT) | (k == KIND_DWELL)] = mk.ROW_WAIT
-        wait_ticks = np.zeros(n, dtype=np.int64)
-        dw = moves["dwell_t"]
-        wmask = kind == mk.ROW_WAIT
-        wait_ticks[wmask] = np.ceil(np.nan_to_num(dw[wmask]) * self.timer_hz).astype(np.int64)
         # the G92 E lines before the batch's last row (the others wait for the rows after them)
         sets = self.e_position_sets
         set_line, set_v = [], []
@@ -228,17 +246,13 @@ class MarlinModel:
                 line, v = sets.popleft()
                 set_line.append(line)
                 set_v.append(v)
-        tgt = np.empty((n, 4), np.float32)
-        reset_pos = np.empty((n, 4), np.float32)
-        reset_bits = np.empty(n, np.int64)
-        fr = np.empty(n, np.float32)
-        acc = np.empty((3, n), dtype=np.float32)
         carry = np.array([*self._last_end, self._e_off, *self._acc], dtype=np.float64)
         bad = np.empty(8, np.int64)
         row_inputs_kernel(moves["line"], k, moves["x0"], moves["y0"], moves["z0"], moves["e0"], moves["x1"],
-                          moves["y1"], moves["z1"], moves["e1"], moves["feed_v"], moves["accel"],
-                          np.array(set_line, np.int64), np.array(set_v, np.float64), carry, tgt, reset_pos,
-                          reset_bits, fr, acc, self._reach, bad)
+                          moves["y1"], moves["z1"], moves["e1"], moves["feed_v"], moves["accel"], moves["dwell_t"],
+                          float(self.timer_hz), np.array(set_line, np.int64), np.array(set_v, np.float64), carry,
+                          a["kind"], a["wait_ticks"], a["tgt"], a["reset_pos"], a["reset_bits"], a["fr"], a["acc_p"],
+                          a["acc_t"], a["acc_r"], self._reach, bad)
         if (bad >= 0).any():
             if sets is not None:
                 sets.extendleft(reversed(list(zip(set_line, set_v))))     # the model's state stays as it was
@@ -248,9 +262,11 @@ class MarlinModel:
         self._acc = [float(carry[5]), float(carry[6]), float(carry[7])]
         self._limit_tables(limits)       # the settings of each row: its LIMITS row in these tables (they only grow)
         # the window keeps what the PLAN rows and the steps need of the MOVE rows, not the rows themselves
-        return dict(kind=kind, tgt=tgt, reset_bits=reset_bits, reset_pos=reset_pos, fr=fr, acc_p=acc[0],
-                    acc_t=acc[1], acc_r=acc[2], lim=moves["limits"].astype(np.int64), wait_ticks=wait_ticks,
-                    line=moves["line"].copy(), move_kind=k.copy(), move_d=moves["move_d"].copy())
+        a["lim"][:] = moves["limits"]
+        a["line"][:] = moves["line"]
+        a["move_kind"][:] = k
+        a["move_d"][:] = moves["move_d"]
+        return a
 
     def _check_reach(self, moves: np.ndarray, bad: np.ndarray) -> None:
         """Marlin keeps positions as int32 steps (planner.position, count_position): an end point beyond ±2³¹
@@ -323,29 +339,27 @@ class MarlinModel:
         with np.errstate(over="ignore", invalid="ignore"):    # 1e308 is Marlin's float inf: no numpy warning
             arr = self._row_arrays(moves, np.asarray(limits))
         self._check_zero_limits(moves, arr)
-        self._append(arr)
+        self._n += len(moves)
         return self._run(final=False)
 
-    def _append(self, arr: dict) -> None:
-        """Add a batch's row arrays to the window; the output rows for them start at zero."""
-        n, m = self._n, len(arr["kind"])
+    def _reserve(self, m: int) -> dict:
+        """Room for ``m`` more rows in the window's buffers (grown to twice when short): views of the rows
+        after the window's, the kernel's output rows for them set to zero."""
+        n = self._n
         if self._arrays is None or n + m > len(self._out_i):
             cap = max(2 * len(self._out_i), n + m)
-            grown = {k: np.empty((cap,) + v.shape[1:], v.dtype) for k, v in arr.items()}
+            grown = {k: np.empty((cap,) + shape, dtype) for k, dtype, shape in _WINDOW}
+            out_i = np.empty((cap, mk.N_OI), dtype=np.int64)
+            out_f = np.empty((cap, mk.N_OF), dtype=np.float32)
             if self._arrays is not None:
                 for k, v in grown.items():
                     v[:n] = self._arrays[k][:n]
-            self._arrays = grown
-            out_i = np.empty((cap, mk.N_OI), dtype=np.int64)
-            out_f = np.empty((cap, mk.N_OF), dtype=np.float32)
-            out_i[:n] = self._out_i[:n]
-            out_f[:n] = self._out_f[:n]
-            self._out_i, self._out_f = out_i, out_f
-        for k, v in arr.items():
-            self._arrays[k][n:n + m] = v
+                out_i[:n] = self._out_i[:n]
+                out_f[:n] = self._out_f[:n]
+            self._arrays, self._out_i, self._out_f = grown, out_i, out_f
         self._out_i[n:n + m] = 0
         self._out_f[n:n + m] = 0
-        self._n = n + m
+        return {k: v[n:n + m] for k, v in self._arrays.items()}
 
     def finish(self):
         """Run everything still queued; the buffer ends empty."""
