@@ -61,7 +61,9 @@ def _mark_beyond(v, reach, bad, c, r):
         bad[c] = r
 
 
-@njit(cache=True)
+# The two short per-batch kernels keep the GIL (nogil=False): released, the reader thread takes it, and taking it
+# back waits for the reader to give it up (up to the 5 ms switch interval) — longer than the kernels run.
+@njit(cache=True, nogil=False)
 def row_inputs_kernel(line, kind, x0, y0, z0, e0, x1, y1, z1, e1, feed_v, accel, dwell_t, timer_hz, set_line, set_v,
                       carry, row_kind, wait_ticks, tgt, reset_pos, reset_bits, fr, acc_p, acc_t, acc_r, reach, bad):
     """Per MOVE row, what Marlin's planner is handed (out: ``row_kind``, ``wait_ticks``, ``tgt``, ``reset_pos``,
@@ -427,7 +429,7 @@ _PLAN_FIELDS = ("t_start", "duration", "start_v", "cruise_v", "end_v", "accel", 
                 "decel_t", "limit")
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=False)
 def plan_rows_kernel(oi, of, move_d, kind, hz, clock_done, last_v, t_start, duration, start_v, cruise_v, end_v,
                      accel, decel, accel_t, cruise_t, decel_t, limit):
     """PLAN fields of settled rows from the kernel's per-row outputs ``oi``/``of``: a block's pick-up and end tick
