@@ -14,18 +14,24 @@ from gcodeplan.schema import KIND_DWELL, KIND_EXTRUDE_ONLY, KIND_PRINT, KIND_TRA
 F32 = np.float32
 
 
-def _inputs(rows, sets, carry):
-    """row_inputs_kernel on rows (line, kind, start xyze, end xyze, feed mm/s, accel)."""
+def _inputs(rows, sets, carry, extra=None, dwell=None, reach=(1e30,) * 4):
+    """row_inputs_kernel on rows (line, kind, start xyze, end xyze, feed mm/s, accel); ``extra`` (a dict) also
+    gets the row kinds, wait ticks (25 MHz) and first beyond-reach row per column; ``dwell``: dwell_t (s) per row."""
     n = len(rows)
     col = lambda k: np.array([r[k] for r in rows], dtype=np.float64)     # noqa: E731
     start = np.array([r[2] for r in rows], dtype=np.float64)
     end = np.array([r[3] for r in rows], dtype=np.float64)
     tgt, reset_pos = np.empty((n, 4), F32), np.empty((n, 4), F32)
     reset_bits, fr, acc = np.empty(n, np.int64), np.empty(n, F32), np.empty((3, n), F32)
+    row_kind, wait_ticks, bad = np.empty(n, np.int64), np.empty(n, np.int64), np.empty(8, np.int64)
+    dwell_t = np.zeros(n) if dwell is None else np.array(dwell, np.float64)
     row_inputs_kernel(np.array([r[0] for r in rows], np.int64), np.array([r[1] for r in rows], np.uint8),
-                      *(start[:, a] for a in range(4)), *(end[:, a] for a in range(4)), col(4), col(5),
-                      np.array([s[0] for s in sets], np.int64), np.array([s[1] for s in sets], np.float64),
-                      carry, tgt, reset_pos, reset_bits, fr, acc)
+                      *(start[:, a] for a in range(4)), *(end[:, a] for a in range(4)), col(4), col(5), dwell_t,
+                      25e6, np.array([s[0] for s in sets], np.int64), np.array([s[1] for s in sets], np.float64),
+                      carry, row_kind, wait_ticks, tgt, reset_pos, reset_bits, fr, acc[0], acc[1], acc[2],
+                      np.array(reach, np.float64), bad)
+    if extra is not None:
+        extra.update(row_kind=row_kind, wait_ticks=wait_ticks, bad=bad)
     return tgt, reset_pos, reset_bits, fr, acc
 
 
@@ -83,3 +89,23 @@ def test_scanner_g92_e_equals_the_interpreter():
     _, sets, _ = _read(text, machine)
     assert sets[:4] == [(3, 0.0), (9, 0.0), (12, -0.5), (14, 0.0)]
     assert len(sets) == 2 + S.ESET_MAX + 40 and all(type(ln) is int for ln, _ in sets)
+
+
+def test_row_kinds_wait_ticks_and_reach_by_hand():
+    """A dwell and a wait are ROW_WAIT rows, their dwell in 25 MHz ticks rounded up (1.5 µs = 37.5 ticks: 38;
+    a NaN dwell: 0); moves are ROW_MOVE rows with 0 ticks. With a reach of 100 mm on X and 50 mm on E, the
+    first row beyond it per column (x0, x1, y0, y1, z0, z1, e0, e1), −1 where none; a NaN counts as beyond."""
+    from gcodeplan.planner import marlin_kernels as mk
+    from gcodeplan.schema import KIND_WAIT
+
+    rows = [(1, KIND_PRINT, (0, 0, 0, 0), (10, 0, 0, 60), 50.0, 2000.0),
+            (2, KIND_DWELL, (10, 0, 0, 60), (10, 0, 0, 60), 0.0, np.nan),
+            (3, KIND_TRAVEL, (10, 0, 0, 60), (150, 0, 0, 60), 50.0, 2000.0),
+            (4, KIND_WAIT, (150, 0, 0, 60), (150, 0, 0, 60), 0.0, np.nan),
+            (5, KIND_TRAVEL, (150, 0, 0, 60), (np.nan, 0, 0, 60), 50.0, 2000.0)]
+    got = {}
+    _inputs(rows, [], np.array([0, 0, 0, 0, 0.0, 1000, 1500, 700]), got, dwell=[0, 1.5e-6, 0, np.nan, 0],
+            reach=(100.0, 1e30, 1e30, 50.0))
+    assert got["row_kind"].tolist() == [mk.ROW_MOVE, mk.ROW_WAIT, mk.ROW_MOVE, mk.ROW_WAIT, mk.ROW_MOVE]
+    assert got["wait_ticks"].tolist() == [0, 38, 0, 0, 0]
+    assert got["bad"].tolist() == [3, 2, -1, -1, -1, -1, 1, 0]

@@ -30,8 +30,7 @@ import numpy as np
 
 from .._jit import njit
 from ..errors import ConfigError
-from ..schema import (KIND_DWELL, KIND_EXTRUDE_ONLY, KIND_WAIT, LIMIT_ACCEL, LIMIT_FEED, LIMIT_NONE, PLAN_DTYPE,
-                      concat_rows)
+from ..schema import (KIND_DWELL, KIND_EXTRUDE_ONLY, KIND_WAIT, LIMIT_ACCEL, LIMIT_FEED, LIMIT_NONE, PLAN_DTYPE)
 from ..stepper.marlin_isr import MARLIN_TIMER_HZ
 from . import marlin_kernels as mk
 
@@ -47,21 +46,43 @@ _AXES = ("x", "y", "z", "e")
 #: junction policies a Marlin build has: CLASSIC_JERK on, or off (junction deviation)
 JUNCTIONS = ("classic-jerk", "junction-deviation")
 _UINT32_MAX = 4294967295
+_FLOAT_MAX = float(np.finfo(np.float64).max)       # numpy's nan_to_num bound for an infinite dwell
+#: the window's per-row arrays (MarlinModel._row_arrays): name, dtype, shape of one row
+_WINDOW = (("kind", np.int64, ()), ("tgt", np.float32, (4,)), ("reset_bits", np.int64, ()),
+           ("reset_pos", np.float32, (4,)), ("fr", np.float32, ()), ("acc_p", np.float32, ()),
+           ("acc_t", np.float32, ()), ("acc_r", np.float32, ()), ("lim", np.int64, ()), ("wait_ticks", np.int64, ()),
+           ("line", np.int64, ()), ("move_kind", np.uint8, ()), ("move_d", np.float64, ()))
 
 
 @njit(cache=True)
-def row_inputs_kernel(line, kind, x0, y0, z0, e0, x1, y1, z1, e1, feed_v, accel, set_line, set_v, carry, tgt,
-                      reset_pos, reset_bits, fr, acc):
-    """Per MOVE row, what Marlin's planner is handed (out: ``tgt``, ``reset_pos``, ``reset_bits``, ``fr``, ``acc``).
+def _mark_beyond(v, reach, bad, c, r):
+    """``bad[c] = r`` for the first row ``r`` whose ``v`` (mm) is beyond ``reach`` or not a number."""
+    if not abs(v) < reach and bad[c] < 0:
+        bad[c] = r
+
+
+# The two short per-batch kernels keep the GIL (nogil=False): released, the reader thread takes it, and taking it
+# back waits for the reader to give it up (up to the 5 ms switch interval) — longer than the kernels run.
+@njit(cache=True, nogil=False)
+def row_inputs_kernel(line, kind, x0, y0, z0, e0, x1, y1, z1, e1, feed_v, accel, dwell_t, timer_hz, set_line, set_v,
+                      carry, row_kind, wait_ticks, tgt, reset_pos, reset_bits, fr, acc_p, acc_t, acc_r, reach, bad):
+    """Per MOVE row, what Marlin's planner is handed (out: ``row_kind``, ``wait_ticks``, ``tgt``, ``reset_pos``,
+    ``reset_bits``, ``fr``, ``acc_p``/``acc_t``/``acc_r``).
+
+    ``row_kind``: ROW_WAIT for a wait or dwell (the buffer drains first), else ROW_MOVE; ``wait_ticks``: a
+    wait's dwell (``dwell_t`` s, NaN as 0) in ticks of ``timer_hz``, rounded up (0 for a move).
 
     ``tgt``: the target in Marlin's float32 mm, E logical (machine E minus the offset of the G92 E lines before
     the row); ``reset_bits``: X/Y/Z (bits 0..2) jumped between rows (homing sets the position), E (bit 3) set by a
     G92 E that changes it (``gcode/feature/G92``: not within NEAR_ZERO, 1e-6), to ``reset_pos``; ``fr``: F (mm/min)
     in float32, /60, then Marlin's MMS_SCALED (·0.01·100 %), an absurd or infinite F taken as 1e9 mm/min (the
     axes' M203 limits decide: Marlin's uint32 rate arithmetic cannot overflow); ``acc`` (3 × rows): the M204
-    P / T / R in force, each the accel of the last row of its class (print, travel, retract) up to the row.
+    P / T / R in force (``acc_p``, ``acc_t``, ``acc_r``), each the accel of the last row of its class (print,
+    travel, retract) up to the row.
     ``set_line``/``set_v``: the G92 E lines before the batch's last row and their logical E (mm). ``carry``
-    (in/out): the previous row's end X/Y/Z/E (mm), the E offset (mm), the three accels (mm/s²)."""
+    (in/out): the previous row's end X/Y/Z/E (mm), the E offset (mm), the three accels (mm/s²). ``reach``
+    (4, mm): Marlin's int32 step positions' reach per axis; ``bad`` (out, 8: x0, x1, y0, y1, z0, z1, e0, e1):
+    the first row whose value in that column is beyond it or not a number, −1 for none."""
     n = len(line)
     # the E offset in force at each row, and the G92 E lines that change Marlin's E
     e_offs = np.empty(n)
@@ -82,8 +103,28 @@ def row_inputs_kernel(line, kind, x0, y0, z0, e0, x1, y1, z1, e1, feed_v, accel,
         e_offs[j] = off
         j += 1
     carry[4] = off
+    for c in range(8):
+        bad[c] = -1
     px, py, pz = carry[0], carry[1], carry[2]
     for r in range(n):
+        k = kind[r]
+        if k == KIND_WAIT or k == KIND_DWELL:
+            row_kind[r] = mk.ROW_WAIT
+            dw = dwell_t[r]
+            if dw != dw:
+                dw = 0.0
+            wait_ticks[r] = np.int64(np.ceil(max(min(dw, _FLOAT_MAX), -_FLOAT_MAX) * timer_hz))
+        else:
+            row_kind[r] = mk.ROW_MOVE
+            wait_ticks[r] = 0
+        _mark_beyond(x0[r], reach[0], bad, 0, r)
+        _mark_beyond(x1[r], reach[0], bad, 1, r)
+        _mark_beyond(y0[r], reach[1], bad, 2, r)
+        _mark_beyond(y1[r], reach[1], bad, 3, r)
+        _mark_beyond(z0[r], reach[2], bad, 4, r)
+        _mark_beyond(z1[r], reach[2], bad, 5, r)
+        _mark_beyond(e0[r], reach[3], bad, 6, r)
+        _mark_beyond(e1[r], reach[3], bad, 7, r)
         reset_bits[r] = ((1 if x0[r] != px else 0) | (2 if y0[r] != py else 0) | (4 if z0[r] != pz else 0)
                          | (8 if e_set[r] else 0))
         px, py, pz = x1[r], y1[r], z1[r]
@@ -99,21 +140,14 @@ def row_inputs_kernel(line, kind, x0, y0, z0, e0, x1, y1, z1, e1, feed_v, accel,
         f_mm_min = F32(min(fv * 60.0, 1e9)) if np.isfinite(fv) else F32(1e9)
         f = F32(f_mm_min / F32(60))
         fr[r] = F32(F32(f * F32(0.01)) * F32(100))
-        k = kind[r]
         if k != KIND_WAIT and k != KIND_DWELL and np.isfinite(accel[r]):
             c = 2 if k == KIND_EXTRUDE_ONLY else (0 if e1[r] != e0[r] else 1)
             carry[5 + c] = accel[r]
-        for c in range(3):
-            acc[c, r] = F32(carry[5 + c])
+        acc_p[r] = F32(carry[5])
+        acc_t[r] = F32(carry[6])
+        acc_r[r] = F32(carry[7])
     if n:
         carry[0], carry[1], carry[2], carry[3] = x1[n - 1], y1[n - 1], z1[n - 1], e1[n - 1]
-
-
-def _grow_zeros(rows: np.ndarray, n: int) -> np.ndarray:
-    """``rows`` followed by ``n`` rows of zeros (the zeros not written: fresh pages are zero)."""
-    out = np.zeros((len(rows) + n,) + rows.shape[1:], dtype=rows.dtype)
-    out[:len(rows)] = rows
-    return out
 
 
 def check_firmware(name: str | None) -> str | None:
@@ -173,9 +207,13 @@ class MarlinModel:
         self.acc_rate_scale = np.float32(np.float32(16777216.0) / np.float32(self.timer_hz))
         self.state = mk.new_state()
         self._scratch = mk.new_scratch()
+        # mm, the reach of Marlin's int32 step positions per axis (_check_reach)
+        self._reach = np.array([2.0 ** 31 / float(v) for v in self.spm])
         self.row_base = 0                        # absolute number of the window's first row
-        self._moves = None                       # window: rows read, not settled
+        # the window: per-row arrays of the rows read and not settled (_row_arrays), and the kernel's outputs
+        # for them, in buffers reused from batch to batch (the first _n rows are the window's)
         self._arrays = None
+        self._n = 0
         self._out_i = np.zeros((0, mk.N_OI), dtype=np.int64)
         self._out_f = np.zeros((0, mk.N_OF), dtype=np.float32)
         self._last_end = np.zeros(4)             # mm, where the previous row ended (Marlin boots at 0)
@@ -196,14 +234,11 @@ class MarlinModel:
 
     # ------------------------------------------------------------------ inputs
     def _row_arrays(self, moves: np.ndarray, limits: np.ndarray) -> dict:
+        """The batch's per-row arrays (:data:`_WINDOW`), written into the window's buffers after its rows
+        (:meth:`_reserve`); returns views of them. The window's row count is not advanced here."""
         n = len(moves)
-        kind = np.full(n, mk.ROW_MOVE, dtype=np.int64)
+        a = self._reserve(n)
         k = moves["kind"]
-        kind[(k == KIND_WAIT) | (k == KIND_DWELL)] = mk.ROW_WAIT
-        wait_ticks = np.zeros(n, dtype=np.int64)
-        dw = moves["dwell_t"]
-        wmask = kind == mk.ROW_WAIT
-        wait_ticks[wmask] = np.ceil(np.nan_to_num(dw[wmask]) * self.timer_hz).astype(np.int64)
         # the G92 E lines before the batch's last row (the others wait for the rows after them)
         sets = self.e_position_sets
         set_line, set_v = [], []
@@ -213,38 +248,39 @@ class MarlinModel:
                 line, v = sets.popleft()
                 set_line.append(line)
                 set_v.append(v)
-        tgt = np.empty((n, 4), np.float32)
-        reset_pos = np.empty((n, 4), np.float32)
-        reset_bits = np.empty(n, np.int64)
-        fr = np.empty(n, np.float32)
-        acc = np.empty((3, n), dtype=np.float32)
         carry = np.array([*self._last_end, self._e_off, *self._acc], dtype=np.float64)
+        bad = np.empty(8, np.int64)
         row_inputs_kernel(moves["line"], k, moves["x0"], moves["y0"], moves["z0"], moves["e0"], moves["x1"],
-                          moves["y1"], moves["z1"], moves["e1"], moves["feed_v"], moves["accel"],
-                          np.array(set_line, np.int64), np.array(set_v, np.float64), carry, tgt, reset_pos,
-                          reset_bits, fr, acc)
+                          moves["y1"], moves["z1"], moves["e1"], moves["feed_v"], moves["accel"], moves["dwell_t"],
+                          float(self.timer_hz), np.array(set_line, np.int64), np.array(set_v, np.float64), carry,
+                          a["kind"], a["wait_ticks"], a["tgt"], a["reset_pos"], a["reset_bits"], a["fr"], a["acc_p"],
+                          a["acc_t"], a["acc_r"], self._reach, bad)
+        if (bad >= 0).any():
+            if sets is not None:
+                sets.extendleft(reversed(list(zip(set_line, set_v))))     # the model's state stays as it was
+            self._check_reach(moves, bad)
         self._last_end = carry[:4].copy()
         self._e_off = float(carry[4])
         self._acc = [float(carry[5]), float(carry[6]), float(carry[7])]
         self._limit_tables(limits)       # the settings of each row: its LIMITS row in these tables (they only grow)
-        return dict(kind=kind, tgt=tgt, reset_bits=reset_bits, reset_pos=reset_pos, fr=fr, acc_p=acc[0],
-                    acc_t=acc[1], acc_r=acc[2], lim=moves["limits"].astype(np.int64), wait_ticks=wait_ticks)
+        # the window keeps what the PLAN rows and the steps need of the MOVE rows, not the rows themselves
+        a["lim"][:] = moves["limits"]
+        a["line"][:] = moves["line"]
+        a["move_kind"][:] = k
+        a["move_d"][:] = moves["move_d"]
+        return a
 
-    def _check_reach(self, moves: np.ndarray) -> None:
+    def _check_reach(self, moves: np.ndarray, bad: np.ndarray) -> None:
         """Marlin keeps positions as int32 steps (planner.position, count_position): an end point beyond ±2³¹
         steps, or not a number, has no meaning on the printer; an error naming the line, not a wrapped
-        position (tools/fuzz.py found E1e20 and Y1e308 crashing the model)."""
+        position (tools/fuzz.py found E1e20 and Y1e308 crashing the model). ``bad``: per column (x0, x1, y0,
+        … e1) the first such row or −1 (:func:`row_inputs_kernel`); the first column's is reported."""
         from ..errors import GcodeError
 
         for k, axis in enumerate(_AXES):
-            for col in (axis + "0", axis + "1"):
-                v = moves[col]
-                reach = 2.0 ** 31 / float(self.spm[k])
-                if np.abs(v).max() < reach:       # every row within (a NaN fails this and is looked for below)
-                    continue
-                bad = np.nonzero(~(np.abs(v) < reach))[0]
-                if bad.size:
-                    i = int(bad[0])
+            for j, col in enumerate((axis + "0", axis + "1")):
+                i = int(bad[2 * k + j])
+                if i >= 0:
                     raise GcodeError(f"{axis.upper()} {moves[col][i]:g} mm is beyond Marlin's reach (±2³¹ steps at "
                                      f"{float(self.spm[k]):g} steps/mm)", line=int(moves["line"][i]))
 
@@ -299,49 +335,61 @@ class MarlinModel:
 
     # ------------------------------------------------------------------ running
     def feed(self, moves: np.ndarray, limits: np.ndarray):
-        """Add MOVE rows; return ``(moves, plan)`` pieces whose times are final."""
+        """Add MOVE rows; return ``(n_rows, plan)`` pieces whose times are final."""
         if len(moves) == 0:
             return []
-        self._check_reach(moves)
         with np.errstate(over="ignore", invalid="ignore"):    # 1e308 is Marlin's float inf: no numpy warning
             arr = self._row_arrays(moves, np.asarray(limits))
         self._check_zero_limits(moves, arr)
-        if self._moves is None or len(self._moves) == 0:
-            self._moves, self._arrays = moves, arr
-        else:
-            self._moves = concat_rows(self._moves, moves)        # one byte copy (np.concatenate goes by field)
-            self._arrays = {k: np.concatenate([self._arrays[k], arr[k]]) for k in arr}
-        self._out_i = _grow_zeros(self._out_i, len(moves))
-        self._out_f = _grow_zeros(self._out_f, len(moves))
+        self._n += len(moves)
         return self._run(final=False)
+
+    def _reserve(self, m: int) -> dict:
+        """Room for ``m`` more rows in the window's buffers (grown to twice when short): views of the rows
+        after the window's, the kernel's output rows for them set to zero."""
+        n = self._n
+        if self._arrays is None or n + m > len(self._out_i):
+            cap = max(2 * len(self._out_i), n + m)
+            grown = {k: np.empty((cap,) + shape, dtype) for k, dtype, shape in _WINDOW}
+            out_i = np.empty((cap, mk.N_OI), dtype=np.int64)
+            out_f = np.empty((cap, mk.N_OF), dtype=np.float32)
+            if self._arrays is not None:
+                for k, v in grown.items():
+                    v[:n] = self._arrays[k][:n]
+                out_i[:n] = self._out_i[:n]
+                out_f[:n] = self._out_f[:n]
+            self._arrays, self._out_i, self._out_f = grown, out_i, out_f
+        self._out_i[n:n + m] = 0
+        self._out_f[n:n + m] = 0
+        return {k: v[n:n + m] for k, v in self._arrays.items()}
 
     def finish(self):
         """Run everything still queued; the buffer ends empty."""
-        if self._moves is None or len(self._moves) == 0:
+        if self._n == 0:
             return []
         return self._run(final=True)
 
     def _run(self, final: bool):
-        a = self._arrays
+        a = {k: v[:self._n] for k, v in self._arrays.items()}
         bf, bi, gi, gf = self.state
         tab = self._tables[1]
+        out_i, out_f = self._out_i[:self._n], self._out_f[:self._n]
         first = mk.marlin_run_kernel(a["kind"], a["tgt"], a["reset_bits"], a["reset_pos"], a["fr"], a["acc_p"],
                                      a["acc_t"], a["acc_r"], a["lim"], tab["vmax"], tab["amax"], tab["cutoff"],
                                      tab["jerk"], tab["min_feed"], tab["min_travel"], a["wait_ticks"], self.spm,
                                      self.mm_per_step, MIN_SEGMENT_TIME_US, self.timer_hz, self.acc_rate_scale,
-                                     final, self.row_base, bf, bi, gi, gf, self._out_i, self._out_f,
+                                     final, self.row_base, bf, bi, gi, gf, out_i, out_f,
                                      self.junction_mode, tab["amax_mm"], tab["jdev"], tab["advance_k"],
                                      self.s_curve, *self._scratch, self.version)
         n_done = int(first) - self.row_base
         if final:
-            n_done = len(self._moves)
+            n_done = self._n
         if n_done <= 0:
             return []
-        moves_out = self._moves[:n_done]
-        oi, of = self._out_i[:n_done], self._out_f[:n_done]
-        plan = self._plan_rows(moves_out, oi, of)
+        oi, of = out_i[:n_done], out_f[:n_done]
+        plan = self._plan_rows(a["move_d"][:n_done], a["move_kind"][:n_done], oi, of)
         if self.keep_blocks:
-            self.blocks.append((oi.copy(), of.copy(), moves_out["line"].copy()))
+            self.blocks.append((oi.copy(), of.copy(), a["line"][:n_done].copy()))
         if self.want_steps:
             la = None
             k = tab["advance_k"][a["lim"][:n_done]]
@@ -355,19 +403,21 @@ class MarlinModel:
                 la = advance_fields(oi, lead, k)
             self.last_steps = block_pulses(oi, self.timer_hz, self.s_curve, la, self._la_state,
                                            bugfix=self.version == mk.VERSION_BUGFIX)
-        self._moves = self._moves[n_done:].copy()
-        self._arrays = {k: v[n_done:].copy() for k, v in a.items()}
-        self._out_i = self._out_i[n_done:].copy()
-        self._out_f = self._out_f[n_done:].copy()
+        # the rows not settled move to the front of the buffers (a few: the blocks still queued)
+        rest = self._n - n_done
+        for v in (*self._arrays.values(), self._out_i, self._out_f):
+            v[:rest] = v[n_done:self._n].copy()
+        self._n = rest
         self.row_base += n_done
-        return [(moves_out, plan)]
+        return [(n_done, plan)]
 
-    def _plan_rows(self, moves: np.ndarray, oi: np.ndarray, of: np.ndarray) -> np.ndarray:
-        """PLAN rows: blocks as executed; rows without a block last 0 s where the previous one ended."""
-        plan = np.zeros(len(moves), dtype=PLAN_DTYPE)
+    def _plan_rows(self, move_d: np.ndarray, move_kind: np.ndarray, oi: np.ndarray, of: np.ndarray) -> np.ndarray:
+        """PLAN rows of settled rows (their MOVE rows' ``move_d`` (mm) and ``kind``): blocks as executed; rows
+        without a block last 0 s where the previous one ended."""
+        plan = np.zeros(len(move_d), dtype=PLAN_DTYPE)
         carry = np.array([self._clock_done], np.int64)
         last_v = np.array([self._last_v])
-        plan_rows_kernel(oi, of, moves["move_d"], moves["kind"], float(self.timer_hz), carry, last_v,
+        plan_rows_kernel(oi, of, move_d, move_kind, float(self.timer_hz), carry, last_v,
                          *(plan[f] for f in _PLAN_FIELDS))
         self._clock_done = int(carry[0])
         self._last_v = float(last_v[0])
@@ -379,7 +429,7 @@ _PLAN_FIELDS = ("t_start", "duration", "start_v", "cruise_v", "end_v", "accel", 
                 "decel_t", "limit")
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=False)
 def plan_rows_kernel(oi, of, move_d, kind, hz, clock_done, last_v, t_start, duration, start_v, cruise_v, end_v,
                      accel, decel, accel_t, cruise_t, decel_t, limit):
     """PLAN fields of settled rows from the kernel's per-row outputs ``oi``/``of``: a block's pick-up and end tick

@@ -103,6 +103,10 @@ OF_ENTRY_SQR, OF_NOMINAL_SPEED, OF_MM, OF_ACCEL, OF_EXIT_SQR = 0, 1, 2, 3, 4
 N_OF = 5
 
 F32 = np.float32
+#: numba's inline option for the planner's per-block functions: inlined into their caller at compile time. As
+#: calls, each would take its arrays as one argument per field (over a hundred for _populate_block) and
+#: could not be optimised with its caller; inlined, the kernel runs in about two thirds of the time
+INLINE = "always"
 
 
 def new_state():
@@ -141,17 +145,26 @@ def _prev(i):
     return (i - 1) & (BLOCK_BUFFER_SIZE - 1)
 
 
+# ceil and floor as np.ceil / np.floor: numba compiles them to the processor's rounding instruction, where
+# math.ceil / math.floor call a C library function through a pointer (the same value: rounding is exact)
+
+
 @njit(cache=True)
 def _ceilf(x):
-    return np.int64(math.ceil(x))
+    return np.int64(np.ceil(x))
+
+
+@njit(cache=True)
+def _floorf(x):
+    return np.int64(np.floor(x))
 
 
 @njit(cache=True)
 def _lroundf(x):
     """C lroundf: halves away from zero."""
     if x >= 0:
-        return np.int64(math.floor(x + np.float64(0.5)))
-    return -np.int64(math.floor(-x + np.float64(0.5)))
+        return np.int64(np.floor(x + np.float64(0.5)))
+    return -np.int64(np.floor(-x + np.float64(0.5)))
 
 
 @njit(cache=True)
@@ -165,7 +178,7 @@ def _max_allowable_speed_sqr(accel, target_velocity_sqr, distance):
     return F32(target_velocity_sqr - F32(F32(F32(2) * accel) * distance))
 
 
-@njit(cache=True)
+@njit(cache=True, inline=INLINE)
 def calculate_trapezoid_for_block(bf, bi, slot, entry_factor, exit_factor, timer_hz=25000000):
     """Rates and step boundaries of a block from its entry and exit speeds as fractions of nominal."""
     nominal_rate = bi[slot, BI_NOMINAL_RATE]
@@ -184,11 +197,11 @@ def calculate_trapezoid_for_block(bf, bi, slot, entry_factor, exit_factor, timer
     decelerate_f = F32(half_inverse_accel * F32(f_nom_sq - F32(F32(final_rate) * F32(final_rate))))
     accelerate_f = F32(half_inverse_accel * F32(f_nom_sq - F32(F32(initial_rate) * F32(initial_rate))))
     accelerate_steps = _ceilf(accelerate_f)
-    decelerate_steps = np.int64(math.floor(decelerate_f))
+    decelerate_steps = _floorf(decelerate_f)
     plateau_steps = sec - accelerate_steps - decelerate_steps
     if plateau_steps < 0:
         # no cruise: accelerate to where the two ramps meet, (steps + accel − decel) / 2
-        acc_f = F32(math.ceil(F32(F32(F32(F32(sec) + accelerate_f) - decelerate_f) * F32(0.5))))
+        acc_f = F32(_ceilf(F32(F32(F32(F32(sec) + accelerate_f) - decelerate_f) * F32(0.5))))
         if acc_f < 0:
             acc_f = F32(0)
         accelerate_steps = np.int64(acc_f)
@@ -279,7 +292,7 @@ def forward_pass(bf, bi, gi):
         idx = _next(idx)
 
 
-@njit(cache=True)
+@njit(cache=True, inline=INLINE)
 def recalculate_trapezoids(bf, bi, gi):
     """Trapezoids of the blocks whose entry or exit speed changed; the newest one always (exit at
     MINIMUM_PLANNER_SPEED); the busy block is left as it runs."""
@@ -322,7 +335,7 @@ def recalculate_trapezoids(bf, bi, gi):
         bi[block, BI_FLAG] &= ~FLAG_RECALCULATE
 
 
-@njit(cache=True)
+@njit(cache=True, inline=INLINE)
 def recalculate(bf, bi, gi):
     """Planner::recalculate(): both passes unless the newest block is the planned one, then trapezoids."""
     if _prev(gi[GI_HEAD]) != gi[GI_PLANNED]:
@@ -336,7 +349,7 @@ def recalculate(bf, bi, gi):
 # they were, so each version's rule can be read (and diffed) function by function.
 
 
-@njit(cache=True)
+@njit(cache=True, inline=INLINE)
 def calculate_trapezoid_for_block_bugfix(bf, bi, slot, entry_speed, exit_speed, timer_hz=25000000):
     """bugfix-2.1.x: rates and step boundaries of a block from its entry and exit speeds in mm/s.
 
@@ -447,7 +460,7 @@ def forward_pass_kernel_bugfix(bf, bi, prv, cur):
     bf[cur, BF_MIN_ENTRY_SQR] = bf[cur, BF_ENTRY_SQR]
 
 
-@njit(cache=True)
+@njit(cache=True, inline=INLINE)
 def recalculate_trapezoids_bugfix(bf, bi, gi, safe_exit_speed_sqr, timer_hz):
     """bugfix-2.1.x: the forward pass and the trapezoids in one sweep from the oldest block. A block whose exit
     changed is recomputed (entry speed 0 = keep its initial rate); the first block enters at its minimum speed;
@@ -486,7 +499,7 @@ def recalculate_trapezoids_bugfix(bf, bi, gi, safe_exit_speed_sqr, timer_hz):
         bi[block, BI_FLAG] &= ~FLAG_RECALCULATE
 
 
-@njit(cache=True)
+@njit(cache=True, inline=INLINE)
 def recalculate_bugfix(bf, bi, gi, safe_exit_speed_sqr, timer_hz):
     """bugfix-2.1.x Planner::recalculate(): the reverse pass, then the forward pass with the trapezoids."""
     reverse_pass_bugfix(bf, bi, gi, safe_exit_speed_sqr)
@@ -607,7 +620,7 @@ def _junction_deviation_sqr(gf, dist, inverse_millimeters, esteps, millimeters, 
     return vmax_junction_sqr
 
 
-@njit(cache=True)
+@njit(cache=True, inline=INLINE)
 def _use_advance_lead_accel(accel, tgt, gf, e_jerk, advance_k, steps_per_mm):
     """LIN_ADVANCE's acceleration cap (planner.cpp, where ``use_advance_lead`` is decided for a print move that
     extrudes forward): the acceleration (steps/s²) at which the extruder can jump to the advance speed within its
@@ -625,7 +638,7 @@ def _use_advance_lead_accel(accel, tgt, gf, e_jerk, advance_k, steps_per_mm):
     return accel
 
 
-@njit(cache=True)
+@njit(cache=True, inline=INLINE)
 def _limit_accel(accel, steps, sec, cutoff, amax_steps):
     """planner.cpp's LIMIT_ACCEL_LONG / LIMIT_ACCEL_FLOAT over the axes: no axis may accelerate above its M201
     limit (steps/s²), its share of the block's acceleration being its steps / ``sec``; in uint32 arithmetic while
@@ -645,7 +658,68 @@ def _limit_accel(accel, steps, sec, cutoff, amax_steps):
     return accel
 
 
-@njit(cache=True)
+@njit(cache=True, inline=INLINE)
+def _steps_to_target(gi, tgt, spm, da, target, steps):
+    """_populate_block's "number of steps for each axis": the target in whole steps (``lround(mm · steps/mm)``)
+    into ``target``, the signed and absolute step deltas from the planner's position into ``da`` and
+    ``steps``; returns the block's step_event_count (the most steps of any axis)."""
+    sec = np.int64(0)
+    for a in range(4):
+        target[a] = _lroundf(F32(tgt[a] * spm[a]))
+        da[a] = target[a] - gi[GI_PX + a]
+        steps[a] = abs(da[a])
+        if steps[a] > sec:
+            sec = steps[a]
+    return sec
+
+
+@njit(cache=True, inline=INLINE)
+def _slowdown(inverse_secs, moves_queued, min_segment_time_us):
+    """_populate_block's SLOWDOWN: with 2 to 7 blocks queued, a segment shorter than MIN_SEGMENT_TIME (µs) is
+    slowed towards it, by twice the shortfall over the blocks queued; returns 1 / segment time (1/s)."""
+    segment_time_us = _lroundf(F32(F32(1000000) / inverse_secs))
+    if moves_queued >= 2 and moves_queued <= BLOCK_BUFFER_SIZE // SLOWDOWN_DIVISOR - 1:
+        time_diff = min_segment_time_us - segment_time_us
+        if time_diff > 0:
+            # int32 division, as the firmware's LROUND(2 * time_diff / moves_queued)
+            nst = segment_time_us + (2 * time_diff) // moves_queued
+            inverse_secs = F32(F32(1000000) / F32(nst))
+    return inverse_secs
+
+
+@njit(cache=True, inline=INLINE)
+def _limit_speed(dist, inverse_secs, vmax, current_speed):
+    """_populate_block's "calculate and limit speed in mm/sec": each axis' speed (mm/s, into
+    ``current_speed``) from its distance (mm) and 1 / segment time; returns the factor (≤ 1) that keeps every
+    axis within its M203 limit ``vmax`` (mm/s)."""
+    speed_factor = F32(1)
+    for a in range(4):
+        current_speed[a] = F32(dist[a] * inverse_secs)
+        cs = F32(abs(current_speed[a]))
+        if cs > vmax[a]:
+            q = F32(vmax[a] / cs)
+            if q < speed_factor:
+                speed_factor = q
+    return speed_factor
+
+
+@njit(cache=True, inline=INLINE)
+def _acceleration_steps(steps, da, sec, steps_per_mm, acc_p, acc_t, acc_r, tgt, gf, jerk, advance_k, cutoff,
+                        amax_steps):
+    """_populate_block's "compute and limit the acceleration rate for the trapezoid generator" (steps/s²): M204
+    R for a move of E alone, P for a print move, T for a travel (mm/s² × the block's steps/mm, rounded up),
+    capped by linear advance's rule (:func:`_use_advance_lead_accel`) and by each axis' M201 limit
+    (:func:`_limit_accel`)."""
+    if steps[0] == 0 and steps[1] == 0 and steps[2] == 0:
+        return _ceilf(F32(acc_r * steps_per_mm))
+    esteps = steps[3]
+    accel = _ceilf(F32((acc_p if esteps != 0 else acc_t) * steps_per_mm))
+    if advance_k > 0 and esteps != 0 and da[3] > 0:
+        accel = _use_advance_lead_accel(accel, tgt, gf, jerk[3], advance_k, steps_per_mm)
+    return _limit_accel(accel, steps, sec, cutoff, amax_steps)
+
+
+@njit(cache=True, inline=INLINE)
 def _populate_block(bf, bi, gi, gf, row, tgt, fr_mm_s, acc_p, acc_t, acc_r, vmax, amax_steps, cutoff, jerk,
                     min_feed, min_travel, spm, mm_per_step, min_segment_time_us, junction_mode, amax_mm, jdev,
                     advance_k, scratch_f, scratch_i, version=VERSION_2_1_2):
@@ -657,13 +731,7 @@ def _populate_block(bf, bi, gi, gf, row, tgt, fr_mm_s, acc_p, acc_t, acc_r, vmax
     da = scratch_i[0]
     target = scratch_i[1]
     steps = scratch_i[2]
-    sec = np.int64(0)
-    for a in range(4):
-        target[a] = _lroundf(F32(tgt[a] * spm[a]))
-        da[a] = target[a] - gi[GI_PX + a]
-        steps[a] = abs(da[a])
-        if steps[a] > sec:
-            sec = steps[a]
+    sec = _steps_to_target(gi, tgt, spm, da, target, steps)
     if sec < MIN_STEPS_PER_SEGMENT:
         return False
     dist = scratch_f[0]
@@ -683,38 +751,19 @@ def _populate_block(bf, bi, gi, gf, row, tgt, fr_mm_s, acc_p, acc_t, acc_r, vmax
     inverse_millimeters = F32(F32(1) / millimeters)
     inverse_secs = F32(fr * inverse_millimeters)
     moves_queued = _nonbusy_queued(gi)
-    segment_time_us = _lroundf(F32(F32(1000000) / inverse_secs))
-    if moves_queued >= 2 and moves_queued <= BLOCK_BUFFER_SIZE // SLOWDOWN_DIVISOR - 1:
-        time_diff = min_segment_time_us - segment_time_us
-        if time_diff > 0:
-            # int32 division, as the firmware's LROUND(2 * time_diff / moves_queued)
-            nst = segment_time_us + (2 * time_diff) // moves_queued
-            inverse_secs = F32(F32(1000000) / F32(nst))
+    inverse_secs = _slowdown(inverse_secs, moves_queued, min_segment_time_us)
     nominal_speed = F32(millimeters * inverse_secs)
     nominal_rate = _ceilf(F32(F32(sec) * inverse_secs))
     current_speed = scratch_f[1]
-    speed_factor = F32(1)
-    for a in range(4):
-        current_speed[a] = F32(dist[a] * inverse_secs)
-        cs = F32(abs(current_speed[a]))
-        if cs > vmax[a]:
-            q = F32(vmax[a] / cs)
-            if q < speed_factor:
-                speed_factor = q
+    speed_factor = _limit_speed(dist, inverse_secs, vmax, current_speed)
     if speed_factor < F32(1):
         for a in range(4):
             current_speed[a] = F32(current_speed[a] * speed_factor)
         nominal_rate = np.int64(F32(F32(nominal_rate) * speed_factor))
         nominal_speed = F32(nominal_speed * speed_factor)
-    # acceleration in steps/s², limited per axis
     steps_per_mm = F32(F32(sec) * inverse_millimeters)
-    if steps[0] == 0 and steps[1] == 0 and steps[2] == 0:
-        accel = _ceilf(F32(acc_r * steps_per_mm))
-    else:
-        accel = _ceilf(F32((acc_p if esteps != 0 else acc_t) * steps_per_mm))
-        if advance_k > 0 and esteps != 0 and da[3] > 0:
-            accel = _use_advance_lead_accel(accel, tgt, gf, jerk[3], advance_k, steps_per_mm)
-        accel = _limit_accel(accel, steps, sec, cutoff, amax_steps)
+    accel = _acceleration_steps(steps, da, sec, steps_per_mm, acc_p, acc_t, acc_r, tgt, gf, jerk, advance_k, cutoff,
+                                amax_steps)
     acceleration = F32(F32(accel) / steps_per_mm)
     if version == VERSION_BUGFIX:
         # bugfix-2.1.x: the average speed over one step accelerating from rest, v² = a / (2 · steps/mm), is the
@@ -773,7 +822,7 @@ def _populate_block(bf, bi, gi, gf, row, tgt, fr_mm_s, acc_p, acc_t, acc_r, vmax
     return True
 
 
-@njit(cache=True)
+@njit(cache=True, inline=INLINE)
 def _classic_jerk_sqr(gf, current_speed, nominal_speed, moves_queued, jerk):
     """max_entry_speed² by classic jerk (Průša's rule, planner.cpp): a safe speed to start from / stop at,
     and the junction speed at which no axis changes speed by more than its jerk (coasting or reversing)."""
@@ -826,7 +875,7 @@ def _classic_jerk_sqr(gf, current_speed, nominal_speed, moves_queued, jerk):
     return F32(vmax_junction * vmax_junction)
 
 
-@njit(cache=True)
+@njit(cache=True, inline=INLINE)
 def _classic_jerk_sqr_bugfix(gf, current_speed, nominal_speed, moves_queued, jerk, scratch_f):
     """bugfix-2.1.x max_entry_speed² by classic jerk: the junction speed is the lower nominal speed, the other
     move's per-axis speeds scaled to it; each axis' speed difference (from rest for a first move) within its
@@ -856,7 +905,7 @@ def _classic_jerk_sqr_bugfix(gf, current_speed, nominal_speed, moves_queued, jer
     return F32(v * v)
 
 
-@njit(cache=True)
+@njit(cache=True, inline=INLINE)
 def _block_ticks_memo(memo, mode, key, timer_hz, ph):
     """The interrupt's ticks for the block whose trapezoid fields are ``key`` (12 int64: steps, initial,
     nominal and final rate, accelerate_until, decelerate_after, acceleration_rate, cruise rate, acceleration
@@ -897,7 +946,7 @@ def _block_ticks_memo(memo, mode, key, timer_hz, ph):
     return ticks
 
 
-@njit(cache=True)
+@njit(cache=True, inline=INLINE)
 def _pick_and_run(bf, bi, gi, out_i, out_f, timer_hz, acc_rate_scale, row_base, s_curve, scratch_i, memo,
                   version=VERSION_2_1_2):
     """The stepper: finish the busy block, skip sync blocks, pick up the next move block and time it
