@@ -14,6 +14,7 @@ import pytest
 
 import gcodeplan as gp
 from conftest import same_rows
+from test_grbl_rejects import grbl, read_both as rows_of    # one scanner-vs-Python reader for both files
 from gcodeplan.errors import GcodeError
 from gcodeplan.gcode.reader import read_moves
 from gcodeplan.machine import Machine
@@ -69,21 +70,6 @@ TEXT = {4: "negative value", 20: "unsupported command", 21: "modal group violati
         28: "value word missing", 29: "unsupported coordinate system", 30: "G53 invalid motion mode",
         32: "no axis words in plane", 33: "invalid target", 34: "arc radius error", 35: "no offsets in plane",
         36: "unused words", 37: "G43 dynamic axis error", 38: "max value exceeded"}
-
-
-def grbl() -> Machine:
-    return Machine(flavor="grbl", max_velocity=100.0)
-
-
-def rows_of(tmp_path, text, machine=None, name="p.nc", **kw):
-    """(MOVE rows, summary); the numba scanner and the Python interpreter must agree."""
-    path = tmp_path / name
-    path.write_text(text)
-    m = machine or grbl()
-    a, r = read_moves(str(path), m, **kw)
-    b, _ = read_moves(str(path), m, force_python=True, **kw)
-    assert same_rows(a, b), "numba scanner and Python interpreter disagree"
-    return a, r.summary
 
 
 @pytest.mark.parametrize("line,error,what", CASES)

@@ -22,19 +22,25 @@ def grbl() -> Machine:
     return Machine(flavor="grbl", max_velocity=100.0)
 
 
-def run(tmp_path, text, machine=None, name="p.nc", **kw):
-    """(moves as (line, x0, y0, x1, y1, z1, rapid, feed mm/s), summary); scanner and Python agree."""
+def read_both(tmp_path, text, machine=None, name="p.nc", **kw):
+    """(MOVE rows, summary) of ``text`` on a grbl machine; the numba scanner and the Python interpreter must agree."""
     path = tmp_path / name
     path.write_text(text)
     m = machine or grbl()
     a, r = read_moves(str(path), m, **kw)
     b, _ = read_moves(str(path), m, force_python=True, **kw)
     assert same_rows(a, b), "numba scanner and Python interpreter disagree"
+    return a, r.summary
+
+
+def run(tmp_path, text, machine=None, name="p.nc", **kw):
+    """(moves as (line, x0, y0, x1, y1, z1, rapid, feed mm/s), summary); scanner and Python agree."""
+    a, summary = read_both(tmp_path, text, machine, name, **kw)
     keep = a[(a["kind"] != KIND_WAIT) & (a["kind"] != KIND_DWELL)]
     out = [(int(m["line"]), round(float(m["x0"]), 9), round(float(m["y0"]), 9), round(float(m["x1"]), 9),
             round(float(m["y1"]), 9), round(float(m["z1"]), 9), bool(m["flags"] & FLAG_RAPID),
             round(float(m["feed_v"]), 9)) for m in keep]
-    return out, r.summary
+    return out, summary
 
 
 def rejected(summary, line, what, error=20):
