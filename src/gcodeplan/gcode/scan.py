@@ -90,6 +90,12 @@ ESET_MAX = 256
 GRBL_NOT_INERT_M = np.zeros(1000, np.bool_)
 GRBL_NOT_INERT_M[[0, 1, 2, 3, 4, 5, 7, 8, 9, 30, 56, 23, 28, 32, 117, 118, 550, 929, 486]] = True
 
+# the words an inert grbl line may carry after its M code (grbl_inert_words), each a bit of its "seen" mask
+GRBL_INERT_WORD_BIT = np.zeros(256, np.int64)
+for _bit, _letter in enumerate("ijklpr"):
+    GRBL_INERT_WORD_BIT[ord(_letter)] = 1 << _bit
+del _bit, _letter
+
 FEAT_MAX = 64        # ;TYPE: name table rows
 FEAT_NAME_MAX = 48   # bytes per name; longer names always go through Python
 
@@ -105,7 +111,6 @@ BYTE_L, BYTE_M, BYTE_T = ord("L"), ord("M"), ord("T")   # first letters of the c
 LETTER_G, LETTER_M = ord("g"), ord("m")
 LETTER_X, LETTER_Y, LETTER_Z, LETTER_E, LETTER_F = ord("x"), ord("y"), ord("z"), ord("e"), ord("f")
 LETTER_S, LETTER_P, LETTER_T, LETTER_R = ord("s"), ord("p"), ord("t"), ord("r")
-LETTER_I, LETTER_J, LETTER_K, LETTER_L = ord("i"), ord("j"), ord("k"), ord("l")
 
 # the words scan_chunk reads, as bits of its ``has`` mask (each word at most once per line)
 WORD_X, WORD_Y, WORD_Z, WORD_E, WORD_F = 1, 2, 4, 8, 16
@@ -699,20 +704,7 @@ def grbl_inert_words(buf, p, end):
             return False, p
         if p == q:
             return False, p               # a word must follow blanks
-        c = _lower(buf[p])
-        bit = 0
-        if c == LETTER_I:
-            bit = 1
-        elif c == LETTER_J:
-            bit = 2
-        elif c == LETTER_K:
-            bit = 4
-        elif c == LETTER_L:
-            bit = 8
-        elif c == LETTER_P:
-            bit = 16
-        elif c == LETTER_R:
-            bit = 32
+        bit = GRBL_INERT_WORD_BIT[_lower(buf[p])]
         if bit == 0 or (seen & bit):
             return False, p
         seen |= bit
