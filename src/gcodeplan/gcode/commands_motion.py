@@ -235,6 +235,9 @@ class MotionCommands:
         every segment end), in place."""
         if not self.ist[S.I_SOFT_CLAMP]:
             return
+        xyz = pts[:, :3]
+        if ((xyz >= self.st[S.S_SOFT_LO:S.S_SOFT_LO + 3]) & (xyz <= self.st[S.S_SOFT_HI:S.S_SOFT_HI + 3])).all():
+            return          # the usual arc, inside the travel: no per-point Python loop
         for i in range(pts.shape[0]):
             pts[i, 0], pts[i, 1], pts[i, 2] = self._soft_clamp(float(pts[i, 0]), float(pts[i, 1]),
                                                                float(pts[i, 2]))
