@@ -70,7 +70,10 @@ I_GRBL_INERT = 18   # 1 on grbl (not --strict): the scanner rejects a grbl line 
 I_SOFT_CLAMP = 19   # 1 on a Marlin machine with software endstops on (M211 S1): a G0/G1/G2/G3 target outside
                     # [S_SOFT_LO, S_SOFT_HI] is clamped to it (Marlin's apply_motion_limits); the scanner hands
                     # such a line to Python (commands_motion.py), which clamps and counts it
-N_IST = 20
+I_AXIS_LINES = 20   # 1 where a line led by an X Y Z E F word repeats the modal G0/G1 (grbl's implicit motion
+                    # mode, RS274NGC, RepRapFirmware); 0 on Marlin (no GCODE_MOTION_MODES, its default) and
+                    # Klipper, which answer "Unknown command": the scanner hands such a line to the interpreter
+N_IST = 21
 
 DIALECT_KLIPPER = 0   # M204: S, else min(P, T) when both; one accel for every move
 DIALECT_MARLIN = 1    # marlin / reprap: M204 S/P/T/R, accel chosen by the move's kind
@@ -765,7 +768,8 @@ def scan_chunk(buf, pos, end, st, ist, out, n_out, feat_raw, feat_len, feat_idx,
             ist[I_LINE] = line
             pos = eol + 1
             continue
-        letter, code, p = command_word(buf, p, end, ist[I_MOTION])
+        # motion -1 (no modal repeat): a line led by an axis word goes to the interpreter (I_AXIS_LINES)
+        letter, code, p = command_word(buf, p, end, ist[I_MOTION] if ist[I_AXIS_LINES] != 0 else -1)
         if letter == 0:
             return ST_PYTHON, line_start, n_out
         if letter == LETTER_M and ist[I_GRBL_INERT] != 0 and not GRBL_NOT_INERT_M[code]:
