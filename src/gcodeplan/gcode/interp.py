@@ -38,6 +38,7 @@ from .objects import KlipperExclude, ObjectTable
 
 from .commands_motion import MotionCommands
 from .commands_state import StateCommands
+from .grbl_line import GrblLines
 from .rs274 import Rs274Commands
 
 
@@ -49,7 +50,7 @@ PRINTER_LINE_LETTERS = frozenset("GMTXYZEF")
 #: parser.cpp), Klipper's gcode.py takes the first word as the command name ("X10")
 UNKNOWN_AXIS_LINE_FLAVORS = frozenset(("marlin", "klipper"))
 
-class Interpreter(StateCommands, MotionCommands, Rs274Commands):
+class Interpreter(StateCommands, MotionCommands, Rs274Commands, GrblLines):
     """Modal state and the Python side of the interpretation of a file."""
 
     def __init__(self, machine: Machine, path: str, strict: bool = False):
@@ -398,8 +399,13 @@ class Interpreter(StateCommands, MotionCommands, Rs274Commands):
                 self.event("% program end")
                 self.ist[S.I_STOPPED] = 1
             return
-        if text[0] == "$":
-            # grbl system commands ($H homing, $X unlock, $$ settings): no motion model here
+        if self._grbl_reads:
+            # grbl's own reading first: its line buffer, its lexer, its $ lines (grbl_line.py)
+            text = self.grbl_line(raw)
+            if text is None:
+                return
+        elif text[0] == "$":
+            # grbl system commands ($H homing, $X unlock, $$ settings) on another flavor: unknown
             self.unknown_command(text.split()[0][:12])
             return
         code, paren = self._strip_comments(text)
@@ -569,11 +575,11 @@ class Interpreter(StateCommands, MotionCommands, Rs274Commands):
         if not self.ist[S.I_AXIS_LINES] and code[:1].upper() in "XYZEF":
             self._axis_led_line(code)
             return
-        m486 = M486_RE.match(code)
+        m486 = None if self._grbl_reads else M486_RE.match(code)
         if m486:
             self._m486(m486.group(1))
             return
-        head = FREE_TEXT_RE.match(code)
+        head = None if self._grbl_reads else FREE_TEXT_RE.match(code)     # grbl: M117 … is its error:20
         # M30 takes a file name on printers (delete an SD file) but ends the program on CNC flavors
         if head and int(head.group(1)) in FREE_TEXT_M and not (self.machine.is_cnc and int(head.group(1)) == 30):
             return
@@ -601,7 +607,7 @@ class Interpreter(StateCommands, MotionCommands, Rs274Commands):
         ms: list[int] = []
         params: dict[str, Word] = {}
         tool = None
-        repeated = None
+        grbl = self._grbl_reads      # grbl checks the words in their order (grbl_line.py, rs274.py)
         for w in words:
             if w.letter == "G":
                 if w.value is None:
@@ -610,11 +616,7 @@ class Interpreter(StateCommands, MotionCommands, Rs274Commands):
             elif w.letter == "M":
                 if w.value is None:
                     self.error("M needs a number")
-                if w.value != int(w.value):
-                    if self.dialect == S.DIALECT_CNC and self.machine.flavor != "linuxcnc":
-                        # gcode.c: an M code with a fraction is error:23 and the line is rejected whole
-                        self.warn(f"M{w.text}: grbl rejects it (error:23, command value not integer); "
-                                  f"the line is skipped")
+                if w.value != int(w.value) and not grbl:
                     self.unknown_command(f"M{w.text}")
                     return
                 ms.append(int(w.value))
@@ -623,12 +625,10 @@ class Interpreter(StateCommands, MotionCommands, Rs274Commands):
                 params["T"] = w
             else:
                 if w.letter in params:
-                    if self.dialect == S.DIALECT_CNC and self.machine.flavor != "linuxcnc":
-                        repeated = repeated or w.letter    # grbl's error:25, in its order (rs274.py)
-                        continue
+                    if grbl:
+                        continue     # grbl's error:25, found in its order
                     self.error(f"word {w.letter} repeated")
                 params[w.letter] = w
-        self.grbl_repeated = repeated
         self._execute(gs, ms, params, tool)
 
     def _axis_led_line(self, code: str) -> None:
