@@ -17,12 +17,9 @@ from __future__ import annotations
 
 import re
 
+from .lexing import Word
+from .rs274 import GRBL_LINE_BUFFER_SIZE, GRBL_MAX_LINE_NUMBER, grbl_word_error
 from .scan import S_UNIT
-
-#: protocol.h LINE_BUFFER_SIZE: the bytes of grbl's line buffer, the terminating NUL included
-GRBL_LINE_BUFFER_SIZE = 80
-#: gcode.c MAX_LINE_NUMBER: a larger N is error:27 (invalid line number)
-GRBL_MAX_LINE_NUMBER = 10000000
 
 # a comment as protocol.c drops it: "(" to the next ")" (or the line's end), ";" to the line's end; the
 # leftmost match wins, so a ";" inside parentheses and a ")" after a ";" stay inside their comment
@@ -63,7 +60,7 @@ def lex(kept: bytes) -> tuple[list[tuple[str, str]], int, str]:
         m = _NUMBER.match(kept, pos + 1)
         text = m.group(0)
         if not any(48 <= c <= 57 for c in text):
-            return words, 2, f"word {letter.decode()} without a number"
+            return words, 2, f"word {letter.decode()} without a number in {kept[pos:pos + 40].decode('latin-1')}"
         words.append((letter.decode(), text.decode()))
         pos = m.end()
     return words, 0, ""
@@ -98,9 +95,6 @@ class GrblLines:
         answers with an error before it checks the words (error:11 overflow, error:1 / 2 unreadable word,
         or the first word's error before an unreadable one), each warned about once (an error under
         ``--strict``) and otherwise skipped as grbl skips it."""
-        from .lexing import Word
-        from .rs274 import grbl_word_error
-
         if raw.startswith(b"\xef\xbb\xbf"):
             raw = raw[3:]                # a UTF-8 byte order mark: a sender does not send it
         kept, spaced, overflow = protocol_line(raw)
@@ -183,9 +177,6 @@ class GrblLines:
         (G20 / G21, G90 / G91, G53 only: else error:16; F required: error:22; other words than X Y Z F N:
         error:36) that leaves the modes as they were. grbl starts a jog only when it is idle (error:8 while it
         moves), so it is timed from rest to rest, with one warning per file."""
-        from .lexing import Word
-        from .rs274 import grbl_word_error
-
         pairs, lex_error, what = lex(body)
         words = [Word(k, float(t), t) for k, t in pairs]
         first, _ = grbl_word_error(words)

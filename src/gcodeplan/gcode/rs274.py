@@ -16,8 +16,11 @@ T above 255 (38), a missing P or L (28), G10 P above 6 (29), no axis words (26),
 axis words under G80 (31), a feed move with no feed rate (22: before the first F, or after F0), an arc without its plane's words (32, 35), an R too
 short (34) or an end off the circle (33), a probe to where it is (33), G43.1 with other than Z (37), a
 value word no command of the line reads (36) — by :meth:`Rs274Commands._grbl_block_error`, run before
-anything of the line: no mode, offset, feed, spindle or position changes, one warning names the line and
-grbl's error (an error under ``--strict``), and the program goes on.
+anything of the line, word by word in the line's order as gcode.c reads them (:func:`grbl_word_error`): no
+mode, offset, feed, spindle or position changes, one warning names the line and grbl's error (an error under
+``--strict``), and the program goes on. Before that the line is read as grbl reads it (gcode/grbl_line.py):
+its 79-byte line buffer (error:11), its word lexer (error:1, error:2), its line numbers (error:27), its ``$``
+lines (jogs, settings).
 
 LinuxCNC specifics kept: F is read before G20/G21 on the same line, so ``G20 F10`` keeps the old units
 for its feed (interp_convert.cc convert_feed_rate runs before convert_length_units; grbl converts F
@@ -51,7 +54,6 @@ import numpy as np
 
 from ..schema import FLAG_RAPID, KIND_TRAVEL
 from . import scan as S
-from .grbl_line import GRBL_LINE_BUFFER_SIZE, GRBL_MAX_LINE_NUMBER
 from .lexing import FREE_TEXT_M, MAX_WARNINGS, QUIET_G, Word
 
 CYCLE_G = (73, 81, 82, 83, 85, 86, 89)
@@ -104,6 +106,8 @@ GRBL_ERRORS = {1: "expected command letter", 2: "bad number format", 3: "invalid
                35: "no offsets in plane", 36: "unused words", 37: "G43 dynamic axis error",
                38: "max value exceeded"}
 GRBL_MAX_TOOL = 255          # gcode.c MAX_TOOL_NUMBER (T is a uint8)
+GRBL_LINE_BUFFER_SIZE = 80   # protocol.h LINE_BUFFER_SIZE: the bytes of grbl's line buffer, its NUL included
+GRBL_MAX_LINE_NUMBER = 10000000    # gcode.c MAX_LINE_NUMBER: a larger N is error:27 (invalid line number)
 GRBL_N_COORD = 6             # G54..G59 (nuts_bolts.h N_COORDINATE_SYSTEM)
 GRBL_MOTION_G = {0.0, 1.0, 2.0, 3.0, 38.2, 38.3, 38.4, 38.5, 80.0}
 # grbl's M modal groups (gcode.h): stopping, spindle, coolant (M7 and M8 one group), override
