@@ -144,3 +144,30 @@ def test_other_dollar_lines(tmp_path):
     assert s.ignored_commands == {"$22": 1, "$$": 1, "$X": 1}
     assert s.unknown_commands == {"$H": 1}
     assert [w.split("/")[-1][:20] for w in s.warnings] == ["p.nc:8: $H: the homi"]
+
+
+def test_random_text_is_read_as_grbl_reads_it(tmp_path):
+    """Property, on random lines of word letters, digits, signs, dots, blanks and comment characters: the numba
+    scanner and the Python interpreter agree, nothing raises but a GcodeError naming the line, and every line
+    the reader rejects leaves the program as if it were blank."""
+    import numpy as np
+
+    rng = np.random.default_rng(5)
+    alphabet = list("GGMXXYZFNIJRSP0123456789012345678901234567890.-+  (()*%;/$O")
+    rejected_lines = 0
+    for case in range(120):
+        lines = ["G21 G90 F600", "G0 X1 Y1"]
+        for _ in range(6):
+            n = int(rng.integers(1, 14))
+            lines.append("".join(rng.choice(alphabet, n)).strip() or "G1 X2")
+        try:
+            got, s = rows_of(tmp_path, "\n".join(lines) + "\n")
+        except GcodeError as err:
+            assert err.line is not None
+            continue
+        bad = {int(w.split("p.nc:")[1].split(":")[0]) for w in s.warnings if "grbl rejects it" in w}
+        rejected_lines += len(bad)
+        blanked = "\n".join("" if i + 1 in bad else ln for i, ln in enumerate(lines)) + "\n"
+        want, _ = rows_of(tmp_path, blanked, name="q.nc")
+        assert same_rows(got, want), lines
+    assert rejected_lines > 300

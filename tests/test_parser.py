@@ -82,7 +82,7 @@ def test_compact_lowercase_and_leading_zero_words(tmp_path):
 
 
 def test_modal_bare_coordinates_continue_last_motion(tmp_path):
-    # RepRapFirmware repeats the modal G0/G1 (Marlin and Klipper do not: tests/test_printer_axis_lines.py)
+    # the reprap flavor repeats the modal G0/G1 (Marlin and Klipper do not: tests/test_printer_axis_lines.py)
     m, _ = _parse(tmp_path, "G0 X1\nX2 Y2\nG1 X3 F600\nY5\n", Machine(flavor="reprap"))
     assert [bool(f & FLAG_RAPID) for f in m["flags"]] == [True, True, False, False]
     assert m["y1"][3] == 5.0 and m["feed_v"][3] == 10.0

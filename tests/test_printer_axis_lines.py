@@ -6,7 +6,7 @@ line is an unknown command ("Unknown command") and does nothing. Klipper (klippy
 ``_process_commands``) takes the line's first word as the command's name ("X10"), which no handler has:
 ``cmd_default`` answers 'Unknown command:"X10"' and nothing moves. So the independent truth is the same program
 with those lines blanked. grbl (gcode.c: axis words without a command run in the modal motion mode) and
-LinuxCNC (RS274NGC) repeat the modal G0/G1, as RepRapFirmware does here. The numba scanner and the Python
+LinuxCNC (RS274NGC) repeat the modal G0/G1, as the reprap flavor still does here. The numba scanner and the Python
 interpreter must agree on every case.
 """
 from __future__ import annotations
@@ -66,7 +66,7 @@ def test_strict_makes_it_an_error_naming_the_line(tmp_path):
 @pytest.mark.parametrize("flavor", ["grbl", "reprap"])
 def test_cnc_controls_and_reprapfirmware_repeat_the_modal_motion(tmp_path, flavor):
     # grbl 1.1 (gcode.c, step 3: axis words without an axis command take the modal motion mode) and
-    # RepRapFirmware: X30 Y10 after a G0 is a rapid to (30, 10)
+    # the reprap flavor (kept as it was): X30 Y10 after a G0 is a rapid to (30, 10)
     got, s = rows(tmp_path, "G21\nG90\nG1 X10 F600\nG0 X20\nX30 Y10\n", Machine(flavor=flavor))
     last = got[-1]
     assert (int(last["line"]), float(last["x1"]), float(last["y1"]), bool(last["flags"] & FLAG_RAPID)) == (

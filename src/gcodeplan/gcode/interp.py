@@ -43,7 +43,8 @@ from .rs274 import Rs274Commands
 
 
 #: letters a printer line may start with (after its N line number): G, M and T commands, and the X Y Z E F words
-#: read as a repeat of the modal G0/G1 where the firmware does so (RepRapFirmware; not UNKNOWN_AXIS_LINE_FLAVORS)
+#: read as a repeat of the modal G0/G1 where the firmware does so (CNC flavors; reprap kept so; not
+#: UNKNOWN_AXIS_LINE_FLAVORS)
 PRINTER_LINE_LETTERS = frozenset("GMTXYZEF")
 #: flavors whose firmware answers "Unknown command" to a line led by an axis word (``X10 Y10``, ``E5 F300``) and
 #: does nothing: Marlin's parser takes such a letter as a command only with GCODE_MOTION_MODES (off by default:
@@ -101,7 +102,7 @@ class Interpreter(StateCommands, MotionCommands, Rs274Commands, GrblLines):
         ist[S.I_F32_REL] = 1 if m.firmware.startswith("marlin") else 0
         # modal motion at start: grbl powers up in G0, LinuxCNC with no motion mode (G80), printers in G1
         ist[S.I_MOTION] = {"grbl": 0, "linuxcnc": 80}.get(m.flavor, 1)
-        # a line led by an axis word: a modal G0/G1 on CNC controls and RepRapFirmware, an unknown command on
+        # a line led by an axis word: a modal G0/G1 on CNC controls (and reprap, as before), an unknown command on
         # Marlin (without GCODE_MOTION_MODES, its default) and Klipper (see PRINTER_LINE_LETTERS)
         ist[S.I_AXIS_LINES] = 0 if m.flavor in UNKNOWN_AXIS_LINE_FLAVORS else 1
         ist[S.I_DIALECT] = self.dialect

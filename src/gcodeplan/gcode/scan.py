@@ -71,7 +71,7 @@ I_SOFT_CLAMP = 19   # 1 on a Marlin machine with software endstops on (M211 S1):
                     # [S_SOFT_LO, S_SOFT_HI] is clamped to it (Marlin's apply_motion_limits); the scanner hands
                     # such a line to Python (commands_motion.py), which clamps and counts it
 I_AXIS_LINES = 20   # 1 where a line led by an X Y Z E F word repeats the modal G0/G1 (grbl's implicit motion
-                    # mode, RS274NGC, RepRapFirmware); 0 on Marlin (no GCODE_MOTION_MODES, its default) and
+                    # mode, RS274NGC; the reprap flavor as before); 0 on Marlin (no GCODE_MOTION_MODES, its default) and
                     # Klipper, which answer "Unknown command": the scanner hands such a line to the interpreter
 N_IST = 21
 
