@@ -38,6 +38,7 @@ CASES = [
     ("G1 X1.2.3 M204", 1, "'.3M204' (a word must start with a letter)"),   # grbl never reaches M204
     ("M204 X1.2.3", 20, "M204"),                                    # ... but here M204 comes first
     ("10 G1 X5", 1, "'10G1X5' (a word must start with a letter)"),
+    ("G1 10", 20, "G110"),                                          # blanks dropped: G110, no such code
     ("G1 X5 -3", 1, "'-3' (a word must start with a letter)"),      # blanks dropped: X5 then "-3"
     ("G1 X5*71", 1, "'*71' (a word must start with a letter)"),     # a checksum is no grbl word
     ("O100 call", 20, "word O"),                                    # O is no grbl letter (not error:25)
