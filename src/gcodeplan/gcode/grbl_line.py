@@ -8,7 +8,8 @@ or the line's end) and everything after a ``;``, turns ``a``-``z`` into capitals
 by ``read_float`` (nuts_bolts.c: an optional sign, digits with at most one ``.``, no exponent): a word that does
 not start with a letter is ``error:1`` (expected command letter), a letter without a number ``error:2`` (bad
 number format). So grbl reads ``G1 X10 20`` as ``G1X1020`` (X1020), ``G1 X1.2.3`` fails at the second ``.``
-(error:1), ``G1 X-`` at the missing digits (error:2), ``%`` or a checksum ``*71`` at the ``%`` / ``*`` (error:1).
+(error:1), ``G1 X-`` at the missing digits (error:2), a checksum ``*71`` at the ``*`` (error:1). (A line that
+is only ``%`` keeps the interpreter's program start / end reading: grbl answers it error:1 and does nothing.)
 
 These functions only say what grbl keeps and where its lexer stops; the interpreter
 (:meth:`.rs274.Rs274Commands.grbl_line`) checks the words and runs the line.
