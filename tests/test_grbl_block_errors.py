@@ -39,7 +39,9 @@ CASES = [
     ("G20 G91 G2 F300", 26, "G2 without axis words"),             # G20 and G91 do not take effect either
     ("G55 G0 X3 G56", 21, "G56"),                                  # two coordinate systems
     ("G0 G1 X3", 24, "G1"),          # two motion codes: gcode.c meets the axis command conflict first
-    ("M7 M8 X3", 21, "M7 M8"),                                     # grbl: M7 and M8 are one modal group
+    ("M8 M9 X3", 21, "M8 M9"),                                     # grbl: M8 and M9 are one modal group
+    ("M7 X3", 20, "M7"),             # default config.h: no ENABLE_M7, so gcode.c has no M7 at all
+    ("M56 P1", 20, "M56"),           # nor M56 (ENABLE_PARKING_OVERRIDE_CONTROL off)
     ("G10 L2 P1 X5 G0 X1", 24, "G0"),                              # G10 and G0 both want the axis words
     ("G43.1 Z1 G1 X3", 24, "G1"),
     ("G1 X5 S-1", 4, "S-1"),

@@ -82,7 +82,8 @@ def test_compact_lowercase_and_leading_zero_words(tmp_path):
 
 
 def test_modal_bare_coordinates_continue_last_motion(tmp_path):
-    m, _ = _parse(tmp_path, "G0 X1\nX2 Y2\nG1 X3 F600\nY5\n")
+    # the reprap flavor repeats the modal G0/G1 (Marlin and Klipper do not: tests/test_printer_axis_lines.py)
+    m, _ = _parse(tmp_path, "G0 X1\nX2 Y2\nG1 X3 F600\nY5\n", Machine(flavor="reprap"))
     assert [bool(f & FLAG_RAPID) for f in m["flags"]] == [True, True, False, False]
     assert m["y1"][3] == 5.0 and m["feed_v"][3] == 10.0
 
@@ -402,7 +403,7 @@ def test_g81_drill_cycle_modal_repeat_and_cancel(tmp_path):
 def test_initial_modal_motion_by_flavor(tmp_path):
     m, _ = _parse(tmp_path, "X10\n", Machine(flavor="grbl"))
     assert m["flags"][0] & FLAG_RAPID and m["feed_v"][0] == math.inf      # grbl starts in G0
-    m, _ = _parse(tmp_path, "X10\n", Machine(flavor="marlin"))
+    m, _ = _parse(tmp_path, "X10\n", Machine(flavor="reprap"))      # Marlin, Klipper: no modal G1 at all
     assert not m["flags"][0] & FLAG_RAPID and m["feed_v"][0] == 25.0
     e = _err(tmp_path, "X10\n", Machine(flavor="linuxcnc"))
     assert e.line == 1 and "motion" in str(e)

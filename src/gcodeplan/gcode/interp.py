@@ -38,14 +38,20 @@ from .objects import KlipperExclude, ObjectTable
 
 from .commands_motion import MotionCommands
 from .commands_state import StateCommands
+from .grbl_line import GrblLines
 from .rs274 import Rs274Commands
 
 
 #: letters a printer line may start with (after its N line number): G, M and T commands, and the X Y Z E F words
-#: gcodeplan reads as a repeat of the modal G0/G1
+#: read as a repeat of the modal G0/G1 where the firmware does so (CNC flavors; reprap kept so; not
+#: UNKNOWN_AXIS_LINE_FLAVORS)
 PRINTER_LINE_LETTERS = frozenset("GMTXYZEF")
+#: flavors whose firmware answers "Unknown command" to a line led by an axis word (``X10 Y10``, ``E5 F300``) and
+#: does nothing: Marlin's parser takes such a letter as a command only with GCODE_MOTION_MODES (off by default:
+#: parser.cpp), Klipper's gcode.py takes the first word as the command name ("X10")
+UNKNOWN_AXIS_LINE_FLAVORS = frozenset(("marlin", "klipper"))
 
-class Interpreter(StateCommands, MotionCommands, Rs274Commands):
+class Interpreter(StateCommands, MotionCommands, Rs274Commands, GrblLines):
     """Modal state and the Python side of the interpretation of a file."""
 
     def __init__(self, machine: Machine, path: str, strict: bool = False):
@@ -55,6 +61,26 @@ class Interpreter(StateCommands, MotionCommands, Rs274Commands):
         m = machine
         self.dialect = (S.DIALECT_KLIPPER if m.flavor == "klipper" else
                         S.DIALECT_CNC if m.is_cnc else S.DIALECT_MARLIN)
+        self.st, self.ist = self._power_up_state(m)
+        #: Marlin clamps a target to its software endstops (apply_motion_limits) where Klipper refuses the move
+        self.soft_endstops = (m.flavor == "marlin" and m.kinematics in ("cartesian", "corexy", "corexz")
+                              and any(math.isfinite(self.st[S.S_SOFT_LO + a]) or
+                                      math.isfinite(self.st[S.S_SOFT_HI + a]) for a in range(3)))
+        self.ist[S.I_SOFT_CLAMP] = 1 if self.soft_endstops else 0
+        self.soft_clamped = 0               # moves (and arc chords) clamped to them
+        self.soft_clamped_first_line: int | None = None
+        self._init_labels(m)
+        self._init_offsets()
+        self._init_summary(machine)
+        self.line = 0
+        # RS274NGC program language (gcode/ngc.py): made by the first line that needs it
+        self.ngc = None
+        self._ngc_on = m.flavor == "linuxcnc"
+        self._cnc_init()
+
+    def _power_up_state(self, m: Machine) -> tuple[np.ndarray, np.ndarray]:
+        """The modal state arrays ``st`` / ``ist`` (scan.py's indices) as the firmware powers up: feed,
+        factors, accelerations (mm/s²), absolute modes, the modal motion, software endstops (mm)."""
         st = np.zeros(S.N_ST)
         ist = np.zeros(S.N_IST, dtype=np.int64)
         st[S.S_FEED] = 25.0                 # Klipper's and Marlin's initial 1500 mm/min
@@ -76,6 +102,9 @@ class Interpreter(StateCommands, MotionCommands, Rs274Commands):
         ist[S.I_F32_REL] = 1 if m.firmware.startswith("marlin") else 0
         # modal motion at start: grbl powers up in G0, LinuxCNC with no motion mode (G80), printers in G1
         ist[S.I_MOTION] = {"grbl": 0, "linuxcnc": 80}.get(m.flavor, 1)
+        # a line led by an axis word: a modal G0/G1 on CNC controls (and reprap, as before), an unknown command on
+        # Marlin (without GCODE_MOTION_MODES, its default) and Klipper (see PRINTER_LINE_LETTERS)
+        ist[S.I_AXIS_LINES] = 0 if m.flavor in UNKNOWN_AXIS_LINE_FLAVORS else 1
         ist[S.I_DIALECT] = self.dialect
         ist[S.I_LAYER] = -1
         ist[S.I_FEATURE] = -1
@@ -86,15 +115,11 @@ class Interpreter(StateCommands, MotionCommands, Rs274Commands):
         for a, k in enumerate("xyz"):
             st[S.S_SOFT_LO + a] = m.axes[k].position_min
             st[S.S_SOFT_HI + a] = m.axes[k].position_max
-        #: Marlin clamps a target to its software endstops (apply_motion_limits) where Klipper refuses the move
-        self.soft_endstops = (m.flavor == "marlin" and m.kinematics in ("cartesian", "corexy", "corexz")
-                              and any(math.isfinite(st[S.S_SOFT_LO + a]) or math.isfinite(st[S.S_SOFT_HI + a])
-                                      for a in range(3)))
-        ist[S.I_SOFT_CLAMP] = 1 if self.soft_endstops else 0
-        self.soft_clamped = 0               # moves (and arc chords) clamped to them
-        self.soft_clamped_first_line: int | None = None
-        self.st, self.ist = st, ist
+        return st, ist
 
+    def _init_labels(self, m: Machine) -> None:
+        """Feature names (;TYPE:), layers, objects, the time the G-code does not show (machine [time]: the
+        start time, macros), the planner limits rows."""
         self.feat_raw = np.zeros((S.FEAT_MAX, S.FEAT_NAME_MAX), dtype=np.uint8)
         self.feat_len = np.zeros(S.FEAT_MAX, dtype=np.int64)
         self.feat_idx = np.zeros(S.FEAT_MAX, dtype=np.int64)
@@ -110,10 +135,12 @@ class Interpreter(StateCommands, MotionCommands, Rs274Commands):
         self._macros = {str(k).upper(): float(v) for k, v in getattr(m, "macros", {}).items()}
         self._start_pending = getattr(m, "start_time", 0.0) > 0.0
         if self._start_pending:
-            ist[S.I_TO_PYTHON] = 1       # the first line comes here, to put the start wait before it
+            self.ist[S.I_TO_PYTHON] = 1       # the first line comes here, to put the start wait before it
         self._limits_rows: list[np.ndarray] = [m.limits_row()[0].copy()]
 
-        # offsets (mm): 9 work systems G54..G59.3, G92, tool length (Z)
+    def _init_offsets(self) -> None:
+        """Offsets (mm) at power-up: 9 work systems G54..G59.3, G92, tool length (Z); plane, arc centre
+        mode, canned-cycle and firmware-retraction state."""
         self.work = np.zeros((9, 3))
         self.work_index = 0
         self.g92 = np.zeros(3)
@@ -126,9 +153,10 @@ class Interpreter(StateCommands, MotionCommands, Rs274Commands):
         self.retracted = False             # firmware retraction (G10/G11)
         self.percent_seen = 0
 
+    def _init_summary(self, machine: Machine) -> None:
+        """The rows a line makes, and the summary material: counts, waits, events, warnings."""
         self.rows: list[tuple] = []        # rows made by the current Python line
         self.row_arrays: list[np.ndarray] = []   # rows in bulk (arc chords, cycles), in order with rows
-        # summary material
         self.unknown: dict[str, int] = {}
         self.ignored: dict[str, int] = {}
         self.waits: dict[str, int] = {}
@@ -148,11 +176,6 @@ class Interpreter(StateCommands, MotionCommands, Rs274Commands):
         self.g64_q_ignored = 0
         self.header_layer_count: int | None = None
         self.slicer_estimate_s: float | None = None
-        self.line = 0
-        # RS274NGC program language (gcode/ngc.py): made by the first line that needs it
-        self.ngc = None
-        self._ngc_on = m.flavor == "linuxcnc"
-        self._cnc_init()
 
     # ------------------------------------------------------------------ helpers
     @property
@@ -377,8 +400,13 @@ class Interpreter(StateCommands, MotionCommands, Rs274Commands):
                 self.event("% program end")
                 self.ist[S.I_STOPPED] = 1
             return
-        if text[0] == "$":
-            # grbl system commands ($H homing, $X unlock, $$ settings): no motion model here
+        if self._grbl_reads:
+            # grbl's own reading first: its line buffer, its lexer, its $ lines (grbl_line.py)
+            text = self.grbl_line(raw)
+            if text is None:
+                return
+        elif text[0] == "$":
+            # grbl system commands ($H homing, $X unlock, $$ settings) on another flavor: unknown
             self.unknown_command(text.split()[0][:12])
             return
         code, paren = self._strip_comments(text)
@@ -545,11 +573,14 @@ class Interpreter(StateCommands, MotionCommands, Rs274Commands):
             # letter (a CNC post's ``O100 call``, ``O100 sub``) is an unknown command, reported and ignored
             self._unknown_or_macro(code.split(None, 1)[0][:40].upper())
             return
-        m486 = M486_RE.match(code)
+        if not self.ist[S.I_AXIS_LINES] and code[:1].upper() in "XYZEF":
+            self._axis_led_line(code)
+            return
+        m486 = None if self._grbl_reads else M486_RE.match(code)
         if m486:
             self._m486(m486.group(1))
             return
-        head = FREE_TEXT_RE.match(code)
+        head = None if self._grbl_reads else FREE_TEXT_RE.match(code)     # grbl: M117 … is its error:20
         # M30 takes a file name on printers (delete an SD file) but ends the program on CNC flavors
         if head and int(head.group(1)) in FREE_TEXT_M and not (self.machine.is_cnc and int(head.group(1)) == 30):
             return
@@ -577,7 +608,7 @@ class Interpreter(StateCommands, MotionCommands, Rs274Commands):
         ms: list[int] = []
         params: dict[str, Word] = {}
         tool = None
-        repeated = None
+        grbl = self._grbl_reads      # grbl checks the words in their order (grbl_line.py, rs274.py)
         for w in words:
             if w.letter == "G":
                 if w.value is None:
@@ -586,11 +617,7 @@ class Interpreter(StateCommands, MotionCommands, Rs274Commands):
             elif w.letter == "M":
                 if w.value is None:
                     self.error("M needs a number")
-                if w.value != int(w.value):
-                    if self.dialect == S.DIALECT_CNC and self.machine.flavor != "linuxcnc":
-                        # gcode.c: an M code with a fraction is error:23 and the line is rejected whole
-                        self.warn(f"M{w.text}: grbl rejects it (error:23, command value not integer); "
-                                  f"the line is skipped")
+                if w.value != int(w.value) and not grbl:
                     self.unknown_command(f"M{w.text}")
                     return
                 ms.append(int(w.value))
@@ -599,13 +626,30 @@ class Interpreter(StateCommands, MotionCommands, Rs274Commands):
                 params["T"] = w
             else:
                 if w.letter in params:
-                    if self.dialect == S.DIALECT_CNC and self.machine.flavor != "linuxcnc":
-                        repeated = repeated or w.letter    # grbl's error:25, in its order (rs274.py)
-                        continue
+                    if grbl:
+                        continue     # grbl's error:25, found in its order
                     self.error(f"word {w.letter} repeated")
                 params[w.letter] = w
-        self.grbl_repeated = repeated
         self._execute(gs, ms, params, tool)
+
+    def _axis_led_line(self, code: str) -> None:
+        """A line led by an axis or F word (``X10 Y10``, ``E5 F300``) on Marlin or Klipper: no modal G1 there
+        (Marlin's parser takes it as a command only with GCODE_MOTION_MODES, off by default; Klipper's takes
+        "X10" as the command's name): the firmware answers "Unknown command" and the line does nothing. One
+        named warning per file, each line counted as an unknown command (an error under ``--strict``)."""
+        head = code.split(None, 1)[0][:40].upper()
+        if head in self._macros:         # a [time] macro of that name (the scanner never sees such lines)
+            self._unknown_or_macro(head)
+            return
+        firmware = "Klipper" if self.machine.flavor == "klipper" else "Marlin"
+        if self.strict:
+            self.error(f"unknown command {head}: a line without G is no move on {firmware} "
+                       f"('Unknown command')")
+        self._note_once("axis-led line", f"{code[:40]}: {firmware} answers 'Unknown command' to a line led by "
+                                         f"{code[:1].upper()} (no modal G1 there): the line does nothing (each such "
+                                         f"line is counted as an unknown command)")
+        name = f"{code[:1].upper()}... without G"
+        self.unknown[name] = self.unknown.get(name, 0) + 1
 
     def _known(self, letter: str, num: int) -> bool:
         if letter == "M":

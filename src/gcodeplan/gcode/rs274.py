@@ -16,8 +16,11 @@ T above 255 (38), a missing P or L (28), G10 P above 6 (29), no axis words (26),
 axis words under G80 (31), a feed move with no feed rate (22: before the first F, or after F0), an arc without its plane's words (32, 35), an R too
 short (34) or an end off the circle (33), a probe to where it is (33), G43.1 with other than Z (37), a
 value word no command of the line reads (36) — by :meth:`Rs274Commands._grbl_block_error`, run before
-anything of the line: no mode, offset, feed, spindle or position changes, one warning names the line and
-grbl's error (an error under ``--strict``), and the program goes on.
+anything of the line, word by word in the line's order as gcode.c reads them (:func:`grbl_word_error`): no
+mode, offset, feed, spindle or position changes, one warning names the line and grbl's error (an error under
+``--strict``), and the program goes on. Before that the line is read as grbl reads it (gcode/grbl_line.py):
+its 79-byte line buffer (error:11), its word lexer (error:1, error:2), its line numbers (error:27), its ``$``
+lines (jogs, settings).
 
 LinuxCNC specifics kept: F is read before G20/G21 on the same line, so ``G20 F10`` keeps the old units
 for its feed (interp_convert.cc convert_feed_rate runs before convert_length_units; grbl converts F
@@ -86,19 +89,25 @@ KNOWN_G = set().union(*G_GROUPS.values()) | {53.0}
 GRBL_G = {0.0, 1.0, 2.0, 3.0, 4.0, 10.0, 17.0, 18.0, 19.0, 20.0, 21.0, 28.0, 28.1, 30.0, 30.1, 38.2, 38.3, 38.4,
           38.5, 40.0, 43.1, 49.0, 53.0, 54.0, 55.0, 56.0, 57.0, 58.0, 59.0, 61.0, 80.0, 90.0, 91.0, 91.1, 92.0,
           92.1, 93.0, 94.0}
-GRBL_M = {0, 1, 2, 3, 4, 5, 7, 8, 9, 30, 56}
+# (M7 needs ENABLE_M7, M56 ENABLE_PARKING_OVERRIDE_CONTROL: both off in grbl's default config.h, so gcode.c
+# answers them error:20 like any M code it lacks)
+GRBL_M = {0, 1, 2, 3, 4, 5, 8, 9, 30}
 # the value words grbl 1.1 reads (gcode.c); any other letter is its error:20. E is kept for the grbl model,
 # which refuses an E move by name (planner/grbl.py)
 GRBL_WORDS = frozenset("EFIJKLNPRSTXYZ")
 # grbl 1.1's status texts of the errors a block can fail with (report.h, the grbl wiki's error table)
-GRBL_ERRORS = {2: "bad number format", 4: "negative value", 20: "unsupported command",
+GRBL_ERRORS = {1: "expected command letter", 2: "bad number format", 3: "invalid statement", 4: "negative value",
+               11: "line overflow", 16: "invalid jog command", 20: "unsupported command",
                21: "modal group violation", 22: "undefined feed rate", 23: "command value not integer",
-               24: "axis command conflict", 25: "word repeated", 26: "no axis words", 28: "value word missing",
+               24: "axis command conflict", 25: "word repeated", 26: "no axis words", 27: "invalid line number",
+               28: "value word missing",
                29: "unsupported coordinate system", 30: "G53 invalid motion mode", 31: "axis words exist",
                32: "no axis words in plane", 33: "invalid target", 34: "arc radius error",
                35: "no offsets in plane", 36: "unused words", 37: "G43 dynamic axis error",
                38: "max value exceeded"}
 GRBL_MAX_TOOL = 255          # gcode.c MAX_TOOL_NUMBER (T is a uint8)
+GRBL_LINE_BUFFER_SIZE = 80   # protocol.h LINE_BUFFER_SIZE: the bytes of grbl's line buffer, its NUL included
+GRBL_MAX_LINE_NUMBER = 10000000    # gcode.c MAX_LINE_NUMBER: a larger N is error:27 (invalid line number)
 GRBL_N_COORD = 6             # G54..G59 (nuts_bolts.h N_COORDINATE_SYSTEM)
 GRBL_MOTION_G = {0.0, 1.0, 2.0, 3.0, 38.2, 38.3, 38.4, 38.5, 80.0}
 # grbl's M modal groups (gcode.h): stopping, spindle, coolant (M7 and M8 one group), override
@@ -161,6 +170,85 @@ def _grbl_reject_warning(bad: list[str]) -> str:
     return f"{' '.join(bad)}: grbl rejects it (error:20, unsupported command); the line is skipped"
 
 
+def _grbl_axis_command(words: list[Word]) -> str | None:
+    """gcode.c's axis command of a line: the first G code that takes the axis words ("motion", "non-modal",
+    "tlo"), else "motion" when the line has axis words (implicit motion mode), else None."""
+    for w in words:
+        if w.letter == "G" and w.value is not None:
+            use = _grbl_g_word(round(w.value, 1))[2]
+            if use is not None:
+                return use
+    return "motion" if any(w.letter in "XYZE" for w in words) else None
+
+
+def grbl_word_error(words: list[Word]):
+    """gcode.c step 2 on the words of a line in their order: ``((error number, what, codes to count as
+    unknown), axis command)`` of the first word grbl refuses (an unsupported code or letter 20, a fraction 23,
+    a modal group twice 21, two axis commands 24, T above 255 38, a repeated word 25, a negative F N P S T 4),
+    or ``(None, axis command)``. error:20 names everything on the line grbl lacks. E is no grbl word: on a
+    line that moves (E alone moves too, as the scanner reads it) the grbl model refuses the E move by name (a
+    printer's file is not for this machine); with a G code that takes the axis words (G92 E0, G10, G28) it
+    is error:20 like any other letter."""
+    moving = _grbl_axis_command(words) == "motion"
+    axis_cmd = None              # "non-modal" (G10/28/30/92), "motion", "tlo" (G43.1/49)
+    groups: set[int] = set()
+    mgroups: dict[int, int] = {}
+    seen: set[str] = set()
+    first = None
+    for w in words:
+        k = w.letter
+        if k == "G" and w.value is not None:
+            g = round(w.value, 1)
+            group, status, axis_use = _grbl_g_word(g)
+            if status == 0 and axis_use is not None:
+                if axis_cmd is not None:
+                    status = 24
+                axis_cmd = axis_use
+            if status == 0 and group in groups:
+                status = 21
+            groups.add(group)
+            first = (status, _gname(g)) if status else None
+        elif k == "M" and w.value is not None:
+            mc = int(w.value)
+            group = GRBL_M_GROUP.get(mc) if mc in GRBL_M else None
+            if w.value != mc:
+                first = (23, f"M{w.text}")
+            elif group is None:
+                first = (20, f"M{mc}")
+            elif group in mgroups:
+                first = (21, f"M{mgroups[group]} M{mc}")
+            mgroups.setdefault(group, mc)
+        elif k not in GRBL_WORDS or (k == "E" and not moving):
+            first = (20, f"word {k}")
+        elif w.value is None:
+            first = (2, f"word {k} without a number")
+        elif k == "T" and w.value > GRBL_MAX_TOOL:
+            first = (38, f"T{w.text} (tools 0..{GRBL_MAX_TOOL})")
+        elif k in seen:
+            first = (25, f"word {k} repeated")
+        elif k in "FNPST" and w.value < 0.0:
+            first = (4, f"{k}{w.text}")
+        seen.add(k)
+        if first is not None:
+            break
+    if first is None:
+        return None, axis_cmd
+    if first[0] != 20:
+        return (first[0], first[1], ()), axis_cmd
+    # error:20 names everything on the line grbl does not have, and counts its codes as unknown
+    bad = []
+    for w in words:
+        if w.value is None or w.letter not in "GM":
+            continue
+        if w.letter == "G" and _grbl_g_word(round(w.value, 1))[1] == 20:
+            bad.append(_gname(round(w.value, 1)))
+        elif w.letter == "M" and w.value == int(w.value) and int(w.value) not in GRBL_M:
+            bad.append(f"M{int(w.value)}")
+    letters = [k for k in dict.fromkeys(w.letter for w in words)
+               if k not in "GM" and (k not in GRBL_WORDS or (k == "E" and not moving))]
+    return (20, " ".join(bad + [f"word {k}" for k in letters]), bad), axis_cmd
+
+
 class Rs274Commands:
     """Mixed into :class:`.interp.Interpreter`: the CNC dialects' line execution."""
 
@@ -179,7 +267,9 @@ class Rs274Commands:
         self.spindle_dir = 5         # M3 / M4 / M5 in force
         self.spindle_rpm = 0.0       # the last S word (rpm)
         self._noted: set[str] = set()   # named warnings given once per file
-        self.grbl_repeated = None        # the first value word repeated on the line being run (grbl: error:25)
+        self._grbl_reads = m.flavor == "grbl"   # lines read as grbl reads them first (grbl_line.py)
+        self.grbl_words: list[Word] | None = None    # the words of the grbl line being run, in order (step 2)
+        self.grbl_line_number: int | None = None     # its N (gcode.c: a larger N than 10,000,000 is error:27)
         if not m.is_cnc:
             return
         # grbl: the scanner rejects inert lines itself (scan.I_GRBL_INERT, grbl_rejected_lines); --strict and a
@@ -326,8 +416,8 @@ class Rs274Commands:
         """(M code name, the warning of its rejected line) when ``raw`` is an inert grbl line
         (:meth:`grbl_inert_line`), else False."""
         m = _INERT_LINE.fullmatch(raw)
-        if m is None:
-            return False
+        if m is None or len(raw) > GRBL_LINE_BUFFER_SIZE - 1:
+            return False              # (a longer line may overflow grbl's buffer: error:11, the full path)
         mc = int(m.group(1))
         # grbl's own M codes act; free-text ones and M486 are read before the words (interp._classic)
         if mc in GRBL_M or mc in FREE_TEXT_M or mc == 486:
@@ -364,64 +454,21 @@ class Rs274Commands:
             self.unknown[name] = self.unknown.get(name, 0) + 1
 
     def _grbl_block_error(self, gs: list[float], ms: list[int], params: dict[str, Word]):
-        """The first error grbl's gc_execute_line finds in a line, in its order (gcode.c step 2, the words:
-        unsupported or fractional codes, modal groups, axis command conflicts, value words; step 3, the
-        checks of the block against the modal state), as ``(error number, what, codes to count as
-        unknown)``; None for a line grbl runs. The words are taken G codes first, then M codes, then value
-        words (grbl goes word by word: a line with two errors may name the other one on grbl)."""
-        # step 2: the command words
-        axis_cmd = None                # grbl's axis_command: "non-modal" (G10/28/30/92), "motion", "tlo" (G43.1/49)
-        groups: set[int] = set()
-        first = None
-        for g in gs:
-            group, status, axis_use = _grbl_g_word(g)
-            if status == 0 and axis_use is not None:
-                if axis_cmd is not None:
-                    status = 24
-                axis_cmd = axis_use
-            if status == 0 and group in groups:
-                status = 21
-            groups.add(group)
-            if status:
-                first = (status, _gname(g))
-                break
-        if first is None:
-            mgroups: set[int] = set()
-            for mc in ms:
-                group = GRBL_M_GROUP.get(mc)
-                if group is None or mc not in GRBL_M:
-                    first = (20, f"M{mc}")
-                elif group in mgroups:
-                    first = (21, " ".join(f"M{m}" for m in ms if GRBL_M_GROUP.get(m) == group))
-                if first is not None:
-                    break
-                mgroups.add(group)
-        if first is None and self.grbl_repeated:
-            first = (25, f"word {self.grbl_repeated} repeated")
-        # E is no grbl word: on a line that moves (E alone moves too, as the scanner reads it), the grbl model
-        # refuses the E move by name (a printer's file is not for this machine); with a G code that takes the
-        # axis words (G92 E0, G10, G28) the line is grbl's error:20 like any other word
-        moving = axis_cmd == "motion" or (axis_cmd is None and any(k in params for k in "XYZE"))
-        unsupported = [k for k in params if k not in GRBL_WORDS or (k == "E" and not moving)]
-        if first is None:
-            for k, w in params.items():
-                if k in unsupported:
-                    first = (20, f"word {k}")
-                elif w.value is None:
-                    first = (2, f"word {k} without a number")
-                elif k == "T" and w.value > GRBL_MAX_TOOL:
-                    first = (38, f"T{w.text} (tools 0..{GRBL_MAX_TOOL})")
-                elif k in "FNPST" and w.value < 0.0:
-                    first = (4, f"{k}{w.text}")
-                if first is not None:
-                    break
+        """The first error grbl's gc_execute_line finds in a line, in its order (gcode.c step 2, word by word in
+        the line's order: :func:`grbl_word_error`; then step 3, the checks of the block against the modal
+        state, line number first), as ``(error number, what, codes to count as unknown)``; None for a line grbl
+        runs. The words in order are ``self.grbl_words`` (set by the interpreter's reading of the line), else
+        the G codes, M codes and value words of the arguments in that order."""
+        words = self.grbl_words
+        if words is None:
+            words = ([Word("G", g, f"{g:g}") for g in gs] + [Word("M", float(mc), str(mc)) for mc in ms]
+                     + list(params.values()))
+        first, axis_cmd = grbl_word_error(words)
         if first is not None:
-            if first[0] != 20:
-                return first[0], first[1], ()
-            # error:20 names everything on the line grbl does not have, and counts its codes as unknown
-            bad = ([_gname(g) for g in gs if _grbl_g_word(g)[1] == 20]
-                   + [f"M{mc}" for mc in ms if mc not in GRBL_M])
-            return 20, " ".join(bad + [f"word {k}" for k in unsupported]), bad
+            return first
+        n = self.grbl_line_number
+        if n is not None and n > GRBL_MAX_LINE_NUMBER:
+            return 27, f"N{n} (line numbers up to {GRBL_MAX_LINE_NUMBER})", ()
         return self._grbl_block_check(set(gs), params, axis_cmd)
 
     def _grbl_block_check(self, gset: set, params: dict[str, Word], axis_cmd):

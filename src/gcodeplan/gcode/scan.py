@@ -70,7 +70,10 @@ I_GRBL_INERT = 18   # 1 on grbl (not --strict): the scanner rejects a grbl line 
 I_SOFT_CLAMP = 19   # 1 on a Marlin machine with software endstops on (M211 S1): a G0/G1/G2/G3 target outside
                     # [S_SOFT_LO, S_SOFT_HI] is clamped to it (Marlin's apply_motion_limits); the scanner hands
                     # such a line to Python (commands_motion.py), which clamps and counts it
-N_IST = 20
+I_AXIS_LINES = 20   # 1 where a line led by an X Y Z E F word repeats the modal G0/G1 (grbl's implicit motion
+                    # mode, RS274NGC; the reprap flavor as before); 0 on Marlin (no GCODE_MOTION_MODES, its default) and
+                    # Klipper, which answer "Unknown command": the scanner hands such a line to the interpreter
+N_IST = 21
 
 DIALECT_KLIPPER = 0   # M204: S, else min(P, T) when both; one accel for every move
 DIALECT_MARLIN = 1    # marlin / reprap: M204 S/P/T/R, accel chosen by the move's kind
@@ -88,7 +91,9 @@ ESET_MAX = 256
 # M codes grbl 1.1 runs (gcode/rs274.py GRBL_M) or that carry free text or object labels (lexing.FREE_TEXT_M,
 # M486): never rejected by the scanner (tests/test_grbl_inert_lines.py checks the table against those sets)
 GRBL_NOT_INERT_M = np.zeros(1000, np.bool_)
-GRBL_NOT_INERT_M[[0, 1, 2, 3, 4, 5, 7, 8, 9, 30, 56, 23, 28, 32, 117, 118, 550, 929, 486]] = True
+GRBL_NOT_INERT_M[[0, 1, 2, 3, 4, 5, 8, 9, 30, 23, 28, 32, 117, 118, 550, 929, 486]] = True
+#: grbl's line buffer (protocol.c): a line of more bytes may overflow it (error:11), the interpreter decides
+GRBL_LINE_MAX = 79
 
 # the words an inert grbl line may carry after its M code (grbl_inert_words), each a bit of its "seen" mask
 GRBL_INERT_WORD_BIT = np.zeros(256, np.int64)
@@ -765,13 +770,14 @@ def scan_chunk(buf, pos, end, st, ist, out, n_out, feat_raw, feat_len, feat_idx,
             ist[I_LINE] = line
             pos = eol + 1
             continue
-        letter, code, p = command_word(buf, p, end, ist[I_MOTION])
+        # motion -1 (no modal repeat): a line led by an axis word goes to the interpreter (I_AXIS_LINES)
+        letter, code, p = command_word(buf, p, end, ist[I_MOTION] if ist[I_AXIS_LINES] != 0 else -1)
         if letter == 0:
             return ST_PYTHON, line_start, n_out
         if letter == LETTER_M and ist[I_GRBL_INERT] != 0 and not GRBL_NOT_INERT_M[code]:
             # grbl rejects the line whole (error:20): noted for the reader, which warns as rs274.py does
             ok, eol = grbl_inert_words(buf, p, end)
-            if not ok or eset_n[0] >= eset_line.shape[0]:
+            if not ok or eset_n[0] >= eset_line.shape[0] or eol - line_start > GRBL_LINE_MAX:
                 return ST_PYTHON, line_start, n_out
             k = eset_n[0]
             eset_line[k] = line
@@ -781,7 +787,7 @@ def scan_chunk(buf, pos, end, st, ist, out, n_out, feat_raw, feat_len, feat_idx,
             pos = eol + 1 if eol < end else end
             continue
         ok, has, vx, vy, vz, ve, vf, vs, vp, vt, vr, eol = scan_words(buf, p, end)
-        if not ok:
+        if not ok or (dialect == DIALECT_CNC and eol - line_start > GRBL_LINE_MAX):
             return ST_PYTHON, line_start, n_out
         if letter == LETTER_G and (code == 0 or code == 1):
             ok, n_out = linear_move(out, n_out, line, code, dialect, st, ist, has, vx, vy, vz, ve, vf)
