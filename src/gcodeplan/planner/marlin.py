@@ -43,6 +43,8 @@ _VERSIONS = {"marlin-2.1.2": mk.VERSION_2_1_2, "marlin-bugfix": mk.VERSION_BUGFI
 #: µs, Marlin's DEFAULT_MINSEGMENTTIME (SLOWDOWN)
 MIN_SEGMENT_TIME_US = 20000
 _AXES = ("x", "y", "z", "e")
+# machine kinematics → Marlin's Core build (COREXY, COREXZ: Klipper's corexy/corexz motors, A = X + Y, B = X − Y)
+_CORE_KINDS = {"corexy": mk.CORE_XY, "corexz": mk.CORE_XZ}
 #: junction policies a Marlin build has: CLASSIC_JERK on, or off (junction deviation)
 JUNCTIONS = ("classic-jerk", "junction-deviation")
 _UINT32_MAX = 4294967295
@@ -206,6 +208,14 @@ class MarlinModel:
         self.mm_per_step = (np.float32(1) / self.spm).astype(np.float32)
         self.acc_rate_scale = np.float32(np.float32(16777216.0) / np.float32(self.timer_hz))
         self.state = mk.new_state()
+        # COREXY / COREXZ builds: blocks, limits and pulses per motor (A, B / A, C), the length the head's
+        kinematics = getattr(machine, "kinematics", "cartesian")
+        if kinematics == "delta":            # (a plug-in kinematics is refused with its limits: stream.py)
+            raise ConfigError(f"firmware {self.firmware}: kinematics {kinematics!r} is not modelled (the Marlin model "
+                              f"runs cartesian, CoreXY and CoreXZ builds; Marlin cuts a delta's or SCARA's moves "
+                              f"into segments, which it does not); --firmware generic plans the machine with its "
+                              f"junction policy")
+        self.state[2][mk.GI_CORE] = _CORE_KINDS.get(kinematics, mk.CORE_NONE)
         self._scratch = mk.new_scratch()
         # mm, the reach of Marlin's int32 step positions per axis (_check_reach)
         self._reach = np.array([2.0 ** 31 / float(v) for v in self.spm])

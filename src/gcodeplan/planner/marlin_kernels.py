@@ -73,8 +73,11 @@ N_BF = 7
 N_BI = 19
 # integer global state (gi[...])
 (GI_HEAD, GI_TAIL, GI_PLANNED, GI_NONBUSY, GI_BUSY, GI_PX, GI_PY, GI_PZ, GI_PE, GI_CLOCK, GI_NEXT_ROW,
- GI_STARTED, GI_RESET_DONE, GI_SETTINGS_ROW) = range(14)
-N_GI = 14
+ GI_STARTED, GI_RESET_DONE, GI_SETTINGS_ROW, GI_CORE) = range(15)
+N_GI = 15
+# the build's kinematics (gi[GI_CORE]): cartesian, COREXY (motors A = X + Y, B = X − Y) or COREXZ (A = X + Z,
+# C = X − Z); the planner's position stays the head's, in steps (planner.cpp)
+CORE_NONE, CORE_XY, CORE_XZ = 0, 1, 2
 # float32 global state (gf[...])
 GF_PREV_SPEED, GF_PREV_NOMINAL, GF_PREV_SAFE, GF_PREV_UNIT, GF_POS_FLOAT = 0, 4, 5, 6, 10
 N_GF = 14
@@ -557,16 +560,19 @@ def _limit_value_by_axis_maximum(max_value, unit_vec, amax_mm):
 
 @njit(cache=True)
 def _junction_deviation_sqr(gf, dist, inverse_millimeters, esteps, millimeters, acceleration, nominal_speed,
-                            moves_queued, amax_mm, junction_deviation_mm, scratch_f, reversal_sqr, start_sqr):
+                            moves_queued, amax_mm, junction_deviation_mm, scratch_f, reversal_sqr, start_sqr,
+                            core=CORE_NONE):
     """max_entry_speed² by junction deviation (HAS_JUNCTION_DEVIATION, JD_HANDLE_SMALL_SEGMENTS on): the
     centripetal speed on a circle deviating junction_deviation_mm from the corner, with the acceleration the
     axes allow along the junction; short moves at sharp corners are held to an approximate arc. A reversal
-    gets ``reversal_sqr``, a start from rest ``start_sqr`` (mm²/s²; the version's minimum planner speed)."""
+    gets ``reversal_sqr``, a start from rest ``start_sqr`` (mm²/s²; the version's minimum planner speed).
+    ``dist`` is per motor: on a Core machine the junction vector is the motors' (A, B), as planner.cpp takes
+    steps_dist_mm, and always normalised (its length is not the head's)."""
     unit_vec = scratch_f[2]
     for a in range(4):
         unit_vec[a] = dist[a]
-    if esteps > 0:
-        _normalize_junction_vector(unit_vec)      # with E: normalise the XYZE vector
+    if esteps > 0 or core != CORE_NONE:
+        _normalize_junction_vector(unit_vec)      # with E, or a Core machine: normalise the whole vector
     else:
         for a in range(4):
             unit_vec[a] = F32(unit_vec[a] * inverse_millimeters)
@@ -674,6 +680,37 @@ def _steps_to_target(gi, tgt, spm, da, target, steps):
 
 
 @njit(cache=True, inline=INLINE)
+def _core_motor_steps(core, da, steps):
+    """_populate_block's "number of steps for each axis" on a Core machine (planner.cpp, CORE_IS_XY /
+    CORE_IS_XZ): the head's step deltas in ``da`` become the motors' (A = X + Y, B = X − Y; or A = X + Z,
+    C = X − Z), their absolute values into ``steps``; returns the block's step_event_count."""
+    if core == CORE_XY:
+        a = da[0] + da[1]
+        da[1] = da[0] - da[1]
+        da[0] = a
+    else:
+        a = da[0] + da[2]
+        da[2] = da[0] - da[2]
+        da[0] = a
+    sec = np.int64(0)
+    for k in range(4):
+        steps[k] = abs(da[k])
+        if steps[k] > sec:
+            sec = steps[k]
+    return sec
+
+
+@njit(cache=True, inline=INLINE)
+def _head_millimeters(da, mm_per_step):
+    """A Core machine's block length (mm) from the head's step deltas (X_HEAD, Y_HEAD, Z), planner.cpp's
+    SQRT of the squared head distances in float32."""
+    hx = F32(F32(da[0]) * mm_per_step[0])
+    hy = F32(F32(da[1]) * mm_per_step[1])
+    hz = F32(F32(da[2]) * mm_per_step[2])
+    return F32(math.sqrt(F32(F32(F32(hx * hx) + F32(hy * hy)) + F32(hz * hz))))
+
+
+@njit(cache=True, inline=INLINE)
 def _slowdown(inverse_secs, moves_queued, min_segment_time_us):
     """_populate_block's SLOWDOWN: with 2 to 7 blocks queued, a segment shorter than MIN_SEGMENT_TIME (µs) is
     slowed towards it, by twice the shortfall over the blocks queued; returns 1 / segment time (1/s)."""
@@ -732,6 +769,12 @@ def _populate_block(bf, bi, gi, gf, row, tgt, fr_mm_s, acc_p, acc_t, acc_r, vmax
     target = scratch_i[1]
     steps = scratch_i[2]
     sec = _steps_to_target(gi, tgt, spm, da, target, steps)
+    core = gi[GI_CORE]
+    head_mm = F32(0)
+    if core != CORE_NONE:
+        # the length from the head's deltas, then the block in motor steps (da, steps, dist: per motor)
+        head_mm = _head_millimeters(da, mm_per_step)
+        sec = _core_motor_steps(core, da, steps)
     if sec < MIN_STEPS_PER_SEGMENT:
         return False
     dist = scratch_f[0]
@@ -739,6 +782,8 @@ def _populate_block(bf, bi, gi, gf, row, tgt, fr_mm_s, acc_p, acc_t, acc_r, vmax
         dist[a] = F32(F32(da[a]) * mm_per_step[a])
     if steps[0] < MIN_STEPS_PER_SEGMENT and steps[1] < MIN_STEPS_PER_SEGMENT and steps[2] < MIN_STEPS_PER_SEGMENT:
         millimeters = F32(abs(dist[3]))
+    elif core != CORE_NONE:
+        millimeters = head_mm
     else:
         millimeters = F32(math.sqrt(F32(F32(F32(dist[0] * dist[0]) + F32(dist[1] * dist[1])) + F32(dist[2] * dist[2]))))
     esteps = steps[3]
@@ -776,7 +821,7 @@ def _populate_block(bf, bi, gi, gf, row, tgt, fr_mm_s, acc_p, acc_t, acc_r, vmax
     if junction_mode == JUNCTION_DEVIATION:
         max_entry_sqr = _junction_deviation_sqr(gf, dist, inverse_millimeters, esteps, millimeters, acceleration,
                                                 nominal_speed, moves_queued, amax_mm, jdev, scratch_f, min_sqr,
-                                                start_sqr)
+                                                start_sqr, core)
     elif version == VERSION_BUGFIX:
         max_entry_sqr = _classic_jerk_sqr_bugfix(gf, current_speed, nominal_speed, moves_queued, jerk, scratch_f)
     else:

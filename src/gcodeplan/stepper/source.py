@@ -67,16 +67,26 @@ def rails_from(machine, kinematics=None, klipper_names: bool | None = None):
     return rails_for(machine, klipper_names=klipper_names)
 
 
-def firmware_axis(rail) -> int:
-    """The axis (0..3: X, Y, Z, E) a stepper follows one to one (its position is that axis's, as a cartesian
-    machine's x … e or stepper_x … extruder), whose pulses a firmware model issues; −1 for any other."""
+# the steppers a firmware model issues pulses for, by index, as weights over (x, y, z, e): a cartesian build's
+# X, Y, Z, E; Marlin's COREXY build steps motor A = X + Y in X's place and B = X − Y in Y's, COREXZ A = X + Z in
+# X's and C = X − Z in Z's (Klipper's corexy / corexz rails have these weights)
+FIRMWARE_MOTORS = {
+    "cartesian": ((1.0, 0.0, 0.0, 0.0), (0.0, 1.0, 0.0, 0.0), (0.0, 0.0, 1.0, 0.0), (0.0, 0.0, 0.0, 1.0)),
+    "corexy": ((1.0, 1.0, 0.0, 0.0), (1.0, -1.0, 0.0, 0.0), (0.0, 0.0, 1.0, 0.0), (0.0, 0.0, 0.0, 1.0)),
+    "corexz": ((1.0, 0.0, 1.0, 0.0), (0.0, 1.0, 0.0, 0.0), (1.0, 0.0, -1.0, 0.0), (0.0, 0.0, 0.0, 1.0)),
+}
+
+
+def firmware_axis(rail, kinematics: str = "cartesian") -> int:
+    """The stepper (0..3) of a firmware model whose pulses this rail takes, on a machine of ``kinematics``: the
+    one whose weights over (x, y, z, e) are the rail's (FIRMWARE_MOTORS: a cartesian machine's X … E; Marlin's
+    Core motors in the place of X, Y or Z); −1 for none."""
     w = rail.weights
     if w is None:
         return -1
-    ones = [a for a, v in enumerate(w) if v == 1.0]
-    if len(ones) != 1 or any(v != 0.0 for a, v in enumerate(w) if a != ones[0]):
-        return -1
-    return ones[0]
+    w = tuple(float(v) for v in w) + (0.0,) * (4 - len(w))
+    motors = FIRMWARE_MOTORS.get(kinematics, FIRMWARE_MOTORS["cartesian"])
+    return motors.index(w) if w in motors else -1
 
 
 class StepSink(Sink):
@@ -94,6 +104,8 @@ class StepSink(Sink):
         self.rails = list(rails)
         settings = machine.limits_row() if machine is not None else None
         self.generator = StepGenerator(self.rails, sink_fn, sds_filter_t=sds_filter_t, settings=settings)
+        # the machine's kinematics, for which stepper of a firmware model's pulses each rail takes (firmware_axis)
+        self._kinematics = getattr(machine, "kinematics", "cartesian")
         self._pending = False
 
     wants_firmware_steps = True   # a firmware model's own pulses (grbl's, Marlin's interrupt) replace stepping
@@ -102,13 +114,13 @@ class StepSink(Sink):
         fw = getattr(piece, "firmware_steps", None)
         if fw is not None:
             for si, rail in enumerate(self.rails):
-                axis = firmware_axis(rail)
+                axis = firmware_axis(rail, self._kinematics)
                 if axis < 0:
                     from ..errors import ConfigError
 
                     raise ConfigError(f"stepper {rail.name!r}: the firmware model issues the pulses of the X, Y, "
-                                      "Z and E steppers of a cartesian machine, and this one follows none of "
-                                      "them alone")
+                                      "Z and E steppers of a cartesian machine (Marlin: or the motors of a "
+                                      "CoreXY / CoreXZ one), and this one follows none of them")
                 if axis in fw and len(fw[axis][0]):
                     self.generator.feed_pulses(si, *fw[axis])
             return
