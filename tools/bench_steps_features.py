@@ -11,10 +11,11 @@ cartesian. Target: ≥ 50 M steps/s shaped. Shaped and pressure-advanced motors 
 (kernel.itersolve_steps: closed-form crossings where its probes cannot leave a monotone run, its probe
 sequence near turning points); delta towers keep the exact kernel.
 
-Then the kinematics plug-ins (issue 22): the generic step engine (kernel.itersolve_steps, Klipper's search with
-the motor position from a compiled inverse-kinematics function as its callback) against the exact linear kernel on the same
-cartesian plan — a plug-in whose three motors are ik functions x, y, z — (target: generic within 1.5× of
-linear per step), and steps/s per kinematics on Klipper's seven reference configs
+Then the kinematics plug-ins (issue 22): the generic path for plug-in motors against the exact linear kernel on the
+same cartesian plan — a plug-in whose three motors are ik functions x, y, z — (target: generic within 1.5× of
+linear per step), both ways a plug-in motor can be stepped: Klipper's search with the compiled inverse kinematics as
+its callback (kernel.itersolve_steps, the default: StepGenerator.ik_klipper_search) and the step engine's guarded
+search (kernel.gen_steps_ik); then steps/s per kinematics on Klipper's seven reference configs, both ways
 (../shared/reference/klipper/kinematics/*.cfg; polar on the input shifted by (+30, +30) mm as the reference is).
 """
 from __future__ import annotations
@@ -82,17 +83,27 @@ def _rate(source, machine, runs: int, rails=None) -> tuple[int, float]:
 
 
 def bench_kinematics(path: str, runs: int) -> None:
-    """The generic engine against the linear kernel, then steps/s per plug-in kinematics."""
+    """The generic path against the linear kernel, then steps/s per plug-in kinematics; each plug-in figure both
+    with Klipper's search (default) and with the guarded search."""
     from gcodeplan.kinematics import rails_for
+    from gcodeplan.stepper.generate import StepGenerator
 
+    engines = (("Klipper's search", True), ("guarded search", False))
     plain = _machine("plain")
     plug = _generic_cartesian_ik()
     lin_steps, lin_t = _rate(path, plain, runs)
-    gen_steps, gen_t = _rate(path, plain, runs, rails=plug.rails(plain))
     xyz = [r for r in rails_for(plain)]
-    print(f"  generic engine vs linear kernel (same cartesian plan): linear {lin_steps / lin_t / 1e6:.1f} M steps/s, "
-          f"generic {gen_steps / gen_t / 1e6:.1f} M steps/s -> {gen_t / gen_steps / (lin_t / lin_steps):.2f}x per step "
-          f"(target <= 1.5x; {len(xyz)} motors, same {gen_steps == lin_steps and 'step count' or 'DIFFERENT count'})")
+    print(f"  linear kernel: {lin_steps / lin_t / 1e6:.1f} M steps/s ({len(xyz)} motors)")
+    default = StepGenerator.ik_klipper_search
+    try:
+        for label, klipper in engines:
+            StepGenerator.ik_klipper_search = klipper
+            gen_steps, gen_t = _rate(path, plain, runs, rails=plug.rails(plain))
+            print(f"  generic path, {label:16s}: {gen_steps / gen_t / 1e6:.1f} M steps/s -> "
+                  f"{gen_t / gen_steps / (lin_t / lin_steps):.2f}x linear per step (target <= 1.5x; "
+                  f"{gen_steps == lin_steps and 'same step count' or 'DIFFERENT count'})")
+    finally:
+        StepGenerator.ik_klipper_search = default
     kin_dir = SHARED / "reference" / "klipper" / "kinematics"
     if not kin_dir.is_dir():
         print(f"  (no {kin_dir}: per-kinematics figures skipped)")
@@ -106,12 +117,18 @@ def bench_kinematics(path: str, runs: int) -> None:
     for config in ck.CONFIGS:
         m = load_klipper_config(str(kin_dir / f"{config}.cfg"))
         src = [ck._shift_line(ln) for ln in lines] if config == "polar" else lines
+        figures = []
         try:
-            steps, t = _rate(src, m, runs)
+            for label, klipper in engines:
+                StepGenerator.ik_klipper_search = klipper
+                steps, t = _rate(src, m, runs)
+                figures.append(f"{label} {steps / t / 1e6:.1f}")
         except Exception as err:      # a file this machine cannot reach: say so, go on
             print(f"  {config:17s}: {type(err).__name__}: {err}")
             continue
-        print(f"  {config:17s}: {steps:,} steps in {t:.3f} s -> {steps / t / 1e6:.1f} M steps/s")
+        finally:
+            StepGenerator.ik_klipper_search = default
+        print(f"  {config:17s}: {steps:,} steps; M steps/s: " + ", ".join(figures))
 
 
 def _pieces(path: str, machine):
