@@ -251,3 +251,23 @@ def test_guarded_search_against_real_klipper(config):
         segs = _plan_rows(lines, m) if segs is None else segs
         gap = _motor_position(rails[motor], segs, t[far]) - _motor_position(rails[motor], segs, rt[far])
         assert np.max(np.abs(gap)) <= 1.5e-9, (motor, float(np.max(np.abs(gap))))
+
+
+def test_a_users_plugin_equals_the_builtin_under_the_guarded_search():
+    """The user's polar of tests/test_kinematics_plugins.py (written outside the package) through the guarded
+    search: the built-in polar's steps bit for bit, and Klipper's step counts."""
+    import test_kinematics_plugins as tkp
+
+    _kin_ref()
+    tkp.user_polar()
+    lines = ck.source_lines("d_slicer_like", "polar")
+    builtin = ck.machine("polar")
+    mine = ck.machine("polar")
+    mine.kinematics = "users_polar"
+    a, b = ck.klipper_steps(lines, builtin), ck.klipper_steps(lines, mine)
+    assert list(a) == list(b)
+    figures = ck.reference("d_slicer_like", "polar")[0]["steps"]["steppers"]
+    for motor in a:
+        assert np.array_equal(a[motor][0], b[motor][0]) and np.array_equal(a[motor][1], b[motor][1]), motor
+        # the guarded search has no step-generation windows: Klipper's counts whatever windows it is given
+        assert len(b[motor][0]) == figures[motor]["n_steps"], motor
