@@ -271,3 +271,35 @@ def test_a_users_plugin_equals_the_builtin_under_the_guarded_search():
         assert np.array_equal(a[motor][0], b[motor][0]) and np.array_equal(a[motor][1], b[motor][1]), motor
         # the guarded search has no step-generation windows: Klipper's counts whatever windows it is given
         assert len(b[motor][0]) == figures[motor]["n_steps"], motor
+
+
+def test_shaped_plugin_motors_match_klippers_search():
+    """A cartesian machine as a plug-in (x, y, z motors by ik) with input shaping (mzv 45 Hz on X, ei 38 Hz on Y)
+    on the corpus cube's first 800 lines, through a 997-step buffer: the guarded search steps the shaped pieces as
+    they come; every motor has the step count of Klipper's search with the same ik, every step within 10 ns of it
+    (on mm motors Klipper's 1e-9 mm stopping rule is ~1e-11 s)."""
+    import bench_steps_features as bsf
+
+    from gcodeplan.stepper.generate import StepGenerator
+
+    path = shared_path("gcode", "prusaslicer25_cube20_marlin2.gcode")
+    m = bsf._machine("shaped")
+    plug = bsf._generic_cartesian_ik()
+    pieces, lim = bsf._pieces(path.read_text().splitlines()[:800], m)
+
+    def run(klipper):
+        StepGenerator.ik_klipper_search = klipper
+        rails = plug.rails(m)
+        out = [[] for _ in rails]
+        gen = StepGenerator(rails, lambda si, t, d: out[si].append((t.copy(), d.copy())),
+                            settings=m.limits_row(), chunk_steps=997)
+        for segs, reset, moves, first in pieces:
+            gen.feed(segs, reset, moves=moves, limits=lim, first_move=first)
+        gen.finish()
+        return [(np.concatenate([c[0] for c in o]), np.concatenate([c[1] for c in o])) for o in out]
+
+    klipper, guarded = run(True), run(False)
+    assert sum(len(t) for t, _ in guarded) > 100_000
+    for (kt, kd), (gt, gd) in zip(klipper, guarded):
+        assert len(gt) == len(kt) and np.array_equal(gd, kd)
+        assert np.max(np.abs(gt - kt)) < 10e-9
