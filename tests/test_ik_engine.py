@@ -4,8 +4,8 @@ Each motor here has a position whose half-step crossings can be solved by hand: 
 (x − 5)² through its minimum (a turning point inside a piece and on a piece boundary, and a minimum a millionth of
 a step below or above a half-step point), atan2 of a line crossing the ±π cut (a cyclic motor). The grid follows
 docs/design.md §9: anchored at the first position, a reversal steps on the other side's half-step point. Plug-in
-motors run Klipper's own search by default (StepGenerator.ik_klipper_search); these tests switch to the guarded
-search. Against real Klipper (../shared) the guarded search keeps every step count; its times differ from Klipper's
+motors run Klipper's own search by default (``ik_search="klipper"``); these tests ask for the guarded search
+(``ik_search="exact"``). Against real Klipper (../shared) the guarded search keeps every step count; its times differ from Klipper's
 by no more than Klipper's own stopping rule allows (a guess within 1e-9 units of the half-step point).
 """
 from __future__ import annotations
@@ -24,13 +24,6 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tools"))
 import compare_kinematics as ck  # noqa: E402
 
 TOL_S = 1e-9          # s, the guarded search converges well below this
-
-
-@pytest.fixture(autouse=True)
-def guarded(monkeypatch):
-    from gcodeplan.stepper.generate import StepGenerator
-
-    monkeypatch.setattr(StepGenerator, "ik_klipper_search", False)
 
 
 def _rows(x0, y0, vx, vy, spans):
@@ -58,7 +51,7 @@ def _steps(seg, rail, reset=None, chunk=None):
 
     parts = []
     kw = {} if chunk is None else {"chunk_steps": chunk}
-    gen = StepGenerator([rail], lambda si, t, d: parts.append((t.copy(), d.copy())), **kw)
+    gen = StepGenerator([rail], lambda si, t, d: parts.append((t.copy(), d.copy())), ik_search="exact", **kw)
     gen.feed(seg, reset)
     gen.finish()
     if not parts:
@@ -234,7 +227,7 @@ def test_guarded_search_against_real_klipper(config):
     info, ref = ck.reference(name, config)
     m = ck.machine(config)
     lines = ck.source_lines(name, config)
-    ours = ck.klipper_steps(lines, m, ck.batch_windows(lines, m))
+    ours = ck.klipper_steps(lines, m, ck.batch_windows(lines, m), ik_search="exact")
     figures = info["steps"]["steppers"]
     rails = {r.name: r for r in rails_for(m, klipper_names=True)}
     segs = None
@@ -264,7 +257,7 @@ def test_a_users_plugin_equals_the_builtin_under_the_guarded_search():
     builtin = ck.machine("polar")
     mine = ck.machine("polar")
     mine.kinematics = "users_polar"
-    a, b = ck.klipper_steps(lines, builtin), ck.klipper_steps(lines, mine)
+    a, b = ck.klipper_steps(lines, builtin, ik_search="exact"), ck.klipper_steps(lines, mine, ik_search="exact")
     assert list(a) == list(b)
     figures = ck.reference("d_slicer_like", "polar")[0]["steps"]["steppers"]
     for motor in a:
@@ -288,11 +281,10 @@ def test_shaped_plugin_motors_match_klippers_search():
     pieces, lim = bsf._pieces(path.read_text().splitlines()[:800], m)
 
     def run(klipper):
-        StepGenerator.ik_klipper_search = klipper
         rails = plug.rails(m)
         out = [[] for _ in rails]
         gen = StepGenerator(rails, lambda si, t, d: out[si].append((t.copy(), d.copy())),
-                            settings=m.limits_row(), chunk_steps=997)
+                            settings=m.limits_row(), chunk_steps=997, ik_search="klipper" if klipper else "exact")
         for segs, reset, moves, first in pieces:
             gen.feed(segs, reset, moves=moves, limits=lim, first_move=first)
         gen.finish()
@@ -303,3 +295,36 @@ def test_shaped_plugin_motors_match_klippers_search():
     for (kt, kd), (gt, gd) in zip(klipper, guarded):
         assert len(gt) == len(kt) and np.array_equal(gd, kd)
         assert np.max(np.abs(gt - kt)) < 10e-9
+
+
+def test_ik_search_is_chosen_per_call_from_the_library_and_the_command(tmp_path):
+    """``gp.steps(..., ik_search="exact")`` and ``gcodeplan steps --ik-search exact`` step a plug-in machine with the
+    guarded search (the same steps as the step generator asked for it), the default stays Klipper's search, and an
+    unknown search is an error naming the choices."""
+    import gcodeplan as gp
+    from gcodeplan.cli import main
+
+    _kin_ref()
+    lines = ck.source_lines("c_circle200", "polar")
+    m = ck.machine("polar")
+    src = tmp_path / "c.gcode"
+    src.write_text("\n".join(lines) + "\n")
+    exact = ck.klipper_steps(lines, m, ik_search="exact")
+    lib = gp.steps(str(src), m, ik_search="exact", sds_filter=ck.KLIPPER_SDS_FILTER_T)
+    default = gp.steps(str(src), m, sds_filter=ck.KLIPPER_SDS_FILTER_T)
+    assert list(lib) == list(exact) and "stepper_bed" in lib
+    for motor in lib:
+        assert np.array_equal(lib[motor][0], exact[motor][0]), motor
+        assert len(default[motor][0]) == len(lib[motor][0]), motor
+    # Klipper's search stops within 1e-9 rad of the half-step point: on the bed, up to microseconds from the exact
+    assert not np.array_equal(default["stepper_bed"][0], lib["stepper_bed"][0])
+    with pytest.raises(ConfigError, match="exact"):
+        gp.steps(str(src), m, ik_search="fast")
+    cfg = tmp_path / "polar.cfg"
+    cfg.write_text((ck.KIN / "polar.cfg").read_text())
+    out = tmp_path / "s.npz"
+    assert main(["steps", "--klipper-config", str(cfg), "--ik-search", "exact", "--quiet", str(src), "-o",
+                 str(out)]) == 0
+    with np.load(out) as z:
+        bed = [k for k in z.files if "bed" in k and not k.endswith("_dir")][0]
+        assert np.array_equal(z[bed], exact["stepper_bed"][0])

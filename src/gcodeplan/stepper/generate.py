@@ -58,23 +58,30 @@ class StepGenerator:
     ``sds_filter_t`` is set).
     """
 
-    #: True: plug-in motors run Klipper's own search with the ik as its callback (:meth:`_run_ik_klipper`, its
-    #: steps within ~10 ns of Klipper's on every reference file). False: the step engine's guarded search
-    #: (:func:`kernel.gen_steps_ik`, ~1.5-2x faster, exact to < 1 ns) — which differs from Klipper by up to
-    #: ~1.3 µs on rotary motors (rad) at low angular speed, where Klipper's search stops within 1e-9 rad of the
-    #: half-step point (1e-9 rad / 0.0008 rad/s = 1.2 µs), so it is not the default
-    ik_klipper_search = True
+    #: the plug-in motors' step searches (``ik_search``): "klipper" — Klipper's own search with the ik as its callback
+    #: (:meth:`_run_ik_klipper`, steps within ~10 ns of Klipper's on every reference file, the default); "exact" —
+    #: the step engine's guarded search (:func:`kernel.gen_steps_ik`, about 2x faster, each step within 1 ns of
+    #: its half-step point), which differs from Klipper's by up to ~1.3 µs on rotary motors (rad) at low angular
+    #: speed, where Klipper's search stops within 1e-9 rad of the point (1e-9 rad / 0.0008 rad/s = 1.2 µs)
+    IK_SEARCHES = ("klipper", "exact")
+
 
     def __init__(self, rails: list[Rail], sink: Sink, *, chunk_steps: int = DEFAULT_CHUNK_STEPS,
                  sds_filter_t: float | None = None, settings: np.ndarray | None = None,
-                 flush_times: np.ndarray | None = None):
+                 flush_times: np.ndarray | None = None, ik_search: str = "klipper"):
         """``flush_times``: the ends (s from the first move's start, increasing) of Klipper's step-generation
         windows, where its search restarts (shaped and pressure-advanced motors, plug-in kinematics; see
         :class:`_Itersolve`). Default: every 0.25 s, as Klipper batches while the printer keeps up (a printer's
         windows follow its host's timing, so no other default is more right). Klipper's batch mode
         (``klippy.py -i -o``, how its reference step files are made) skips some where a 4096-byte read holds
         more than ~25 s of motion: :func:`gcodeplan.stepper.klipper_batch.klipper_batch_flush_times` gives its
-        windows (``gcodeplan steps --klipper-batch``)."""
+        windows (``gcodeplan steps --klipper-batch``). ``ik_search``: how plug-in motors are stepped
+        (IK_SEARCHES)."""
+        if ik_search not in self.IK_SEARCHES:
+            from ..errors import ConfigError
+
+            raise ConfigError(f"ik_search: {ik_search!r} is not one of {', '.join(self.IK_SEARCHES)}")
+        self.ik_klipper_search = ik_search == "klipper"   # plug-in motors: Klipper's search, else the exact one
         self.rails = list(rails)
         self.flush_times = None if flush_times is None else np.asarray(flush_times, np.float64)
         self.sink = sink
