@@ -11,10 +11,11 @@ cartesian. Target: ≥ 50 M steps/s shaped. Shaped and pressure-advanced motors 
 (kernel.itersolve_steps: closed-form crossings where its probes cannot leave a monotone run, its probe
 sequence near turning points); delta towers keep the exact kernel.
 
-Then the kinematics plug-ins (issue 22): the generic step engine (kernel.itersolve_steps, Klipper's search with
-the motor position from a compiled inverse-kinematics function as its callback) against the exact linear kernel on the same
-cartesian plan — a plug-in whose three motors are ik functions x, y, z — (target: generic within 1.5× of
-linear per step), and steps/s per kinematics on Klipper's seven reference configs
+Then the kinematics plug-ins (issue 22): the generic path for plug-in motors against the exact linear kernel on the
+same cartesian plan — a plug-in whose three motors are ik functions x, y, z — (target: generic within 1.5× of
+linear per step), both ways a plug-in motor can be stepped: Klipper's search with the compiled inverse kinematics as
+its callback (kernel.itersolve_steps, the default: ik_search="klipper") and the step engine's guarded
+search (kernel.gen_steps_ik); then steps/s per kinematics on Klipper's seven reference configs, both ways
 (../shared/reference/klipper/kinematics/*.cfg; polar on the input shifted by (+30, +30) mm as the reference is).
 """
 from __future__ import annotations
@@ -71,28 +72,32 @@ def _generic_cartesian_ik():
          "z": lambda m: m.axes["z"].steps_per_mm}, extruder="e"), replace=True)
 
 
-def _rate(source, machine, runs: int, rails=None) -> tuple[int, float]:
+def _rate(source, machine, runs: int, rails=None, ik_search="klipper") -> tuple[int, float]:
     pieces, limits = _pieces(source, machine)
-    _time(pieces[:2], limits, machine, rails)
+    _time(pieces[:2], limits, machine, rails, ik_search)
     best = None
     for _ in range(runs):
-        steps, dt = _time(pieces, limits, machine, rails)
+        steps, dt = _time(pieces, limits, machine, rails, ik_search)
         best = dt if best is None else min(best, dt)
     return steps, best
 
 
 def bench_kinematics(path: str, runs: int) -> None:
-    """The generic engine against the linear kernel, then steps/s per plug-in kinematics."""
+    """The generic path against the linear kernel, then steps/s per plug-in kinematics; each plug-in figure both
+    with Klipper's search (default) and with the guarded search."""
     from gcodeplan.kinematics import rails_for
 
+    engines = (("Klipper's search", "klipper"), ("guarded search", "exact"))
     plain = _machine("plain")
     plug = _generic_cartesian_ik()
     lin_steps, lin_t = _rate(path, plain, runs)
-    gen_steps, gen_t = _rate(path, plain, runs, rails=plug.rails(plain))
     xyz = [r for r in rails_for(plain)]
-    print(f"  generic engine vs linear kernel (same cartesian plan): linear {lin_steps / lin_t / 1e6:.1f} M steps/s, "
-          f"generic {gen_steps / gen_t / 1e6:.1f} M steps/s -> {gen_t / gen_steps / (lin_t / lin_steps):.2f}x per step "
-          f"(target <= 1.5x; {len(xyz)} motors, same {gen_steps == lin_steps and 'step count' or 'DIFFERENT count'})")
+    print(f"  linear kernel: {lin_steps / lin_t / 1e6:.1f} M steps/s ({len(xyz)} motors)")
+    for label, search in engines:
+        gen_steps, gen_t = _rate(path, plain, runs, rails=plug.rails(plain), ik_search=search)
+        print(f"  generic path, {label:16s}: {gen_steps / gen_t / 1e6:.1f} M steps/s -> "
+              f"{gen_t / gen_steps / (lin_t / lin_steps):.2f}x linear per step (target <= 1.5x; "
+              f"{gen_steps == lin_steps and 'same step count' or 'DIFFERENT count'})")
     kin_dir = SHARED / "reference" / "klipper" / "kinematics"
     if not kin_dir.is_dir():
         print(f"  (no {kin_dir}: per-kinematics figures skipped)")
@@ -106,12 +111,15 @@ def bench_kinematics(path: str, runs: int) -> None:
     for config in ck.CONFIGS:
         m = load_klipper_config(str(kin_dir / f"{config}.cfg"))
         src = [ck._shift_line(ln) for ln in lines] if config == "polar" else lines
+        figures = []
         try:
-            steps, t = _rate(src, m, runs)
+            for label, search in engines:
+                steps, t = _rate(src, m, runs, ik_search=search)
+                figures.append(f"{label} {steps / t / 1e6:.1f}")
         except Exception as err:      # a file this machine cannot reach: say so, go on
             print(f"  {config:17s}: {type(err).__name__}: {err}")
             continue
-        print(f"  {config:17s}: {steps:,} steps in {t:.3f} s -> {steps / t / 1e6:.1f} M steps/s")
+        print(f"  {config:17s}: {steps:,} steps; M steps/s: " + ", ".join(figures))
 
 
 def _pieces(path: str, machine):
@@ -129,11 +137,12 @@ def _pieces(path: str, machine):
     return out, drive.reader.limits
 
 
-def _time(pieces, limits, machine, rails=None) -> tuple[int, float]:
+def _time(pieces, limits, machine, rails=None, ik_search="klipper") -> tuple[int, float]:
     from gcodeplan.kinematics import rails_for
     from gcodeplan.stepper.generate import StepGenerator
 
-    gen = StepGenerator(rails or rails_for(machine), lambda si, t, d: None, settings=machine.limits_row())
+    gen = StepGenerator(rails or rails_for(machine), lambda si, t, d: None, settings=machine.limits_row(),
+                        ik_search=ik_search)
     t0 = time.perf_counter()
     for segs, reset, moves, first in pieces:
         gen.feed(segs, reset, moves=moves, limits=limits, first_move=first)

@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Compare gcodeplan's plug-in kinematics with real Klipper (../shared/reference/klipper/kinematics/).
 
-``python tools/compare_kinematics.py [--cube] [--per-motor] [--regular | --schedule]`` prints a Markdown table: for
+``python tools/compare_kinematics.py [--cube] [--per-motor] [--regular | --schedule] [--exact]`` prints a Markdown table: for
 each of Klipper's polar, rotary_delta, winch, deltesian, hybrid_corexy, hybrid_corexz and generic_cartesian and each
 reference file (b_square, c_circle200, d_slicer_like; with ``--cube`` also the PrusaSlicer cube's first 2032 lines),
 our total next to Klipper's, the relative difference, whether every motor has Klipper's step count and net steps, and
@@ -11,7 +11,8 @@ Step generation runs in the windows Klipper's batch mode made for that input (:f
 input's bytes and the plan: gcodeplan.stepper.klipper_batch), since the reference was made with ``klippy -i -o``
 and Klipper's search restarts at every window; ``--regular``: every 0.25 s instead (a printer that keeps up);
 ``--schedule``: the windows recorded by the compression reference (its corexy run of the same file, where it has
-one, :func:`batch_schedule`), and whether the model's windows for that run are the recorded ones.
+one, :func:`batch_schedule`), and whether the model's windows for that run are the recorded ones. ``--exact``: the
+plug-in motors stepped by the step engine's guarded search (``ik_search="exact"``) instead of Klipper's.
 
 The inputs are prepared as the reference README says (:func:`source_lines`, byte for byte, since the windows
 depend on where Klipper's 4096-byte reads end): heater, fan and motor-off lines become
@@ -115,9 +116,10 @@ def batch_schedule(name: str) -> np.ndarray | None:
     return (z["step_gen_time_s"] - z["first_move_print_time_s"])[:-2]
 
 
-def klipper_steps(lines, m, flush_times=None) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+def klipper_steps(lines, m, flush_times=None, ik_search="klipper") -> dict[str, tuple[np.ndarray, np.ndarray]]:
     """{stepper: (times s, dirs)} through the pipeline and the step sink, Klipper's names and filter;
-    ``flush_times``: the step-generation windows (:func:`batch_schedule`; default every 0.25 s)."""
+    ``flush_times``: the step-generation windows (:func:`batch_schedule`; default every 0.25 s); ``ik_search``:
+    the plug-in motors' search (StepGenerator.IK_SEARCHES)."""
     from gcodeplan import pipeline
     from gcodeplan.kinematics import rails_for
     from gcodeplan.stepper.source import StepSink
@@ -128,7 +130,7 @@ def klipper_steps(lines, m, flush_times=None) -> dict[str, tuple[np.ndarray, np.
     def sink(si, t, d):
         parts.setdefault(si, []).append((t.copy(), d.copy()))
 
-    step_sink = StepSink(rails, sink, sds_filter_t=KLIPPER_SDS_FILTER_T, machine=m)
+    step_sink = StepSink(rails, sink, sds_filter_t=KLIPPER_SDS_FILTER_T, machine=m, ik_search=ik_search)
     if flush_times is not None:
         step_sink.generator.flush_times = np.asarray(flush_times, np.float64)
     pipeline.run(lines, m, sinks=[step_sink])
@@ -200,7 +202,8 @@ def main() -> int:
                             print(f"    model windows {'=' if same else '!='} recorded ({name}, corexy)",
                                   file=sys.stderr)
                         sched = rec
-            ok, worst = compare_steps(klipper_steps(lines, m, sched), ref, info["steps"]["steppers"])
+            search = "exact" if "--exact" in sys.argv else "klipper"
+            ok, worst = compare_steps(klipper_steps(lines, m, sched, search), ref, info["steps"]["steppers"])
             rel = (ours - info["total_time_s"]) / info["total_time_s"]
             print(f"| {name} | {config} | {info['total_time_s']:.9f} | {ours:.9f} | {rel:.1e} | "
                   f"{'equal' if ok else 'DIFFER'} | {worst * 1e9:.1f} |", flush=True)

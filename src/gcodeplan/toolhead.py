@@ -81,9 +81,9 @@ class Toolhead:
 
     ``machine``: a :class:`~gcodeplan.machine.Machine` or preset name (None = ``klipper``);
     ``policy``, ``jerk`` as in :func:`gcodeplan.plan`; ``strict``: unknown commands are errors;
-    ``steps``: keep the step times of the final moves for :meth:`steps` (``kinematics``, ``sds_filter`` as
-    for :func:`gcodeplan.steps`); ``sinks``: pipeline sinks (:class:`gcodeplan.pipeline.Sink`) handed every
-    final piece as :func:`gcodeplan.pipeline.run` hands them, and closed at :meth:`close`;
+    ``steps``: keep the step times of the final moves for :meth:`steps` (``kinematics``, ``sds_filter``,
+    ``ik_search`` as for :func:`gcodeplan.steps`); ``sinks``: pipeline sinks (:class:`gcodeplan.pipeline.Sink`)
+    handed every final piece as :func:`gcodeplan.pipeline.run` hands them, and closed at :meth:`close`;
     ``block_lines``: lines buffered before they are interpreted and planned (``committed()`` sees moves
     made final by the blocks interpreted so far; 1 = by every line fed, each line planned alone).
     Thread-safe: every method holds the Toolhead's lock (a feeding thread and a draining thread see
@@ -92,7 +92,7 @@ class Toolhead:
 
     def __init__(self, machine=None, policy: str | None = None, jerk: float | None = None, *,
                  strict: bool = False, block_lines: int = 512, name: str = "<toolhead>", steps: bool = False,
-                 kinematics=None, sds_filter: float | None = None, sinks=()):
+                 kinematics=None, sds_filter: float | None = None, ik_search: str = "klipper", sinks=()):
         from .api import as_machine
         from .gcode import GcodeReader
         from .planner import StreamPlanner
@@ -113,7 +113,7 @@ class Toolhead:
             self._rails = rails_from(self.machine, kinematics)
             self._steps = {}
             self._step_sink = StepSink(self._rails, self._collect_steps, sds_filter_t=sds_filter,
-                                       machine=self.machine)
+                                       machine=self.machine, ik_search=ik_search)
             self._sinks.append(self._step_sink)
         if any(getattr(sk, "wants_firmware_steps", False) for sk in self._sinks):
             self._planner.want_firmware_steps = True

@@ -215,6 +215,33 @@ def ik_cfunc(fn):
     return _cfunc(("ik", fn), make)
 
 
+def ik_bound_cfunc(fn, params):
+    """An inverse-kinematics function with its parameters bound: a numba cfunc ``(x, y, z) -> float`` calling
+    ``fn(x, y, z, params)`` with ``params`` (float64 array) frozen into the compiled code as a constant — what the
+    step engine's guarded search calls (:func:`gcodeplan.stepper.kernel.gen_steps_ik`). An array handed to compiled
+    code at every call costs two reference counts per call, more than the call itself; a constant costs nothing
+    and lets the compiler fold it. Compiled once per (function, parameters) and process (about 0.1 s; numba cannot
+    cache a function of a constant it did not read from a file)."""
+    frozen = np.array(params, dtype=np.float64).reshape(-1)
+    if frozen.size == 0:
+        frozen = np.zeros(1)
+    frozen.setflags(write=False)
+
+    def make():
+        numba = _jit.numba_module()
+        t = numba.types
+        # error_model "numpy": a division by zero gives inf / NaN (reported as unreachable), as in C
+        inner = numba.njit(error_model="numpy")(_py(fn))
+        bound = frozen
+
+        def ik_bound(x, y, z):
+            return inner(x, y, z, bound)
+
+        return numba.cfunc(t.float64(t.float64, t.float64, t.float64), error_model="numpy")(ik_bound)
+
+    return _cfunc(("ik_bound", fn, frozen.tobytes()), make)
+
+
 def hook_cfunc(fn):
     """A limits hook ``check_move(move, params) -> (speed cap, accel cap, error)`` as a cfunc
     ``(move, params, caps) -> error`` writing the caps into ``caps[0:2]`` (what the planner's kernel calls)."""

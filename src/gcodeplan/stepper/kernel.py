@@ -1644,3 +1644,310 @@ def itersolve_flush_pending(state: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         return np.empty(0, np.float64), np.empty(0, np.int8)
     state[I_PENDING] = 0.0
     return np.array([state[I_PEND_T]], np.float64), np.array([1 if state[I_DIR] != 0.0 else -1], np.int8)
+
+
+# ------------------------------------------------------------------ plug-in motors (inverse kinematics, guarded search)
+#
+# A plug-in motor's position is ``ik(x, y, z)`` (its parameters bound: kinematics.plugin.ik_bound_cfunc) of the
+# toolhead's x, y, z pieces: no closed form, so the step engine (:func:`step_pieces`) gets a guarded root search as
+# its piece type, exact to < 1 ns (it does not reproduce Klipper's search: see StepGenerator.ik_klipper_search).
+# Each piece is sampled at IK_CHECK_SAMPLES + 1 evenly spaced points, plus a probe IK_PROBE of a sample interval in
+# from each end: a sample without a motor position makes the piece unreachable (the points the former NumPy check
+# looked at), a change of sign between sample differences brackets a turning point, refined by golden-section
+# search (Numerical Recipes §10.2) to IK_TURN_S. Each half-step crossing of a monotone stretch starts from a
+# prediction: the stretch's crossings two to four steps back extrapolated by a quadratic in the step number (not
+# the last one, so that consecutive steps do not wait for each other), one evaluation there and a secant step
+# through the last crossing, taken when its estimated error is at most IK_ACCEPT_S. Otherwise, and for the first
+# steps of a stretch, a bracketed secant search (Illinois variant, Numerical Recipes §9.2) inside the stretch, to
+# IK_DONE_S. A motor that reverses twice between two samples (a wiggle shorter than an eighth of a piece) is not
+# seen; Klipper's probes, 1.5 step intervals apart, miss such excursions too.
+
+IK_ACCEPT_S = 1e-9      # s, a predicted crossing's secant correction is taken when its estimated error is this small
+IK_DONE_S = 1e-10       # s, the bracketed search stops when its step is this small
+IK_TURN_S = 1e-9        # s, width a turning point is narrowed to
+IK_PROBE = 1e-3        # of a sample interval: where the direction at a piece's ends is probed
+IK_MAX_ITER = 200       # bracketed-search evaluations before the bracket's secant point is taken
+
+@njit(cache=True, inline="always")
+def _ik_unwrap(m, ref, period):
+    """A cyclic motor position ``m`` (period > 0) taken on the branch nearest ``ref``; ``m`` as is otherwise."""
+    if period > 0.0:
+        m += period * math.floor((ref - m) / period + 0.5)
+    return m
+
+
+@njit(cache=True, inline="always")
+def _ik_at(x0, x1, x2, x3, y0, y1, y2, y3, z0, z1, z2, z3, ik, s):
+    """The motor position ik(x, y, z) at τ = s of the x, y, z cubics (power basis: p, v, a/2, j/6)."""
+    x = x0 + s * (x1 + s * (x2 + s * x3))
+    y = y0 + s * (y1 + s * (y2 + s * y3))
+    z = z0 + s * (z1 + s * (z2 + s * z3))
+    return ik(x, y, z)
+
+
+@njit(cache=True, error_model="numpy")
+def ik_branch_refs(t0, dt, pc, vc, ac, jc, ik, period, state, start):
+    """For a cyclic motor (period > 0, e.g. a turntable's angle in rad): the motor position at the start of each
+    piece from ``start`` on, each taken on the branch within half a period of the previous piece's end (the first
+    of the state's last position, S_LAST_POS, once anchored): the position followed continuously through the
+    wrap-around. Empty for period 0."""
+    n = t0.shape[0]
+    if not (period > 0.0):
+        return np.empty(0, np.float64)
+    refs = np.full(n, np.nan)
+    prev = state[S_LAST_POS] if state[S_ANCHORED] != 0.0 else np.nan
+    for i in range(start, n):
+        x0, y0, z0 = pc[i, 0], pc[i, 1], pc[i, 2]
+        m0 = ik(x0, y0, z0)
+        if math.isfinite(prev):
+            m0 = _ik_unwrap(m0, prev, period)
+        refs[i] = m0
+        s = dt[i]
+        if s > 0.0 and math.isfinite(s):
+            m1 = _ik_at(x0, vc[i, 0], 0.5 * ac[i, 0], jc[i, 0] * (1.0 / 6.0),
+                        y0, vc[i, 1], 0.5 * ac[i, 1], jc[i, 1] * (1.0 / 6.0),
+                        z0, vc[i, 2], 0.5 * ac[i, 2], jc[i, 2] * (1.0 / 6.0), ik, s)
+            prev = _ik_unwrap(m1, m0, period)
+        else:
+            prev = m0
+    return refs
+
+
+@njit(cache=True, inline="always")
+def _ik_piece(data, i):
+    """:func:`step_pieces`'s ``piece_at`` for a plug-in motor: data = (p, v, a, j, ik, period, refs, t0, dt),
+    (n, ≥3) x, y, z columns (mm, mm/s, mm/s², mm/s³), the ik with its parameters bound
+    (:func:`gcodeplan.kinematics.plugin.ik_bound_cfunc`), the branch references of a cyclic motor
+    (:func:`ik_branch_refs`), the pieces' start times and durations (s); the piece is (x, y, z cubics in the
+    power basis, ik, period, position at the start (mm), start time (s), duration (s)). It holds no array: every
+    array a step's functions receive costs two reference counts per call, more than the ik."""
+    pc, vc, ac, jc, ik, period, refs, t0, dt = data
+    x0 = pc[i, 0]
+    y0 = pc[i, 1]
+    z0 = pc[i, 2]
+    x1 = vc[i, 0]
+    y1 = vc[i, 1]
+    z1 = vc[i, 2]
+    x2 = 0.5 * ac[i, 0]
+    y2 = 0.5 * ac[i, 1]
+    z2 = 0.5 * ac[i, 2]
+    x3 = jc[i, 0] * (1.0 / 6.0)
+    y3 = jc[i, 1] * (1.0 / 6.0)
+    z3 = jc[i, 2] * (1.0 / 6.0)
+    status = PIECE_MOVING
+    p = x0
+    if not (math.isfinite(x0) and math.isfinite(y0) and math.isfinite(z0) and math.isfinite(x1)
+            and math.isfinite(y1) and math.isfinite(z1) and math.isfinite(x2) and math.isfinite(y2)
+            and math.isfinite(z2) and math.isfinite(x3) and math.isfinite(y3) and math.isfinite(z3)):
+        status = PIECE_BROKEN
+    else:
+        p = refs[i] if period > 0.0 else ik(x0, y0, z0)
+        if not math.isfinite(p):
+            status = PIECE_UNREACHABLE
+        elif (x1 == 0.0 and y1 == 0.0 and z1 == 0.0 and x2 == 0.0 and y2 == 0.0 and z2 == 0.0 and x3 == 0.0
+              and y3 == 0.0 and z3 == 0.0):
+            status = PIECE_STILL
+    piece = (x0, x1, x2, x3, y0, y1, y2, y3, z0, z1, z2, z3, ik, period, p, t0[i], dt[i])
+    return status, p, piece
+
+
+@njit(cache=True, inline="always")
+def _ik_position(piece, s):
+    """Motor position (mm, or rad) of the plug-in piece at τ = s (a cyclic one on the branch of the piece's start).
+    Reads the piece's fields one by one: binding its arrays to names would count references at every call."""
+    m = _ik_at(piece[0], piece[1], piece[2], piece[3], piece[4], piece[5], piece[6], piece[7], piece[8], piece[9],
+               piece[10], piece[11], piece[12], s)
+    return _ik_unwrap(m, piece[14], piece[13])
+
+
+@njit(cache=True, inline="always")
+def _ik_turn(piece, lo, hi, sg):
+    """Where sg·position (sg ±1) is largest on [lo, hi] (s), which holds one maximum: golden-section search."""
+    gr = 0.3819660112501051
+    c = lo + gr * (hi - lo)
+    d = hi - gr * (hi - lo)
+    fc = sg * _ik_position(piece, c)
+    fd = sg * _ik_position(piece, d)
+    for _ in range(100):
+        if hi - lo <= IK_TURN_S:
+            break
+        if fc >= fd:
+            hi = d
+            d = c
+            fd = fc
+            c = lo + gr * (hi - lo)
+            fc = sg * _ik_position(piece, c)
+        else:
+            lo = c
+            c = d
+            fc = fd
+            d = hi - gr * (hi - lo)
+            fd = sg * _ik_position(piece, d)
+    return c if fc >= fd else d
+
+
+@njit(cache=True, inline="always")
+def _ik_sign(d):
+    """+1, −1 or 0 by the sign of ``d``."""
+    return 1.0 if d > 0.0 else (-1.0 if d < 0.0 else 0.0)
+
+
+@njit(cache=True, inline="always")
+def _ik_turning_points(piece, span, bnd):
+    """Where the plug-in motor may turn on the piece, into bnd[1..] (see the section comment): sample differences
+    that change sign bracket a turning point, refined by :func:`_ik_turn`; a probe IK_PROBE of the first and last
+    sample interval in from each end gives the direction there (a turn inside an end interval shows no change of
+    sign between samples). A sample without a motor position is returned as a cut, where the count pass finds it."""
+    n_s = IK_CHECK_SAMPLES
+    h = span / n_s
+    prev = piece[14]
+    probe = IK_PROBE * h
+    first = _ik_position(piece, probe)
+    if not math.isfinite(first):
+        bnd[1] = probe
+        return 1
+    d_prev = _ik_sign(first - prev)
+    run_lo = 0.0           # start of the interval where the motor last moved in direction d_prev
+    n_cut = 0
+    for q in range(1, n_s + 2):
+        if q <= n_s:
+            s = span if q == n_s else q * h
+            cur = _ik_position(piece, s)
+            diff = cur - prev
+        else:
+            # the direction at the very end, against the last sample interval's
+            s = span
+            cur = prev
+            diff = prev - _ik_position(piece, span - probe)
+        if not math.isfinite(cur):
+            bnd[1] = s
+            return 1
+        sd = _ik_sign(diff)
+        if sd != 0.0:
+            if d_prev != 0.0 and sd != d_prev:
+                lo = run_lo if q <= n_s else span - h
+                t_turn = _ik_turn(piece, lo, s, d_prev)
+                last = bnd[n_cut] if n_cut > 0 else 0.0
+                if last < t_turn < span and n_cut < IK_CHECK_SAMPLES:
+                    n_cut += 1
+                    bnd[n_cut] = t_turn
+            d_prev = sd
+            run_lo = (q - 1) * h
+        prev = cur
+    return n_cut
+
+
+@njit(cache=True, inline="always")
+def _ik_stretch(piece, lo, hi, sigma):
+    """(last crossing or stretch start (s), stretch end (s), motor position at both (mm), crossings held (0-4),
+    the newest four crossings (s)) of a monotone stretch."""
+    p_lo = piece[14] if lo == 0.0 else _ik_position(piece, lo)
+    p_hi = _ik_position(piece, hi)
+    return (lo, hi, p_lo, p_hi, 0.0, 0.0, 0.0, 0.0, 0.0)
+
+
+@njit(cache=True, inline="always")
+def _ik_crossing(piece, ctx, target, sigma, step_dist):
+    """The next crossing of ``target`` (mm) by the plug-in motor on a monotone stretch: the predictor from the
+    stretch's previous crossings and one Newton correction when it is small enough, else a bracketed secant search
+    (section comment)."""
+    left, hi, p_left, p_hi, cnt, t1, t2, t3, t4 = ctx
+    g_lo = sigma * (p_left - target)
+    g_hi = sigma * (p_hi - target)
+    tau = -1.0
+    if g_lo >= 0.0:
+        tau = left              # rounding at the stretch's start
+    elif g_hi <= 0.0:
+        tau = hi                # rounding at the stretch's end: the crossing is there
+    else:
+        lo = left
+        guess = -1.0
+        if cnt >= 2.0:
+            d2 = 0.0
+            if cnt >= 4.0:
+                # from the crossings two to four steps back: the next step's evaluation does not wait for this
+                # one's (the processor overlaps them)
+                d1 = t2 - t3
+                d2 = d1 - (t3 - t4)
+                pred = t2 + 2.0 * d1 + 3.0 * d2
+            else:
+                d1 = t1 - t2
+                pred = t1 + d1
+            if lo < pred < hi and d1 > 0.0:
+                g = sigma * (_ik_position(piece, pred) - target)
+                if g == 0.0:
+                    tau = pred
+                else:
+                    # secant through the last crossing and the prediction; its error is
+                    # |x''/(2x')|·|τ − left|·|τ − pred| (Numerical Recipes §9.2) with x''/x' ≈ d2/d1² from the history,
+                    # or — a change of phase the history cannot see — as large as the prediction's miss implies
+                    # (a miss of corr two steps ahead needs a relative change of the interval of corr/(2·d1) per step)
+                    cand = pred - g * (pred - lo) / (g - g_lo)
+                    corr = abs(cand - pred)
+                    curve = abs(d2) if abs(d2) > 0.5 * corr else 0.5 * corr
+                    if lo < cand < hi and corr <= 0.25 * d1 and 0.5 * curve * corr <= IK_ACCEPT_S * d1:
+                        tau = cand
+                    else:
+                        if g > 0.0:
+                            hi = pred
+                            g_hi = g
+                        else:
+                            lo = pred
+                            g_lo = g
+                        if lo < cand < hi:
+                            guess = cand
+        if tau < 0.0:
+            tau = _ik_bracketed(piece, target, sigma, lo, hi, g_lo, g_hi, guess)
+    if cnt < 4.0:
+        cnt += 1.0
+    return tau, (tau, ctx[1], target, p_hi, cnt, tau, t1, t2, t3)
+
+
+@njit(cache=True, inline="always")
+def _ik_bracketed(piece, target, sigma, lo, hi, g_lo, g_hi, guess):
+    """τ in [lo, hi] where sigma·(position − target) rises through 0 (g_lo < 0 < g_hi at the ends): secant steps
+    kept in the bracket (Illinois: the end that stays twice running has its value halved), from ``guess`` when
+    it lies inside."""
+    t = guess if lo < guess < hi else lo - g_lo * (hi - lo) / (g_hi - g_lo)
+    side = 0
+    for _ in range(IK_MAX_ITER):
+        if not (lo < t < hi):
+            t = 0.5 * (lo + hi)
+        g = sigma * (_ik_position(piece, t) - target)
+        if g == 0.0:
+            return t
+        if g > 0.0:
+            hi = t
+            g_hi = g
+            if side == 1:
+                g_lo *= 0.5
+            side = 1
+        else:
+            lo = t
+            g_lo = g
+            if side == -1:
+                g_hi *= 0.5
+            side = -1
+        nxt = lo - g_lo * (hi - lo) / (g_hi - g_lo)
+        if abs(nxt - t) <= IK_DONE_S or hi - lo <= IK_DONE_S:
+            return nxt if lo <= nxt <= hi else t
+        t = nxt
+    return t
+
+
+@njit(cache=True, error_model="numpy")
+def gen_steps_ik(t0, dt, pc, vc, ac, jc, reset, ik, period, refs, step_dist, state, start, out_t, out_dir, out_n):
+    """:func:`gen_steps` for a plug-in motor: the position is ``ik(x, y, z)`` (a compiled function with the plug-in's
+    parameters bound, :func:`gcodeplan.kinematics.plugin.ik_bound_cfunc`; mm or rad) of the pieces' x, y, z
+    (columns 0, 1, 2 of the (n, ≥3) arrays ``pc vc ac jc``, the SEGMENT convention).
+    ``period`` > 0: a cyclic motor, followed continuously from branch references ``refs``
+    (:func:`ik_branch_refs`).
+
+    Same grid, hysteresis, reset flags, state and buffer contract as :func:`gen_steps`; each piece is cut where the
+    motor turns and each crossing found by the guarded search of the section comment. Returns (next piece index,
+    new out_n, need); need = −1 for a non-finite coefficient, −2 for a piece where the kinematics gives no motor
+    position (at its start or a sample).
+    """
+    return step_pieces(_ik_piece, _ik_position, _ik_turning_points, _ik_stretch, _ik_crossing,
+                       (pc, vc, ac, jc, ik, period, refs, t0, dt), IK_CHECK_SAMPLES,
+                       t0, dt, reset, step_dist, state, start, out_t, out_dir, out_n)

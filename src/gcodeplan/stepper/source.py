@@ -96,14 +96,16 @@ class StepSink(Sink):
 
     interpretable = False   # its kernels run once per step: never worth interpreting (gcodeplan/_jit.py)
 
-    def __init__(self, rails, sink_fn, *, sds_filter_t: float | None = None, machine=None):
+    def __init__(self, rails, sink_fn, *, sds_filter_t: float | None = None, machine=None, ik_search: str = "klipper"):
         """``machine``: its input shaper / pressure advance apply (``machine.limits_row()``); mid-file
-        SET_INPUT_SHAPER / SET_PRESSURE_ADVANCE / M900 / M572 come with each piece's LIMITS table."""
+        SET_INPUT_SHAPER / SET_PRESSURE_ADVANCE / M900 / M572 come with each piece's LIMITS table. ``ik_search``:
+        "klipper" or "exact", how plug-in kinematics' motors are stepped (StepGenerator.IK_SEARCHES)."""
         from .generate import StepGenerator
 
         self.rails = list(rails)
         settings = machine.limits_row() if machine is not None else None
-        self.generator = StepGenerator(self.rails, sink_fn, sds_filter_t=sds_filter_t, settings=settings)
+        self.generator = StepGenerator(self.rails, sink_fn, sds_filter_t=sds_filter_t, settings=settings,
+                                       ik_search=ik_search)
         # the machine's kinematics, for which stepper of a firmware model's pulses each rail takes (firmware_axis)
         self._kinematics = getattr(machine, "kinematics", "cartesian")
         self._pending = False
