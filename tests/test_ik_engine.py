@@ -22,22 +22,9 @@ from gcodeplan.errors import ConfigError
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tools"))
 import compare_kinematics as ck  # noqa: E402
+from test_kinematics_plugins import _line_rows as _rows  # noqa: E402  (SEGMENT rows of a straight line)
 
 TOL_S = 1e-9          # s, the guarded search converges well below this
-
-
-def _rows(x0, y0, vx, vy, spans):
-    """SEGMENT rows of a straight line at constant velocity (vx, vy) mm/s from (x0, y0), one row per span (s)."""
-    from gcodeplan.schema import SEGMENT_DTYPE
-
-    spans = np.asarray(spans, np.float64)
-    seg = np.zeros(len(spans), SEGMENT_DTYPE)
-    t = np.concatenate(([0.0], np.cumsum(spans)[:-1]))
-    seg["t0"], seg["dt"] = t, spans
-    seg["px"], seg["py"] = x0 + vx * t, y0 + vy * t
-    seg["vx"], seg["vy"] = vx, vy
-    seg["move"] = np.arange(len(spans))
-    return seg
 
 
 def _rail(fn, step, period=0.0):

@@ -19,18 +19,15 @@ from gcodeplan.errors import GcodeError
 from gcodeplan.gcode.reader import read_moves
 from gcodeplan.machine import Machine
 from gcodeplan.schema import FLAG_RAPID
+from test_grbl_rejects import read_both
 
 PROGRAM = "G21\nG90\nM83\nG1 X10 F600\n{a}G1 X20 E1\n{b}G0 X0\nG1 Y5\n{c}M400\n"
 AXIS_LINES = ("X30 Y10\n", "E5 F300\n", "F1200\n")
 
 
 def rows(tmp_path, text, machine, name="p.gcode"):
-    path = tmp_path / name
-    path.write_text(text)
-    a, r = read_moves(str(path), machine)
-    b, _ = read_moves(str(path), machine, force_python=True)
-    assert same_rows(a, b), "numba scanner and Python interpreter disagree"
-    return a, r.summary
+    """(MOVE rows, summary); the numba scanner and the Python interpreter must agree (test_grbl_rejects)."""
+    return read_both(tmp_path, text, machine, name)
 
 
 @pytest.mark.parametrize("flavor", ["marlin", "klipper"])
