@@ -224,7 +224,8 @@ def test_unevaluated_conditions_are_named(tmp_path):
     (("{ 200, 200, 12, 120 }", "{ 200, 200 }"), "needs X, Y, Z and E values", 19),
     (("DEFAULT_ACCELERATION          1250", "DEFAULT_ACCELERATION nope"), "not a number", 22),
     (("DEFAULT_ACCELERATION          1250", "DEFAULT_ACCELERATION -5"), "must be > 0", 22),
-    (("//#define DISTINCT_E_FACTORS", "#define DELTA"), "cartesian machines only", 17),
+    (("//#define DISTINCT_E_FACTORS", "#define DELTA"), "cartesian, COREXY and COREXZ machines only", 17),
+    (("//#define DISTINCT_E_FACTORS", "#define COREYX"), "cartesian, COREXY and COREXZ machines only", 17),
     (("#define CLASSIC_JERK", "#define CLASSIC_JERK\n#if 0"), "#if without #endif", None),
     (("//#define S_CURVE_ACCELERATION", "#error \"bad board\""), "#error", 37),
 ])
@@ -234,6 +235,16 @@ def test_bad_configurations_name_file_and_line(tmp_path, edit, match, line):
         gp.load_machine(str(_pair(tmp_path, MAIN.replace(*edit))))
     assert err.value.line == line
     assert "Configuration.h" in str(err.value)
+
+
+@pytest.mark.parametrize("define, kinematics", [("COREXY", "corexy"), ("COREXZ", "corexz")])
+def test_a_core_build_is_read_as_its_kinematics(tmp_path, define, kinematics):
+    # Marlin's COREXY / COREXZ builds run on the Marlin model (tests/test_marlin_core.py): the machine says so
+    assert "//#define DISTINCT_E_FACTORS" in MAIN
+    m, _ = _load(_pair(tmp_path, MAIN.replace("//#define DISTINCT_E_FACTORS", f"#define {define}")))
+    assert m.kinematics == kinematics and m.firmware == "marlin-2.1.2"
+    m0, _ = _load(_pair(tmp_path, folder="plain"))
+    assert m0.kinematics == "cartesian"
 
 
 def test_cli_prints_config_warnings_as_one_line(tmp_path, capsys):

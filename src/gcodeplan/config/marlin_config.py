@@ -30,7 +30,7 @@ runs at fixed values (MINIMUM_PLANNER_SPEED 0.05, DEFAULT_MINSEGMENTTIME 20000, 
 BLOCK_BUFFER_SIZE 16, SLOWDOWN with divisor 2, JD_HANDLE_SMALL_SEGMENTS) are checked: another value is a named
 warning. Features that change the time and that the model does not run (INPUT_SHAPING_X/Y, FT_MOTION,
 ADAPTIVE_STEP_SMOOTHING, XY_FREQUENCY_LIMIT, BACKLASH_COMPENSATION, bed levelling, …) are named warnings;
-a kinematics other than cartesian is an error.
+COREXY and COREXZ give the corexy and corexz kinematics (Marlin's Core builds); another kinematics is an error.
 """
 from __future__ import annotations
 
@@ -84,8 +84,10 @@ UNMODELLED = {
     "EXTRA_LIN_ADVANCE_K": "a second linear advance factor (M900 L/S)",
     "DISTINCT_E_FACTORS": None,
 }
-#: kinematics the cartesian model cannot run
-KINEMATICS = ("DELTA", "COREXY", "COREXZ", "COREYZ", "COREYX", "COREZX", "COREZY", "MARKFORGED_XY",
+#: the Core builds the model runs (planner/marlin.py: blocks, limits and pulses per motor), as gcodeplan's kinematics
+CORE_KINEMATICS = {"COREXY": "corexy", "COREXZ": "corexz"}
+#: kinematics the model cannot run
+KINEMATICS = ("DELTA", "COREYZ", "COREYX", "COREZX", "COREZY", "MARKFORGED_XY",
               "MARKFORGED_YX", "MORGAN_SCARA", "MP_SCARA", "AXEL_TPARA", "POLARGRAPH", "POLAR", "ARTICULATED_ROBOT_ARM",
               "FOAMCUTTER_XYUV")
 #: settings this module reads (a warning names them when defined under a condition it could not evaluate)
@@ -95,7 +97,7 @@ READ = {"DEFAULT_AXIS_STEPS_PER_UNIT", "DEFAULT_MAX_FEEDRATE", "DEFAULT_MAX_ACCE
         "LIN_ADVANCE", "ADVANCE_K", "LIN_ADVANCE_K", "ARC_SUPPORT", "MIN_ARC_SEGMENT_MM", "MAX_ARC_SEGMENT_MM",
         "MM_PER_ARC_SEGMENT", "MIN_CIRCLE_SEGMENTS", "ARC_SEGMENTS_PER_SEC", "N_ARC_CORRECTION",
         "ARC_P_CIRCLES", "JD_HANDLE_SMALL_SEGMENTS", "SLOWDOWN", "DEFAULT_MINIMUMFEEDRATE",
-        "DEFAULT_MINTRAVELFEEDRATE", *FIXED, *UNMODELLED, *KINEMATICS}
+        "DEFAULT_MINTRAVELFEEDRATE", *FIXED, *UNMODELLED, *KINEMATICS, *CORE_KINEMATICS}
 
 
 # ============================================================================ recognising
@@ -315,6 +317,9 @@ def load_marlin_config(path: str, adv_path: str | None = None):
         machine = load_preset("marlin")
         axes = dict(machine.axes)
         top: dict = {"firmware": "marlin-2.1.2"}
+        for define, kinematics in CORE_KINEMATICS.items():
+            if pre.enabled(define):
+                top["kinematics"] = kinematics
         _movement_settings(pre, axes, top, notes, main_path)
         _junction_settings(pre, axes, top, notes, main_path)
         _lin_advance_settings(pre, top, notes, main_path)
@@ -341,7 +346,7 @@ def _read_configs(path: str, adv_path: str | None, notes: list[str]):
     """Both files' #defines read (the main one first): (pre, main path, adv path, adv read). Without a
     Configuration_adv.h, Marlin 2.1.2's shipped values for the ones the model reads. Also the refusals and
     warnings of what cannot be read as written: settings under a condition not evaluated, kinematics other
-    than cartesian."""
+    than cartesian and Core XY/XZ."""
     from .toml import read_text
 
     text = read_text(path)
@@ -380,7 +385,7 @@ def _read_configs(path: str, adv_path: str | None, notes: list[str]):
     for k in KINEMATICS:
         if pre.enabled(k):
             f, no = pre.where[k]
-            raise ConfigError(f"{k}: gcodeplan's Marlin model runs cartesian machines only", f, no)
+            raise ConfigError(f"{k}: gcodeplan's Marlin model runs cartesian, COREXY and COREXZ machines only", f, no)
     return pre, main_path, adv, adv_text is not None
 
 
