@@ -1150,23 +1150,37 @@ def _plan_rows_kernel(move_d, feed_v, op_of_row, op_kind, op_end, op_info, op_ra
     return prev_end
 
 
+@njit(cache=True, nogil=False)     # main thread, once a batch: see _first_beyond_reach
+def _append_ops_kernel(row_op, op_kind, op_rapid, op_end, op_info, n_rows, rows, kind, rapid, first):
+    """The stream mode's pending arrays with a batch appended (new arrays; the old ones are left as they were):
+    ``row_op`` with the batch's ``n_rows`` rows (each its op's global index from ``first`` on, −1 for a row
+    without one; ``rows``: the row of each new op), ``op_kind`` and ``op_rapid`` with the new ops' ``kind`` and
+    ``rapid``, ``op_end`` with −1 (not ended) and ``op_info`` with zero rows for them. One pass instead of seven
+    array operations a batch, none of which hands the GIL to the reader thread."""
+    n_old, m_old, m = row_op.shape[0], op_kind.shape[0], kind.shape[0]
+    row_op2 = np.empty(n_old + n_rows, np.int64)
+    row_op2[:n_old] = row_op
+    row_op2[n_old:] = -1
+    for j in range(m):
+        row_op2[n_old + rows[j]] = first + j
+    kind2 = np.empty(m_old + m, np.int64)
+    kind2[:m_old] = op_kind
+    kind2[m_old:] = kind
+    rapid2 = np.empty(m_old + m, np.bool_)
+    rapid2[:m_old] = op_rapid
+    rapid2[m_old:] = rapid
+    end2 = np.empty(m_old + m, np.int64)
+    end2[:m_old] = op_end
+    end2[m_old:] = -1
+    info2 = np.zeros((m_old + m, op_info.shape[1]), np.float32)
+    info2[:m_old] = op_info
+    return row_op2, kind2, rapid2, end2, info2
+
+
 def make_stream_mode(base_cls):
     """The StreamPlanner mode of machines with ``firmware = "grbl-1.1"`` (``base_cls``: planner.stream._Mode):
     every batch runs grbl on, and the rows whose last step pulse is out are final (:class:`_GrblStreamMode`)."""
     return type("GrblMode", (_GrblStreamMode, base_cls), {"__doc__": _GrblStreamMode.__doc__})
-
-
-def _no_prep(n: int) -> np.ndarray:
-    """n PREP rows for a window the grbl model does not read: one zero row repeated (a read-only view)."""
-    global _NO_PREP
-    if _NO_PREP is None:
-        from .prepare import PREP_DTYPE
-
-        _NO_PREP = np.zeros(1, dtype=PREP_DTYPE)[0]
-    return np.broadcast_to(_NO_PREP, (n,))
-
-
-_NO_PREP = None
 
 
 class _GrblStreamMode:
@@ -1217,14 +1231,18 @@ class _GrblStreamMode:
             raise GcodeError("grbl 1.1 has no E axis: it rejects this line (error:20, unsupported command)",
                              line=line)
         check_reach(moves_chunk, self.settings)
-        return _no_prep(len(moves_chunk))
+        from .stream import unread_prep
+
+        return unread_prep(len(moves_chunk))
 
     def window_prep(self, moves_chunk, limits):
         """The grbl model plans from the MOVE rows alone: the window's PREP rows (the stream keeps them 1:1
         with its MOVE rows) are one zero row repeated, a read-only view of no memory (zeroing and copying
         128 bytes a row cost more than a tenth of the model's time)."""
+        from .stream import unread_prep
+
         self.prepare(moves_chunk, limits)
-        return _no_prep(len(self.sp.pending_prep) + len(moves_chunk))
+        return unread_prep(len(self.sp.pending_prep) + len(moves_chunk))
 
     def plan(self, final: bool):
         """Run grbl on the rows not fed yet; emit the rows before the first whose last pulse is not out."""
@@ -1254,14 +1272,9 @@ class _GrblStreamMode:
         """grbl's operations of the new MOVE rows, appended to the pending ones (global indices go on);
         returns what the feed kernel takes: (kind, target, rate, rapid, dwell ticks)."""
         kind, target, rate, rapid, dwell, rows = operations(new)
-        first = self.op_base + len(self.op_kind)
-        ops = np.full(len(new), -1, np.int64)
-        ops[rows] = first + np.arange(len(rows))
-        self.row_op = np.concatenate([self.row_op, ops])
-        self.op_kind = np.concatenate([self.op_kind, kind])
-        self.op_rapid = np.concatenate([self.op_rapid, rapid])
-        self.op_end = np.concatenate([self.op_end, np.full(len(kind), -1, np.int64)])
-        self.op_info = np.concatenate([self.op_info, np.zeros((len(kind), N_INFO), np.float32)])
+        self.row_op, self.op_kind, self.op_rapid, self.op_end, self.op_info = _append_ops_kernel(
+            self.row_op, self.op_kind, self.op_rapid, self.op_end, self.op_info, len(new), rows, kind, rapid,
+            self.op_base + len(self.op_kind))
         return kind, target, rate, rapid, dwell
 
     def _make_room(self, kind, target):
