@@ -1010,15 +1010,44 @@ def _operations_kernel(kind, flags, x1, y1, z1, feed_v, dwell_t, pow10):
 def check_reach(moves: np.ndarray, settings: GrblSettings) -> None:
     """grbl keeps positions as int32 steps (sys_position, pl.position): a target beyond ±2³¹ steps (or not a
     number) has no meaning on the machine; an error naming the line rather than a wrapped position."""
+    k, i = _first_beyond_reach(moves["x1"], moves["y1"], moves["z1"], reach_mm(settings))
+    if k >= 0:
+        raise _reach_error(moves, settings, k, i)
+
+
+def reach_mm(settings: GrblSettings) -> np.ndarray:
+    """mm, the reach of grbl's int32 step positions per axis X, Y, Z (±2³¹ steps)."""
+    return np.array([2.0 ** 31 / float(v) for v in settings.steps_per_mm])
+
+
+def _reach_error(moves: np.ndarray, settings: GrblSettings, k: int, i: int):
+    """The error of row ``i``'s target on axis ``k`` (0..2) beyond grbl's reach (:func:`check_reach`)."""
     from ..errors import GcodeError
 
-    reach = np.array([2.0 ** 31 / float(v) for v in settings.steps_per_mm])
-    k, i = _first_beyond_reach(moves["x1"], moves["y1"], moves["z1"], reach)
-    if k >= 0:
-        axis = "xyz"[k]
-        raise GcodeError(f"{axis.upper()} {moves[axis + '1'][i]:g} mm is beyond grbl's reach "
-                         f"(±2³¹ steps at {float(settings.steps_per_mm[k]):g} steps/mm)",
-                         line=int(moves["line"][i]))
+    axis = "xyz"[k]
+    return GcodeError(f"{axis.upper()} {moves[axis + '1'][i]:g} mm is beyond grbl's reach "
+                      f"(±2³¹ steps at {float(settings.steps_per_mm[k]):g} steps/mm)", line=int(moves["line"][i]))
+
+
+@njit(cache=True, nogil=False)     # main thread, once a batch: see _first_beyond_reach
+def _first_refused_kernel(e0, e1, x1, y1, z1, reach):
+    """The stream mode's two checks of a batch in one pass: (the first row that moves E, the axis and row
+    :func:`_first_beyond_reach` gives), −1 for none."""
+    e_row = -1
+    bad = np.full(3, -1, np.int64)
+    for i in range(e0.shape[0]):
+        if e_row < 0 and e1[i] != e0[i]:
+            e_row = i
+        if bad[0] < 0 and not (abs(x1[i]) < reach[0]):
+            bad[0] = i
+        if bad[1] < 0 and not (abs(y1[i]) < reach[1]):
+            bad[1] = i
+        if bad[2] < 0 and not (abs(z1[i]) < reach[2]):
+            bad[2] = i
+    for k in range(3):
+        if bad[k] >= 0:
+            return e_row, k, bad[k]
+    return e_row, -1, -1
 
 
 # nogil=False for the small kernels the grbl mode runs in the main thread once a batch (well under a
@@ -1061,15 +1090,6 @@ def run(moves: np.ndarray, settings: GrblSettings, steps_capacity: int = 0) -> G
             k = min(int(n_out[ax]), steps_capacity)
             steps[f"stepper_{name}"] = ((step_t[ax, :k] - t0) / F_CPU, step_dir[ax, :k].copy())
     return GrblRun(row_end, last / F_CPU, steps)
-
-
-@njit(cache=True, nogil=False)     # main thread, once a batch: see _first_beyond_reach
-def _first_e_move(e0, e1):
-    """Index of the first row that moves E (−1: none)."""
-    for i in range(e0.shape[0]):
-        if e1[i] != e0[i]:
-            return i
-    return -1
 
 
 # --------------------------------------------------------------------------- the StreamPlanner mode
@@ -1199,6 +1219,7 @@ class _GrblStreamMode:
             raise ConfigError(f"the grbl-1.1 firmware model steps a cartesian machine, not "
                               f"{sp.machine.kinematics!r} (grbl's COREXY build is not modelled)")
         self.settings = GrblSettings.from_machine(sp.machine)
+        self.reach = reach_mm(self.settings)            # mm, check_reach's
         self.state = GrblState(self.settings)
         self.want_steps = bool(getattr(sp, "want_firmware_steps", False))
         self.pos_steps = np.zeros(3, np.int64)         # where the last fed line ends, in steps (for sizing)
@@ -1225,12 +1246,14 @@ class _GrblStreamMode:
         a silent wrong answer for the printer it was made for."""
         from ..errors import GcodeError
 
-        e_move = _first_e_move(moves_chunk["e0"], moves_chunk["e1"])
+        e_move, k, i = _first_refused_kernel(moves_chunk["e0"], moves_chunk["e1"], moves_chunk["x1"],
+                                             moves_chunk["y1"], moves_chunk["z1"], self.reach)
         if e_move >= 0:      # gcode.c: E is no grbl word (error:20), the whole line is rejected
             line = int(moves_chunk["line"][e_move])
             raise GcodeError("grbl 1.1 has no E axis: it rejects this line (error:20, unsupported command)",
                              line=line)
-        check_reach(moves_chunk, self.settings)
+        if k >= 0:           # check_reach
+            raise _reach_error(moves_chunk, self.settings, k, i)
         from .stream import unread_prep
 
         return unread_prep(len(moves_chunk))
