@@ -1010,15 +1010,44 @@ def _operations_kernel(kind, flags, x1, y1, z1, feed_v, dwell_t, pow10):
 def check_reach(moves: np.ndarray, settings: GrblSettings) -> None:
     """grbl keeps positions as int32 steps (sys_position, pl.position): a target beyond ±2³¹ steps (or not a
     number) has no meaning on the machine; an error naming the line rather than a wrapped position."""
+    k, i = _first_beyond_reach(moves["x1"], moves["y1"], moves["z1"], reach_mm(settings))
+    if k >= 0:
+        raise _reach_error(moves, settings, k, i)
+
+
+def reach_mm(settings: GrblSettings) -> np.ndarray:
+    """mm, the reach of grbl's int32 step positions per axis X, Y, Z (±2³¹ steps)."""
+    return np.array([2.0 ** 31 / float(v) for v in settings.steps_per_mm])
+
+
+def _reach_error(moves: np.ndarray, settings: GrblSettings, k: int, i: int):
+    """The error of row ``i``'s target on axis ``k`` (0..2) beyond grbl's reach (:func:`check_reach`)."""
     from ..errors import GcodeError
 
-    reach = np.array([2.0 ** 31 / float(v) for v in settings.steps_per_mm])
-    k, i = _first_beyond_reach(moves["x1"], moves["y1"], moves["z1"], reach)
-    if k >= 0:
-        axis = "xyz"[k]
-        raise GcodeError(f"{axis.upper()} {moves[axis + '1'][i]:g} mm is beyond grbl's reach "
-                         f"(±2³¹ steps at {float(settings.steps_per_mm[k]):g} steps/mm)",
-                         line=int(moves["line"][i]))
+    axis = "xyz"[k]
+    return GcodeError(f"{axis.upper()} {moves[axis + '1'][i]:g} mm is beyond grbl's reach "
+                      f"(±2³¹ steps at {float(settings.steps_per_mm[k]):g} steps/mm)", line=int(moves["line"][i]))
+
+
+@njit(cache=True, nogil=False)     # main thread, once a batch: see _first_beyond_reach
+def _first_refused_kernel(e0, e1, x1, y1, z1, reach):
+    """The stream mode's two checks of a batch in one pass: (the first row that moves E, the axis and row
+    :func:`_first_beyond_reach` gives), −1 for none."""
+    e_row = -1
+    bad = np.full(3, -1, np.int64)
+    for i in range(e0.shape[0]):
+        if e_row < 0 and e1[i] != e0[i]:
+            e_row = i
+        if bad[0] < 0 and not (abs(x1[i]) < reach[0]):
+            bad[0] = i
+        if bad[1] < 0 and not (abs(y1[i]) < reach[1]):
+            bad[1] = i
+        if bad[2] < 0 and not (abs(z1[i]) < reach[2]):
+            bad[2] = i
+    for k in range(3):
+        if bad[k] >= 0:
+            return e_row, k, bad[k]
+    return e_row, -1, -1
 
 
 # nogil=False for the small kernels the grbl mode runs in the main thread once a batch (well under a
@@ -1061,15 +1090,6 @@ def run(moves: np.ndarray, settings: GrblSettings, steps_capacity: int = 0) -> G
             k = min(int(n_out[ax]), steps_capacity)
             steps[f"stepper_{name}"] = ((step_t[ax, :k] - t0) / F_CPU, step_dir[ax, :k].copy())
     return GrblRun(row_end, last / F_CPU, steps)
-
-
-@njit(cache=True, nogil=False)     # main thread, once a batch: see _first_beyond_reach
-def _first_e_move(e0, e1):
-    """Index of the first row that moves E (−1: none)."""
-    for i in range(e0.shape[0]):
-        if e1[i] != e0[i]:
-            return i
-    return -1
 
 
 # --------------------------------------------------------------------------- the StreamPlanner mode
@@ -1150,23 +1170,37 @@ def _plan_rows_kernel(move_d, feed_v, op_of_row, op_kind, op_end, op_info, op_ra
     return prev_end
 
 
+@njit(cache=True, nogil=False)     # main thread, once a batch: see _first_beyond_reach
+def _append_ops_kernel(row_op, op_kind, op_rapid, op_end, op_info, n_rows, rows, kind, rapid, first):
+    """The stream mode's pending arrays with a batch appended (new arrays; the old ones are left as they were):
+    ``row_op`` with the batch's ``n_rows`` rows (each its op's global index from ``first`` on, −1 for a row
+    without one; ``rows``: the row of each new op), ``op_kind`` and ``op_rapid`` with the new ops' ``kind`` and
+    ``rapid``, ``op_end`` with −1 (not ended) and ``op_info`` with zero rows for them. One pass instead of seven
+    array operations a batch, none of which hands the GIL to the reader thread."""
+    n_old, m_old, m = row_op.shape[0], op_kind.shape[0], kind.shape[0]
+    row_op2 = np.empty(n_old + n_rows, np.int64)
+    row_op2[:n_old] = row_op
+    row_op2[n_old:] = -1
+    for j in range(m):
+        row_op2[n_old + rows[j]] = first + j
+    kind2 = np.empty(m_old + m, np.int64)
+    kind2[:m_old] = op_kind
+    kind2[m_old:] = kind
+    rapid2 = np.empty(m_old + m, np.bool_)
+    rapid2[:m_old] = op_rapid
+    rapid2[m_old:] = rapid
+    end2 = np.empty(m_old + m, np.int64)
+    end2[:m_old] = op_end
+    end2[m_old:] = -1
+    info2 = np.zeros((m_old + m, op_info.shape[1]), np.float32)
+    info2[:m_old] = op_info
+    return row_op2, kind2, rapid2, end2, info2
+
+
 def make_stream_mode(base_cls):
     """The StreamPlanner mode of machines with ``firmware = "grbl-1.1"`` (``base_cls``: planner.stream._Mode):
     every batch runs grbl on, and the rows whose last step pulse is out are final (:class:`_GrblStreamMode`)."""
     return type("GrblMode", (_GrblStreamMode, base_cls), {"__doc__": _GrblStreamMode.__doc__})
-
-
-def _no_prep(n: int) -> np.ndarray:
-    """n PREP rows for a window the grbl model does not read: one zero row repeated (a read-only view)."""
-    global _NO_PREP
-    if _NO_PREP is None:
-        from .prepare import PREP_DTYPE
-
-        _NO_PREP = np.zeros(1, dtype=PREP_DTYPE)[0]
-    return np.broadcast_to(_NO_PREP, (n,))
-
-
-_NO_PREP = None
 
 
 class _GrblStreamMode:
@@ -1185,6 +1219,7 @@ class _GrblStreamMode:
             raise ConfigError(f"the grbl-1.1 firmware model steps a cartesian machine, not "
                               f"{sp.machine.kinematics!r} (grbl's COREXY build is not modelled)")
         self.settings = GrblSettings.from_machine(sp.machine)
+        self.reach = reach_mm(self.settings)            # mm, check_reach's
         self.state = GrblState(self.settings)
         self.want_steps = bool(getattr(sp, "want_firmware_steps", False))
         self.pos_steps = np.zeros(3, np.int64)         # where the last fed line ends, in steps (for sizing)
@@ -1211,20 +1246,26 @@ class _GrblStreamMode:
         a silent wrong answer for the printer it was made for."""
         from ..errors import GcodeError
 
-        e_move = _first_e_move(moves_chunk["e0"], moves_chunk["e1"])
+        e_move, k, i = _first_refused_kernel(moves_chunk["e0"], moves_chunk["e1"], moves_chunk["x1"],
+                                             moves_chunk["y1"], moves_chunk["z1"], self.reach)
         if e_move >= 0:      # gcode.c: E is no grbl word (error:20), the whole line is rejected
             line = int(moves_chunk["line"][e_move])
             raise GcodeError("grbl 1.1 has no E axis: it rejects this line (error:20, unsupported command)",
                              line=line)
-        check_reach(moves_chunk, self.settings)
-        return _no_prep(len(moves_chunk))
+        if k >= 0:           # check_reach
+            raise _reach_error(moves_chunk, self.settings, k, i)
+        from .stream import unread_prep
+
+        return unread_prep(len(moves_chunk))
 
     def window_prep(self, moves_chunk, limits):
         """The grbl model plans from the MOVE rows alone: the window's PREP rows (the stream keeps them 1:1
         with its MOVE rows) are one zero row repeated, a read-only view of no memory (zeroing and copying
         128 bytes a row cost more than a tenth of the model's time)."""
+        from .stream import unread_prep
+
         self.prepare(moves_chunk, limits)
-        return _no_prep(len(self.sp.pending_prep) + len(moves_chunk))
+        return unread_prep(len(self.sp.pending_prep) + len(moves_chunk))
 
     def plan(self, final: bool):
         """Run grbl on the rows not fed yet; emit the rows before the first whose last pulse is not out."""
@@ -1254,14 +1295,9 @@ class _GrblStreamMode:
         """grbl's operations of the new MOVE rows, appended to the pending ones (global indices go on);
         returns what the feed kernel takes: (kind, target, rate, rapid, dwell ticks)."""
         kind, target, rate, rapid, dwell, rows = operations(new)
-        first = self.op_base + len(self.op_kind)
-        ops = np.full(len(new), -1, np.int64)
-        ops[rows] = first + np.arange(len(rows))
-        self.row_op = np.concatenate([self.row_op, ops])
-        self.op_kind = np.concatenate([self.op_kind, kind])
-        self.op_rapid = np.concatenate([self.op_rapid, rapid])
-        self.op_end = np.concatenate([self.op_end, np.full(len(kind), -1, np.int64)])
-        self.op_info = np.concatenate([self.op_info, np.zeros((len(kind), N_INFO), np.float32)])
+        self.row_op, self.op_kind, self.op_rapid, self.op_end, self.op_info = _append_ops_kernel(
+            self.row_op, self.op_kind, self.op_rapid, self.op_end, self.op_info, len(new), rows, kind, rapid,
+            self.op_base + len(self.op_kind))
         return kind, target, rate, rapid, dwell
 
     def _make_room(self, kind, target):

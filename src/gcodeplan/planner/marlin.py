@@ -152,6 +152,29 @@ def row_inputs_kernel(line, kind, x0, y0, z0, e0, x1, y1, z1, e1, feed_v, accel,
         carry[0], carry[1], carry[2], carry[3] = x1[n - 1], y1[n - 1], z1[n - 1], e1[n - 1]
 
 
+@njit(cache=True, nogil=False)
+def window_rows_kernel(limits, line, kind, move_d, fr, acc_p, acc_t, acc_r, lim_out, line_out, kind_out, move_d_out,
+                       out_i, out_f):
+    """What the window keeps of a batch's MOVE rows besides :func:`row_inputs_kernel`'s (out: ``lim_out``,
+    ``line_out``, ``kind_out``, ``move_d_out`` (mm)), and the run kernel's output rows for them cleared (``out_i``,
+    ``out_f``: a row without a block keeps zeros). Returns True when a feed rate ``fr`` or one of the accelerations
+    ``acc_p``/``acc_t``/``acc_r`` handed on is 0 or less (:meth:`MarlinModel._check_zero_limits` then looks for
+    the row). One pass instead of six array operations a batch: each of those lets the reader thread take the GIL."""
+    nonpos = False
+    for r in range(len(line)):
+        lim_out[r] = limits[r]
+        line_out[r] = line[r]
+        kind_out[r] = kind[r]
+        move_d_out[r] = move_d[r]
+        for c in range(out_i.shape[1]):
+            out_i[r, c] = 0
+        for c in range(out_f.shape[1]):
+            out_f[r, c] = 0
+        if fr[r] <= 0 or acc_p[r] <= 0 or acc_t[r] <= 0 or acc_r[r] <= 0:
+            nonpos = True
+    return nonpos
+
+
 def check_firmware(name: str | None) -> str | None:
     """``name`` if it is a firmware model gcodeplan runs (None passes), else a ConfigError."""
     if name is None or name in FIRMWARES:
@@ -232,6 +255,7 @@ class MarlinModel:
         self._clock_done = 0                     # tick the last settled block ended
         self._last_v = 0.0                       # mm/s, the exit speed of the last settled block
         self._tables = None                      # (key, per-LIMITS-row settings): _limit_tables
+        self._nonpos = False                     # the last batch hands on a feed rate or acceleration <= 0
         self.blocks = []                          # (out_i, out_f) of settled rows, when keep_blocks
         self.keep_blocks = False
         # the stepper's own pulses of the settled rows ({axis 0..3: (times s, dirs)}), when want_steps
@@ -274,10 +298,10 @@ class MarlinModel:
         self._acc = [float(carry[5]), float(carry[6]), float(carry[7])]
         self._limit_tables(limits)       # the settings of each row: its LIMITS row in these tables (they only grow)
         # the window keeps what the PLAN rows and the steps need of the MOVE rows, not the rows themselves
-        a["lim"][:] = moves["limits"]
-        a["line"][:] = moves["line"]
-        a["move_kind"][:] = k
-        a["move_d"][:] = moves["move_d"]
+        n0 = self._n
+        self._nonpos = window_rows_kernel(moves["limits"], moves["line"], k, moves["move_d"], a["fr"], a["acc_p"],
+                                          a["acc_t"], a["acc_r"], a["lim"], a["line"], a["move_kind"], a["move_d"],
+                                          self._out_i[n0:n0 + n], self._out_f[n0:n0 + n])
         return a
 
     def _check_reach(self, moves: np.ndarray, bad: np.ndarray) -> None:
@@ -301,8 +325,7 @@ class MarlinModel:
         from ..errors import GcodeError
 
         tab = self._tables[1]
-        if not ((a["fr"] <= 0).any() or (a["acc_p"] <= 0).any() or (a["acc_t"] <= 0).any() or (a["acc_r"] <= 0).any()
-                or (tab["vmax"] <= 0).any() or (tab["amax"] <= 0).any()):
+        if not (self._nonpos or tab["nonpos"]):
             return                                    # nothing is 0: no row to look for
         li = moves["limits"]
         vmax, amax = tab["vmax"][li], tab["amax"][li]
@@ -340,6 +363,7 @@ class MarlinModel:
             cutoff=(_UINT32_MAX // np.maximum(amax.max(axis=1), 1)).astype(np.int64),
             jdev=limits["junction_dev"].astype(np.float32), advance_k=limits["pa_k"].astype(np.float32),
             min_feed=limits["min_feed_v"].astype(np.float32), min_travel=limits["min_travel_v"].astype(np.float32))
+        tab["nonpos"] = bool((tab["vmax"] <= 0).any() or (tab["amax"] <= 0).any())    # _check_zero_limits
         self._tables = (key, tab)
         return tab
 
@@ -356,7 +380,7 @@ class MarlinModel:
 
     def _reserve(self, m: int) -> dict:
         """Room for ``m`` more rows in the window's buffers (grown to twice when short): views of the rows
-        after the window's, the kernel's output rows for them set to zero."""
+        after the window's (the kernel's output rows for them are cleared by :func:`window_rows_kernel`)."""
         n = self._n
         if self._arrays is None or n + m > len(self._out_i):
             cap = max(2 * len(self._out_i), n + m)
@@ -369,8 +393,6 @@ class MarlinModel:
                 out_i[:n] = self._out_i[:n]
                 out_f[:n] = self._out_f[:n]
             self._arrays, self._out_i, self._out_f = grown, out_i, out_f
-        self._out_i[n:n + m] = 0
-        self._out_f[n:n + m] = 0
         return {k: v[n:n + m] for k, v in self._arrays.items()}
 
     def finish(self):
@@ -662,10 +684,18 @@ def make_stream_mode(base_cls):
                     self._ready_steps.append(self.model.last_steps)
 
         def prepare(self, moves_chunk, limits):
-            from .prepare import PREP_DTYPE
+            from .stream import unread_prep
 
             self._take(self.model.feed(np.asarray(moves_chunk), np.asarray(limits)))
-            return np.zeros(len(moves_chunk), dtype=PREP_DTYPE)
+            return unread_prep(len(moves_chunk))
+
+        def window_prep(self, moves_chunk, limits):
+            """The model plans from the MOVE rows alone: the window's PREP rows are one zero row repeated
+            (:func:`gcodeplan.planner.stream.unread_prep`), not a copy of the pending ones and the chunk's."""
+            from .stream import unread_prep
+
+            self.prepare(moves_chunk, limits)
+            return unread_prep(len(self.sp.pending_prep) + len(moves_chunk))
 
         def plan(self, final: bool):
             sp = self.sp
