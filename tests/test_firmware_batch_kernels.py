@@ -7,7 +7,7 @@ from gcodeplan.planner.grbl import N_INFO, _append_ops_kernel, _first_refused_ke
 from gcodeplan.planner.marlin import window_rows_kernel
 from gcodeplan.planner.marlin_kernels import N_OF, N_OI
 from gcodeplan.planner.prepare import PREP_DTYPE
-from gcodeplan.planner.stream import unread_prep
+from gcodeplan.planner.prepare import unread_prep
 
 
 def _refused_numpy(e0, e1, x1, y1, z1, reach):

@@ -1254,7 +1254,7 @@ class _GrblStreamMode:
                              line=line)
         if k >= 0:           # check_reach
             raise _reach_error(moves_chunk, self.settings, k, i)
-        from .stream import unread_prep
+        from .prepare import unread_prep
 
         return unread_prep(len(moves_chunk))
 
@@ -1262,7 +1262,7 @@ class _GrblStreamMode:
         """The grbl model plans from the MOVE rows alone: the window's PREP rows (the stream keeps them 1:1
         with its MOVE rows) are one zero row repeated, a read-only view of no memory (zeroing and copying
         128 bytes a row cost more than a tenth of the model's time)."""
-        from .stream import unread_prep
+        from .prepare import unread_prep
 
         self.prepare(moves_chunk, limits)
         return unread_prep(len(self.sp.pending_prep) + len(moves_chunk))

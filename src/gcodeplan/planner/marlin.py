@@ -684,15 +684,15 @@ def make_stream_mode(base_cls):
                     self._ready_steps.append(self.model.last_steps)
 
         def prepare(self, moves_chunk, limits):
-            from .stream import unread_prep
+            from .prepare import unread_prep
 
             self._take(self.model.feed(np.asarray(moves_chunk), np.asarray(limits)))
             return unread_prep(len(moves_chunk))
 
         def window_prep(self, moves_chunk, limits):
             """The model plans from the MOVE rows alone: the window's PREP rows are one zero row repeated
-            (:func:`gcodeplan.planner.stream.unread_prep`), not a copy of the pending ones and the chunk's."""
-            from .stream import unread_prep
+            (:func:`gcodeplan.planner.prepare.unread_prep`), not a copy of the pending ones and the chunk's."""
+            from .prepare import unread_prep
 
             self.prepare(moves_chunk, limits)
             return unread_prep(len(self.sp.pending_prep) + len(moves_chunk))

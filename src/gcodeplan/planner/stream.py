@@ -35,16 +35,6 @@ from .segments import to_segments
 
 MODE_TRAPEZOID, MODE_SCURVE, MODE_BLEND = "trapezoid", "scurve", "blend"
 
-#: the one PREP row of :func:`unread_prep`
-_ZERO_PREP = np.zeros(1, dtype=PREP_DTYPE)[0]
-
-
-def unread_prep(n: int) -> np.ndarray:
-    """n PREP rows for the window of a mode that never reads them (the firmware models plan from the MOVE rows
-    alone; the stream keeps its PREP rows 1:1 with its MOVE rows): one zero row repeated, a read-only view of no
-    memory. Zeroing and copying 128 bytes a row would cost such a mode a tenth of its time."""
-    return np.broadcast_to(_ZERO_PREP, (n,))
-
 
 class _Mode:
     """One planning mode: how a chunk is prepared, how much of the window can be planned for good, and
