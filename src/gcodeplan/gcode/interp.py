@@ -665,7 +665,8 @@ class Interpreter(StateCommands, MotionCommands, Rs274Commands, GrblLines):
             name = f"G{round(first.value, 1):g}"
             if flavor == "klipper" and int(first.value) == 20:
                 self.error(f"{name}: Klipper answers '{PRINTER_G20_ERROR}', an error, which stops a print from "
-                           "its virtual SD card (the program must be in mm)")
+                           "its virtual SD card (a printer's program must be in mm; a CNC program needs a CNC "
+                           "--machine or --flavor)")
             who = "Marlin's default build" if flavor == "marlin" else firmware
             self._note_once(f"printer-cnc {name}", f"{name}: a CNC command {who} does not have: it answers 'Unknown "
                             "command' and the line does nothing, its axis words included (each such line is "
