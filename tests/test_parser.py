@@ -109,7 +109,8 @@ def test_m221_flow_scales_e_and_m220_scales_feed(tmp_path):
 
 
 def test_g20_inches_scale_coordinates_and_feed(tmp_path):
-    m, _ = _parse(tmp_path, "G20\nG1 X1 Y2 F60\nG21\nG1 X30\n")
+    # reprap: Marlin's default build has no G20 (no INCH_MODE_SUPPORT) and Klipper refuses it (test_printer_cnc_words)
+    m, _ = _parse(tmp_path, "G20\nG1 X1 Y2 F60\nG21\nG1 X30\n", Machine(flavor="reprap"))
     assert (m["x1"][0], m["y1"][0]) == (25.4, 50.8)
     assert m["feed_v"][0] == pytest.approx(25.4)    # 60 in/min = 1 in/s
     assert m["x1"][1] == 30.0
@@ -210,8 +211,11 @@ def test_g61_g64_blend_and_exact_stop(tmp_path):
     # G64 Q is LinuxCNC's naive-CAM tolerance (used by the linuxcnc policy); P alone sets Q = P
     assert m["blend_q"][0] == 0.01 and m["blend_q"][3] == pytest.approx(0.0254)
     assert "G64 Q" not in r.summary.ignored_commands
-    m2, r2 = _parse(tmp_path, "G64 P0.05 Q0.01\nG1 X1\n", Machine(flavor="marlin"))
+    m2, r2 = _parse(tmp_path, "G64 P0.05 Q0.01\nG1 X1\n", Machine(flavor="reprap"))
     assert r2.summary.ignored_commands["G64 Q"] == 1
+    # Marlin has no G64 (gcode.cpp): "Unknown command", nothing blends
+    m3, r3 = _parse(tmp_path, "G64 P0.05 Q0.01\nG1 X1\n", Machine(flavor="marlin"))
+    assert r3.summary.unknown_commands == {"G64": 1} and math.isnan(m3["blend_p"][0])
 
 
 # ------------------------------------------------------------------ layers, features

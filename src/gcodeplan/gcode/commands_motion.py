@@ -305,6 +305,8 @@ class MotionCommands:
         r = self._value(params, "R")
         p = self._value(params, "P")
         flavor = self.machine.flavor
+        if flavor == "klipper":
+            self._klipper_arc_refusals(clockwise, centre, r)
         if p is not None and flavor == "klipper":
             self.warn("G2/G3 P is not supported by Klipper: ignored")
             p = None
@@ -358,6 +360,23 @@ class MotionCommands:
         st[S.S_E] = e1
         st[S.S_ELOG] = elog
         self._bulk(pts, starts, es, e_starts, d, FLAG_ARC, float(st[S.S_FEED]) * float(st[S.S_SPEED_F]))
+
+    def _klipper_arc_refusals(self, clockwise: bool, centre: list, r: float | None) -> None:
+        """The G2/G3 Klipper's gcode_arcs refuses, in its order: relative coordinates (G91), an R word, no centre
+        offset in the plane (I J for G17, I K for G18, J K for G19; a 0 is none). Each is an error there,
+        which stops a print from its virtual SD card: here an error quoting Klipper's answer."""
+        answer = None
+        if not int(self.ist[S.I_ABS_COORD]):
+            answer = "G2/G3 does not support relative move mode"
+        elif r is not None:
+            answer = "G2/G3 does not support R moves"
+        else:
+            a, b = {17: (0, 1), 18: (0, 2), 19: (1, 2)}[self.plane]
+            if not (centre[a] or centre[b]):
+                answer = "G2/G3 requires IJ, IK or JK parameters"
+        if answer is not None:
+            self.error(f"G{2 if clockwise else 3}: Klipper answers '{answer}', an error, which stops a print from "
+                       "its virtual SD card")
 
     def _marlin_arc(self, clockwise, start, end, elog1, ijk, r, circles) -> None:
         """G2/G3 on a Marlin-model machine: plan_arc's segments (gcode/arcs_marlin.py), E by Marlin's equal

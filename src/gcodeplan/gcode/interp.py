@@ -50,6 +50,22 @@ PRINTER_LINE_LETTERS = frozenset("GMTXYZEF")
 #: does nothing: Marlin's parser takes such a letter as a command only with GCODE_MOTION_MODES (off by default:
 #: parser.cpp), Klipper's gcode.py takes the first word as the command name ("X10")
 UNKNOWN_AXIS_LINE_FLAVORS = frozenset(("marlin", "klipper"))
+#: CNC G codes (by their whole number: G59.1 is G59) a printer firmware has not, per flavor. Marlin 2.1's default
+#: build (gcode.cpp's dispatch): G17-G19 need CNC_WORKSPACE_PLANES, G20 INCH_MODE_SUPPORT, G53-G59
+#: CNC_COORDINATE_SYSTEMS, G60/G61 SAVED_POSITIONS (and mean saved positions there), G80 GCODE_MOTION_MODES, all off
+#: by default; G40, G43, G49, G64, G73, G81-G89, G93, G94, G98, G99 it has in no build; without a subcode feature its
+#: parser drops the ".1" of G59.1. Klipper (klippy/gcode.py, extras/gcode_move.py, gcode_arcs.py) registers
+#: none of them (G17-G19 come with [gcode_arcs]; G20 is an error there, see PRINTER_G20_ERROR). The firmware
+#: answers "Unknown command" to a line led by one and does nothing; later on a line it is a parameter of the
+#: line's command, which reads no G parameter.
+PRINTER_CNC_G = {
+    "marlin": frozenset((17, 18, 19, 20, 40, 43, 49, 53, 54, 55, 56, 57, 58, 59, 61, 64, 73, 80, 81, 82, 83, 84,
+                         85, 86, 87, 88, 89, 93, 94, 98, 99)),
+    "klipper": frozenset((20, 40, 43, 49, 53, 54, 55, 56, 57, 58, 59, 61, 64, 73, 80, 81, 82, 83, 84, 85, 86, 87,
+                          88, 89, 93, 94, 98, 99)),
+}
+#: Klipper's answer to G20 (gcode_move.py cmd_G20 raises it): an error, which ends a virtual_sdcard print
+PRINTER_G20_ERROR = "Machine does not support G20 (inches) command"
 
 class Interpreter(StateCommands, MotionCommands, Rs274Commands, GrblLines):
     """Modal state and the Python side of the interpretation of a file."""
@@ -604,6 +620,10 @@ class Interpreter(StateCommands, MotionCommands, Rs274Commands, GrblLines):
                     return
             raise try_words_error
 
+        if self.machine.flavor in PRINTER_CNC_G:
+            words = self._printer_cnc_words(words)
+            if words is None:
+                return
         gs: list[float] = []
         ms: list[int] = []
         params: dict[str, Word] = {}
@@ -631,6 +651,37 @@ class Interpreter(StateCommands, MotionCommands, Rs274Commands, GrblLines):
                     self.error(f"word {w.letter} repeated")
                 params[w.letter] = w
         self._execute(gs, ms, params, tool)
+
+    def _printer_cnc_words(self, words: list[Word]) -> list[Word] | None:
+        """The words of a line on Marlin or Klipper as the firmware reads its CNC G codes (PRINTER_CNC_G): a line
+        led by one is an unknown command that does nothing, its axis words included (None returned); Klipper's G20
+        is an error naming its answer; a CNC G code after the line's command is a parameter the command does not
+        read, dropped from the words returned. One named warning per code and file."""
+        flavor = self.machine.flavor
+        cnc = PRINTER_CNC_G[flavor]
+        firmware = "Klipper" if flavor == "klipper" else "Marlin"
+        first = words[0] if words else None
+        if first is not None and first.letter == "G" and first.value is not None and int(first.value) in cnc:
+            name = f"G{round(first.value, 1):g}"
+            if flavor == "klipper" and int(first.value) == 20:
+                self.error(f"{name}: Klipper answers '{PRINTER_G20_ERROR}', an error, which stops a print from "
+                           "its virtual SD card (a printer's program must be in mm; a CNC program needs a CNC "
+                           "--machine or --flavor)")
+            who = "Marlin's default build" if flavor == "marlin" else firmware
+            self._note_once(f"printer-cnc {name}", f"{name}: a CNC command {who} does not have: it answers 'Unknown "
+                            "command' and the line does nothing, its axis words included (each such line is "
+                            "counted as an unknown command)")
+            self._unknown_or_macro(name)
+            return None
+        kept = [words[0]] if words else []
+        for w in words[1:]:
+            if w.letter == "G" and w.value is not None and int(w.value) in cnc:
+                name = f"G{round(w.value, 1):g}"
+                self._note_once(f"printer-cnc-param {name}", f"{name} after the line's command: {firmware} reads it "
+                                "as a parameter of that command, which ignores it: G-code ignored")
+                continue
+            kept.append(w)
+        return kept
 
     def _axis_led_line(self, code: str) -> None:
         """A line led by an axis or F word (``X10 Y10``, ``E5 F300``) on Marlin or Klipper: no modal G1 there
