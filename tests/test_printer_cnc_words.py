@@ -23,6 +23,7 @@ from conftest import same_rows
 from gcodeplan.errors import GcodeError
 from gcodeplan.gcode.reader import read_moves
 from gcodeplan.machine import Machine
+from test_grbl_rejects import read_both
 
 PRINTERS = ["marlin", "klipper"]
 DRILL = "G21\nG90\nG1 X1 Y1 F600\n{a}{b}{c}G1 X5 Y5\nM400\n"
@@ -30,12 +31,8 @@ DRILL_LINES = ("G98 G81 X10 Y10 Z1 R3 F300\n", "X20\n", "G80\n")
 
 
 def rows(tmp_path, text, machine, name="p.gcode"):
-    path = tmp_path / name
-    path.write_text(text)
-    a, r = read_moves(str(path), machine)
-    b, _ = read_moves(str(path), machine, force_python=True)
-    assert same_rows(a, b), "numba scanner and Python interpreter disagree"
-    return a, r.summary
+    """(MOVE rows, summary); the numba scanner and the Python interpreter must agree (test_grbl_rejects)."""
+    return read_both(tmp_path, text, machine, name)
 
 
 def blanked(tmp_path, text, line, machine):
