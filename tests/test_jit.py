@@ -114,9 +114,10 @@ def test_interpreted_kernels_plan_every_sample_bit_for_bit(small_samples):
     assert differ == []
     # and the cases are real plans, not a shared error (classic jerk needs per-axis jerks Klipper's preset lacks;
     # the LinuxCNC programs' arcs are out of the printer's range, and on a printer the plasma program's lines led
-    # by an axis word are unknown commands, so its first arc ends off its circle in every case)
+    # by an axis word are unknown commands, so its first arc ends off its circle in every case; Klipper refuses the
+    # arc spiral's G20, an error in every Klipper case)
     errors = [(json.loads(c), v[1]) for c, v in got["results"].items() if v[0] == "error"
-              and not json.loads(c)[0].endswith("linuxcnc_plasmatest.ngc")]
+              and not json.loads(c)[0].endswith(("linuxcnc_plasmatest.ngc", "linuxcnc_arcspiral.ngc"))]
     assert len(errors) <= len(small_samples) + 1, errors
 
 

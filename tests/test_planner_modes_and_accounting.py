@@ -145,6 +145,8 @@ def test_steps_count_the_rounded_position_in_every_mode(part_file, policy, jerk)
     mach = load_machine("marlin")
     if jerk is not None:                       # S-curves are the generic planner's (a firmware machine refuses --jerk)
         mach = replace(mach, firmware="generic")
+    # the part's G64 P (the blend tolerance) is read on the reprap flavor: Marlin's default build has no G64
+    mach = replace(mach, flavor="reprap")
     batches = list(segment_batches(str(part_file), mach, policy=policy, jerk=jerk))
     segs = np.concatenate([b[0] for b in batches])
     assert not np.any(np.concatenate([b[1] for b in batches]))
