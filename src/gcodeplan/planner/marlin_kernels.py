@@ -702,8 +702,8 @@ def _core_motor_steps(core, da, steps):
 
 @njit(cache=True, inline=INLINE)
 def _head_millimeters(da, mm_per_step):
-    """A Core machine's block length (mm) from the head's step deltas (X_HEAD, Y_HEAD, Z), planner.cpp's
-    SQRT of the squared head distances in float32."""
+    """The block length (mm) from the head's step deltas (on a Core build X_HEAD, Y_HEAD, Z), planner.cpp's
+    SQRT of the squared distances in float32."""
     hx = F32(F32(da[0]) * mm_per_step[0])
     hy = F32(F32(da[1]) * mm_per_step[1])
     hz = F32(F32(da[2]) * mm_per_step[2])
@@ -770,10 +770,9 @@ def _populate_block(bf, bi, gi, gf, row, tgt, fr_mm_s, acc_p, acc_t, acc_r, vmax
     steps = scratch_i[2]
     sec = _steps_to_target(gi, tgt, spm, da, target, steps)
     core = gi[GI_CORE]
-    head_mm = F32(0)
+    # the length from the head's deltas; on a Core build the block is then in motor steps (da, steps, dist)
+    millimeters = _head_millimeters(da, mm_per_step)
     if core != CORE_NONE:
-        # the length from the head's deltas, then the block in motor steps (da, steps, dist: per motor)
-        head_mm = _head_millimeters(da, mm_per_step)
         sec = _core_motor_steps(core, da, steps)
     if sec < MIN_STEPS_PER_SEGMENT:
         return False
@@ -782,17 +781,10 @@ def _populate_block(bf, bi, gi, gf, row, tgt, fr_mm_s, acc_p, acc_t, acc_r, vmax
         dist[a] = F32(F32(da[a]) * mm_per_step[a])
     if steps[0] < MIN_STEPS_PER_SEGMENT and steps[1] < MIN_STEPS_PER_SEGMENT and steps[2] < MIN_STEPS_PER_SEGMENT:
         millimeters = F32(abs(dist[3]))
-    elif core != CORE_NONE:
-        millimeters = head_mm
-    else:
-        millimeters = F32(math.sqrt(F32(F32(F32(dist[0] * dist[0]) + F32(dist[1] * dist[1])) + F32(dist[2] * dist[2]))))
     esteps = steps[3]
     fr = fr_mm_s
-    if esteps != 0:
-        if fr < min_feed:
-            fr = min_feed
-    elif fr < min_travel:
-        fr = min_travel
+    if fr < (min_feed if esteps != 0 else min_travel):
+        fr = min_feed if esteps != 0 else min_travel
     inverse_millimeters = F32(F32(1) / millimeters)
     inverse_secs = F32(fr * inverse_millimeters)
     moves_queued = _nonbusy_queued(gi)
