@@ -782,9 +782,8 @@ def _populate_block(bf, bi, gi, gf, row, tgt, fr_mm_s, acc_p, acc_t, acc_r, vmax
     if steps[0] < MIN_STEPS_PER_SEGMENT and steps[1] < MIN_STEPS_PER_SEGMENT and steps[2] < MIN_STEPS_PER_SEGMENT:
         millimeters = F32(abs(dist[3]))
     esteps = steps[3]
-    fr = fr_mm_s
-    if fr < (min_feed if esteps != 0 else min_travel):
-        fr = min_feed if esteps != 0 else min_travel
+    fr_min = min_feed if esteps != 0 else min_travel        # NOLESS(fr_mm_s, min feed / min travel feed)
+    fr = fr_min if fr_mm_s < fr_min else fr_mm_s
     inverse_millimeters = F32(F32(1) / millimeters)
     inverse_secs = F32(fr * inverse_millimeters)
     moves_queued = _nonbusy_queued(gi)

@@ -106,8 +106,9 @@ class StepSink(Sink):
         settings = machine.limits_row() if machine is not None else None
         self.generator = StepGenerator(self.rails, sink_fn, sds_filter_t=sds_filter_t, settings=settings,
                                        ik_search=ik_search)
-        # the machine's kinematics, for which stepper of a firmware model's pulses each rail takes (firmware_axis)
-        self._kinematics = getattr(machine, "kinematics", "cartesian")
+        # which stepper of a firmware model's pulses each rail takes (firmware_axis), on the machine's kinematics
+        kinematics = getattr(machine, "kinematics", "cartesian")
+        self._fw_axis = [firmware_axis(r, kinematics) for r in self.rails]
         self._pending = False
 
     wants_firmware_steps = True   # a firmware model's own pulses (grbl's, Marlin's interrupt) replace stepping
@@ -115,8 +116,7 @@ class StepSink(Sink):
     def add(self, piece: Piece) -> None:
         fw = getattr(piece, "firmware_steps", None)
         if fw is not None:
-            for si, rail in enumerate(self.rails):
-                axis = firmware_axis(rail, self._kinematics)
+            for si, (rail, axis) in enumerate(zip(self.rails, self._fw_axis)):
                 if axis < 0:
                     from ..errors import ConfigError
 
