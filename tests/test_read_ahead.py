@@ -110,11 +110,13 @@ def test_a_python_heavy_reader_hands_the_reading_back(monkeypatch):
     mill = gp.load_machine(linuxcnc_ini=str(shared_path("reference", "linuxcnc", "config", "mill.ini")))
     pipeline.run(str(ARCS), mill)       # kernels loaded: the thread's first batch is the arcs' own work
     drive = pipeline.Run(str(ARCS), mill, batch_moves=256)
-    seen_threads = set()
+    seen_threads = []
     for _ in drive:
-        seen_threads.add(len(_reader_threads()))
+        seen_threads.append(len(_reader_threads()))
     assert drive.reader.python_s > 0.0
-    assert seen_threads == {0}          # the arc spiral is Python-heavy: the reader thread had already ended
+    # the arc spiral is Python-heavy: the reader thread ends at its first hand-over (on a loaded machine it may
+    # still be exiting when the first piece arrives), and no thread reads after that
+    assert len(seen_threads) >= 2 and set(seen_threads[1:]) == {0}
 
 
 def _bad_file(tmp_path) -> tuple[str, int]:
