@@ -166,6 +166,31 @@ def test_a_swallowed_termination_is_raised_again():
         restore()
 
 
+def test_a_signal_inside_the_jit_waits_until_the_main_thread_is_out_of_it():
+    """An exception raised inside numba or llvmlite (compiling or loading a kernel) can leave the JIT half-built
+    and crash the process on its way out: the signal is held back there and raised as soon as the main thread is
+    back in gcodeplan's code, well before the once-a-second re-raise."""
+    jit_globals = {"__name__": "numba.core.fake_compiler", "time": time, "os": os, "signal": signal}
+    exec("def compile_kernel():\n"
+         "    os.kill(os.getpid(), signal.SIGTERM)\n"
+         "    for _ in range(300):\n"
+         "        time.sleep(0.001)\n"
+         "    return 'compiled'\n", jit_globals)
+    restore = signals.install()
+    try:
+        with pytest.raises(signals.Terminated) as err:
+            assert jit_globals["compile_kernel"]() == "compiled"      # not interrupted inside
+            t_out = time.monotonic()
+            while time.monotonic() - t_out < 10 * signals.RERAISE_S:
+                time.sleep(0.001)         # (interrupt_main lands between bytecodes, not inside one long sleep)
+        waited_s = time.monotonic() - t_out
+        assert err.value.signum == signal.SIGTERM
+        assert waited_s < signals.RERAISE_S / 2, waited_s
+        signals.caught()
+    finally:
+        restore()
+
+
 def test_registered_temporaries_are_swept_on_the_way_out(tmp_path):
     restore = signals.install()
     fd, name = output.make_temp_file(tmp_path / "x.bin")

@@ -161,7 +161,7 @@ def read_ahead(reader, depth: int = 3):
             if isinstance(item, BaseException):
                 raise item
             if isinstance(item, _HandOver):
-                worker.join()
+                _join_through_signals(worker)
                 handed = item.batches
                 for moves in handed:
                     yield moves, reader.limits, reader.bytes_read
@@ -170,9 +170,25 @@ def read_ahead(reader, depth: int = 3):
     finally:
         stop.set()
         if worker.ident is not None:     # started
-            worker.join()
+            _join_through_signals(worker)
         if handed is not None:
             handed.close()
+
+
+def _join_through_signals(worker) -> None:
+    """``worker.join()``, finished even when a signal's exception (raised again each second until the command
+    has caught it: gcodeplan/signals.py) interrupts it: a reader thread left running in a nogil kernel while
+    the interpreter shuts down can crash the process on its way out. The interruption is raised again once the
+    thread is gone."""
+    pending = None
+    while True:
+        try:
+            worker.join()
+            break
+        except KeyboardInterrupt as err:
+            pending = err
+    if pending is not None:
+        raise pending
 
 
 def open_reader(source, machine, *, strict: bool = False, batch_moves: int = 8192):

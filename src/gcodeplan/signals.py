@@ -52,6 +52,9 @@ _owner: list[int] = []      # pid of the process that installed the handlers
 _caught = threading.Event()  # set once cli.main has the exception in hand (no more raising)
 RERAISE_S = 1.0             # s: a Terminated swallowed on its way (see _watch) is raised again this late
 _sweeps: list = []          # clean-ups run when the handlers are restored (at_restore)
+_deferred = threading.Event()  # set while a signal waits for the main thread to leave the JIT (_in_jit)
+DEFER_POLL_S = 0.02         # s: how often a held-back signal is tried again
+_JIT_PACKAGES = ("numba", "llvmlite")
 
 
 def _watch(signum: int) -> None:
@@ -60,11 +63,30 @@ def _watch(signum: int) -> None:
     An exception raised by a signal handler is lost when the main thread happens to be in Python code
     called back from C (numba's compiler calls llvmlite's ctypes callbacks, whose exceptions are
     printed and ignored), and the command would run on. Raising it again, once a second, makes sure it
-    arrives; a clean-up cut short by it is finished by the registry sweep (report/output.py)."""
+    arrives; a clean-up cut short by it is finished by the registry sweep (report/output.py). A signal
+    the handler held back (the main thread was inside the JIT: :func:`_in_jit`) is raised again at once,
+    as soon as the main thread has left it."""
     import _thread
+    import time
 
-    while not _caught.wait(RERAISE_S):
-        _thread.interrupt_main(signum)
+    again_t = time.monotonic() + RERAISE_S
+    while not _caught.wait(DEFER_POLL_S):
+        if _deferred.is_set() or time.monotonic() >= again_t:
+            _deferred.clear()
+            again_t = time.monotonic() + RERAISE_S
+            _thread.interrupt_main(signum)
+
+
+def _in_jit(frame) -> bool:
+    """True when the main thread is inside numba or llvmlite (compiling, or loading a cached kernel): an
+    exception raised there leaves the JIT half-built, and the process can crash on its way out (a
+    segmentation fault seen once in CI on a Ctrl-C). The signal then waits until the thread is back in
+    gcodeplan's code (:func:`_watch` raises it again every DEFER_POLL_S)."""
+    while frame is not None:
+        if frame.f_globals.get("__name__", "").partition(".")[0] in _JIT_PACKAGES:
+            return True
+        frame = frame.f_back
+    return False
 
 
 def _handler(signum, frame) -> None:
@@ -76,9 +98,13 @@ def _handler(signum, frame) -> None:
     if _caught.is_set():
         return
     _taken.append(signum)
+    held_back = _in_jit(frame)
+    if held_back:
+        _deferred.set()
     if len(_taken) == 1:
         threading.Thread(target=_watch, args=(signum,), name="gcodeplan-signal", daemon=True).start()
-    raise Terminated(_taken[0])
+    if not held_back:
+        raise Terminated(_taken[0])
 
 
 def taken() -> int | None:
@@ -128,6 +154,7 @@ def install():
         return lambda: None
     del _taken[:]
     _caught.clear()
+    _deferred.clear()
     _owner[:] = [os.getpid()]
     previous = {}
     for sig in HANDLED:
