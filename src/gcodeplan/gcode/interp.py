@@ -64,6 +64,9 @@ PRINTER_CNC_G = {
     "klipper": frozenset((20, 40, 43, 49, 53, 54, 55, 56, 57, 58, 59, 61, 64, 73, 80, 81, 82, 83, 84, 85, 86, 87,
                           88, 89, 93, 94, 98, 99)),
 }
+#: flavors whose firmware runs a line's first command only, the rest of the line being its parameters (Marlin's
+#: parser.cpp GCodeParser::parse, Klipper's gcode.py _process_commands): ``G90 G1 X50`` is G90 alone, no move
+ONE_COMMAND_FLAVORS = frozenset(("marlin", "klipper"))
 #: Klipper's answer to G20 (gcode_move.py cmd_G20 raises it): an error, which ends a virtual_sdcard print
 PRINTER_G20_ERROR = "Machine does not support G20 (inches) command"
 
@@ -624,6 +627,8 @@ class Interpreter(StateCommands, MotionCommands, Rs274Commands, GrblLines):
             words = self._printer_cnc_words(words)
             if words is None:
                 return
+        if self.machine.flavor in ONE_COMMAND_FLAVORS:
+            words = self._printer_one_command(words)
         gs: list[float] = []
         ms: list[int] = []
         params: dict[str, Word] = {}
@@ -682,6 +687,36 @@ class Interpreter(StateCommands, MotionCommands, Rs274Commands, GrblLines):
                 continue
             kept.append(w)
         return kept
+
+    def _printer_one_command(self, words: list[Word]) -> list[Word]:
+        """The words of a Marlin or Klipper line as its firmware runs them: the first G/M/T word is the command
+        and every later word its parameter (Marlin's parser.cpp GCodeParser::parse, Klipper's gcode.py
+        _process_commands). A later G or M word (or a T word after a G or T command, which none of them reads)
+        is a parameter the command does not read: dropped, counted, one named warning per file. A letter given
+        twice on such a line keeps its last value, as both parsers store parameters (Marlin's
+        FASTER_GCODE_PARSER, on by default, keeps the last offset per letter; Klipper's params dict the last
+        value); a line of one command keeps gcodeplan's "word repeated" error."""
+        if len(words) < 2:
+            return words
+        first = words[0]
+        reads_t = first.letter == "M"           # M104 T1, M109 T0: the M code's own parameter
+        extra = [i for i, w in enumerate(words) if i and (w.letter in "GM" or (w.letter == "T" and not reads_t))]
+        if not extra:
+            return words
+        firmware = "Klipper" if self.machine.flavor == "klipper" else "Marlin"
+        command = f"{first.letter}{first.text}"
+        rest = " ".join(f"{w.letter}{w.text}" for w in words[extra[0]:])
+        self._note_once("one command per line", f"{firmware} runs {command} only; {rest} are its parameters (a "
+                        "printer's firmware runs a line's first command alone: each later command is counted as "
+                        "ignored)")
+        kept: dict[str, Word] = {}
+        for i, w in enumerate(words[1:], 1):
+            if i in extra:
+                self.ignore(f"{w.letter}{w.text} after a line's command")
+                continue
+            kept.pop(w.letter, None)                 # the last value wins, in the order of the line
+            kept[w.letter] = w
+        return [first, *kept.values()]
 
     def _axis_led_line(self, code: str) -> None:
         """A line led by an axis or F word (``X10 Y10``, ``E5 F300``) on Marlin or Klipper: no modal G1 there
@@ -788,7 +823,11 @@ class Interpreter(StateCommands, MotionCommands, Rs274Commands, GrblLines):
         # Marlin and Klipper read F only on moves: on an M-code line it is that command's parameter (as X Y Z E
         # are, below). CNC controls take F as a modal word on any line.
         f = None
-        if ms and not motion_codes and not self.machine.is_cnc:
+        # Marlin and Klipper: a line's command is its first word, so without a motion G code X Y Z E F are the
+        # parameters of whatever command leads it (G90 X50, G21 F600: no move, no feed; G28 and G92 read them)
+        params_only = not motion_codes and (bool(ms) or (self.machine.flavor in ONE_COMMAND_FLAVORS
+                                                         and (bool(gs) or tool is not None)))
+        if params_only and not self.machine.is_cnc:
             used.add("F")
         else:
             f = self._value(params, "F")
@@ -814,7 +853,7 @@ class Interpreter(StateCommands, MotionCommands, Rs274Commands, GrblLines):
         for g in motion_codes:
             self._set_motion(g)
         # on a line with an M code and no motion G code, X Y Z E are the M code's parameters (M201 X1000)
-        axis_consumed = axis_consumed or (bool(ms) and not motion_codes)
+        axis_consumed = axis_consumed or params_only
         has_axes = any(k in params for k in "XYZE") and not axis_consumed
         motion = int(ist[S.I_MOTION])
         if motion_codes and motion_codes[0] != 80 and not has_axes and motion in (2, 3):
