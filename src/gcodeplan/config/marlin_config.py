@@ -31,6 +31,9 @@ BLOCK_BUFFER_SIZE 16, SLOWDOWN with divisor 2, JD_HANDLE_SMALL_SEGMENTS) are che
 warning. Features that change the time and that the model does not run (INPUT_SHAPING_X/Y, FT_MOTION,
 ADAPTIVE_STEP_SMOOTHING, XY_FREQUENCY_LIMIT, BACKLASH_COMPENSATION, bed levelling, …) are named warnings;
 COREXY and COREXZ give the corexy and corexz kinematics (Marlin's Core builds); another kinematics is an error.
+The switches that add G codes (INCH_MODE_SUPPORT, CNC_WORKSPACE_PLANES, GCODE_MOTION_MODES, and the refused
+CNC_COORDINATE_SYSTEMS, SAVED_POSITIONS, BEZIER_CURVE_SUPPORT, G38_PROBE_TARGET: gcodeplan/marlin_build.py) become
+the machine's ``marlin_build``.
 """
 from __future__ import annotations
 
@@ -97,7 +100,9 @@ READ = {"DEFAULT_AXIS_STEPS_PER_UNIT", "DEFAULT_MAX_FEEDRATE", "DEFAULT_MAX_ACCE
         "LIN_ADVANCE", "ADVANCE_K", "LIN_ADVANCE_K", "ARC_SUPPORT", "MIN_ARC_SEGMENT_MM", "MAX_ARC_SEGMENT_MM",
         "MM_PER_ARC_SEGMENT", "MIN_CIRCLE_SEGMENTS", "ARC_SEGMENTS_PER_SEC", "N_ARC_CORRECTION",
         "ARC_P_CIRCLES", "JD_HANDLE_SMALL_SEGMENTS", "SLOWDOWN", "DEFAULT_MINIMUMFEEDRATE",
-        "DEFAULT_MINTRAVELFEEDRATE", *FIXED, *UNMODELLED, *KINEMATICS, *CORE_KINEMATICS}
+        "DEFAULT_MINTRAVELFEEDRATE", "INCH_MODE_SUPPORT", "CNC_WORKSPACE_PLANES", "GCODE_MOTION_MODES",
+        "CNC_COORDINATE_SYSTEMS", "SAVED_POSITIONS", "BEZIER_CURVE_SUPPORT", "G38_PROBE_TARGET", *FIXED, *UNMODELLED,
+        *KINEMATICS, *CORE_KINEMATICS}
 
 
 # ============================================================================ recognising
@@ -326,6 +331,7 @@ def load_marlin_config(path: str, adv_path: str | None = None):
         top["marlin_arcs"] = _arc_settings(pre, top, notes, main_path)
         _fixed_and_unmodelled(pre, notes, main_path)
         _software_endstops(pre, axes)
+        top["marlin_build"] = _build_switches(pre, notes, main_path)
     finally:
         for msg in notes:
             warnings.warn(msg, stacklevel=2)
@@ -532,6 +538,21 @@ def _fixed_and_unmodelled(pre: _Pre, notes: list[str], main_path: str) -> None:
             _note(pre, notes, main_path,
                   f"{name} on: {what} is not modelled by the marlin-2.1.2 model; its times are those of a build "
                   "without it", name)
+
+
+def _build_switches(pre: _Pre, notes: list[str], main_path: str) -> str:
+    """The switches that add G codes (marlin_build.py), as the machine's ``marlin_build``: those gcodeplan
+    models run as Marlin runs them; the others are named in a warning, and a program using their codes is
+    refused at its line."""
+    from ..marlin_build import MARLIN_BUILD_OPTIONS, UNMODELLED
+
+    on = [name for name in MARLIN_BUILD_OPTIONS if pre.enabled(name)]
+    for name in on:
+        if name in UNMODELLED:
+            codes = ", ".join(f"G{g}" for g in UNMODELLED[name][0])
+            _note(pre, notes, main_path, f"{name} on: this build runs {codes}; {UNMODELLED[name][1]}: gcodeplan "
+                  "refuses a program that has them", name)
+    return " ".join(on)
 
 
 def _software_endstops(pre: _Pre, axes: dict) -> None:

@@ -35,6 +35,7 @@ from .lexing import (CHECKSUM_RE, EXT_RE, FREE_TEXT_M, FREE_TEXT_RE, HMS_RE, M48
                      Word, parse_number)
 from .ngc import expand_line, needs_expansion
 from .objects import KlipperExclude, ObjectTable
+from ..marlin_build import MODELLED as BUILD_MODELLED, UNMODELLED as BUILD_UNMODELLED, build_options
 
 from .commands_motion import MotionCommands
 from .commands_state import StateCommands
@@ -80,6 +81,7 @@ class Interpreter(StateCommands, MotionCommands, Rs274Commands, GrblLines):
         m = machine
         self.dialect = (S.DIALECT_KLIPPER if m.flavor == "klipper" else
                         S.DIALECT_CNC if m.is_cnc else S.DIALECT_MARLIN)
+        self._init_build(m)
         self.st, self.ist = self._power_up_state(m)
         #: Marlin clamps a target to its software endstops (apply_motion_limits) where Klipper refuses the move
         self.soft_endstops = (m.flavor == "marlin" and m.kinematics in ("cartesian", "corexy", "corexz")
@@ -96,6 +98,17 @@ class Interpreter(StateCommands, MotionCommands, Rs274Commands, GrblLines):
         self.ngc = None
         self._ngc_on = m.flavor == "linuxcnc"
         self._cnc_init()
+
+    def _init_build(self, m: Machine) -> None:
+        """The CNC G codes this printer's firmware lacks (PRINTER_CNC_G less those a Marlin build's switches add,
+        marlin_build.py) and the codes refused by name (a switch whose codes gcodeplan does not model)."""
+        build = build_options(m.marlin_build) if m.flavor == "marlin" else frozenset()
+        added = {g for name in build if name in BUILD_MODELLED for g in BUILD_MODELLED[name][0]}
+        self._printer_cnc_g = PRINTER_CNC_G.get(m.flavor, frozenset()) - added
+        self._build_refused = {g: (name, BUILD_UNMODELLED[name][1]) for name in build if name in BUILD_UNMODELLED
+                               for g in BUILD_UNMODELLED[name][0]}
+        #: Marlin's GCODE_MOTION_MODES: a line led by an axis word repeats the last G0-G3 (none at power-up)
+        self._motion_modes = "GCODE_MOTION_MODES" in build
 
     def _power_up_state(self, m: Machine) -> tuple[np.ndarray, np.ndarray]:
         """The modal state arrays ``st`` / ``ist`` (scan.py's indices) as the firmware powers up: feed,
@@ -121,9 +134,11 @@ class Interpreter(StateCommands, MotionCommands, Rs274Commands, GrblLines):
         ist[S.I_F32_REL] = 1 if m.firmware.startswith("marlin") else 0
         # modal motion at start: grbl powers up in G0, LinuxCNC with no motion mode (G80), printers in G1
         ist[S.I_MOTION] = {"grbl": 0, "linuxcnc": 80}.get(m.flavor, 1)
+        if self._motion_modes:
+            ist[S.I_MOTION] = 80           # parser.cpp: motion_mode_codenum = -1 until a G0-G3
         # a line led by an axis word: a modal G0/G1 on CNC controls (and reprap, as before), an unknown command on
         # Marlin (without GCODE_MOTION_MODES, its default) and Klipper (see PRINTER_LINE_LETTERS)
-        ist[S.I_AXIS_LINES] = 0 if m.flavor in UNKNOWN_AXIS_LINE_FLAVORS else 1
+        ist[S.I_AXIS_LINES] = 0 if m.flavor in UNKNOWN_AXIS_LINE_FLAVORS and not self._motion_modes else 1
         ist[S.I_DIALECT] = self.dialect
         ist[S.I_LAYER] = -1
         ist[S.I_FEATURE] = -1
@@ -592,8 +607,9 @@ class Interpreter(StateCommands, MotionCommands, Rs274Commands, GrblLines):
             # letter (a CNC post's ``O100 call``, ``O100 sub``) is an unknown command, reported and ignored
             self._unknown_or_macro(code.split(None, 1)[0][:40].upper())
             return
-        if not self.ist[S.I_AXIS_LINES] and code[:1].upper() in "XYZEF":
-            self._axis_led_line(code)
+        if code[:1].upper() in "XYZEF" and (not self.ist[S.I_AXIS_LINES] or (self._motion_modes and
+                                                                            self.ist[S.I_MOTION] == 80)):
+            self._axis_led_line(code)       # Marlin with GCODE_MOTION_MODES: no motion mode yet, or after G80
             return
         m486 = None if self._grbl_reads else M486_RE.match(code)
         if m486:
@@ -623,6 +639,8 @@ class Interpreter(StateCommands, MotionCommands, Rs274Commands, GrblLines):
                     return
             raise try_words_error
 
+        if self._build_refused:
+            self._refuse_build_code(words)
         if self.machine.flavor in PRINTER_CNC_G:
             words = self._printer_cnc_words(words)
             if words is None:
@@ -663,7 +681,7 @@ class Interpreter(StateCommands, MotionCommands, Rs274Commands, GrblLines):
         is an error naming its answer; a CNC G code after the line's command is a parameter the command does not
         read, dropped from the words returned. One named warning per code and file."""
         flavor = self.machine.flavor
-        cnc = PRINTER_CNC_G[flavor]
+        cnc = self._printer_cnc_g
         firmware = "Klipper" if flavor == "klipper" else "Marlin"
         first = words[0] if words else None
         if first is not None and first.letter == "G" and first.value is not None and int(first.value) in cnc:
@@ -687,6 +705,15 @@ class Interpreter(StateCommands, MotionCommands, Rs274Commands, GrblLines):
                 continue
             kept.append(w)
         return kept
+
+    def _refuse_build_code(self, words: list[Word]) -> None:
+        """A line led by a G code a Marlin build's switch adds and gcodeplan does not model: an error naming the
+        switch (marlin_build.py UNMODELLED)."""
+        first = words[0] if words else None
+        if first is None or first.letter != "G" or first.value is None or int(first.value) not in self._build_refused:
+            return
+        name, why = self._build_refused[int(first.value)]
+        self.error(f"G{round(first.value, 1):g}: this Marlin build has {name} (marlin_build): {why}")
 
     def _printer_one_command(self, words: list[Word]) -> list[Word]:
         """The words of a Marlin or Klipper line as its firmware runs them: the first G/M/T word is the command
