@@ -86,6 +86,9 @@ def test_motion_modes_repeat_the_last_move_until_g80(tmp_path, force_python):
     assert [bool(r["flags"] & FLAG_RAPID) for r in got] == [False, False, False, True, True, False]
     assert float(got["feed_v"][2]) == 20.0           # F1200 on the axis-led line 4
     assert s.unknown_commands == {"X... without G": 2}
+    assert any(w.endswith(":1: X7: Marlin answers 'Unknown command' to a line led by X (no motion mode in force: "
+                          "none since power-up or G80, GCODE_MOTION_MODES): the line does nothing (each such line "
+                          "is counted as an unknown command)") for w in s.warnings)
 
 
 def test_without_motion_modes_an_axis_led_line_is_unknown(tmp_path):

@@ -758,8 +758,10 @@ class Interpreter(StateCommands, MotionCommands, Rs274Commands, GrblLines):
         if self.strict:
             self.error(f"unknown command {head}: a line without G is no move on {firmware} "
                        f"('Unknown command')")
+        why = ("no motion mode in force: none since power-up or G80, GCODE_MOTION_MODES" if self._motion_modes
+               else "no modal G1 there")
         self._note_once("axis-led line", f"{code[:40]}: {firmware} answers 'Unknown command' to a line led by "
-                                         f"{code[:1].upper()} (no modal G1 there): the line does nothing (each such "
+                                         f"{code[:1].upper()} ({why}): the line does nothing (each such "
                                          f"line is counted as an unknown command)")
         name = f"{code[:1].upper()}... without G"
         self.unknown[name] = self.unknown.get(name, 0) + 1
