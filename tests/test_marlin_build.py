@@ -146,3 +146,8 @@ def test_a_machine_toml_sets_it(tmp_path):
     p.write_text('base = "marlin"\nmarlin_build = "INCH_MODE"\n')
     with pytest.raises(ConfigError, match=r"marlin_build: unknown Marlin build option 'INCH_MODE'"):
         gp.load_machine(str(p))
+
+
+def test_a_python_machine_with_an_unknown_switch_is_a_config_error():
+    with pytest.raises(ConfigError, match=r"marlin_build: unknown Marlin build option 'FOO'"):
+        gp.estimate(["G1 X1"], machine=Machine(flavor="marlin", marlin_build="FOO"))

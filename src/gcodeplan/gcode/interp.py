@@ -26,7 +26,7 @@ from collections import deque
 
 import numpy as np
 
-from ..errors import GcodeError, quote
+from ..errors import ConfigError, GcodeError, quote
 from ..machine import OWN_PLANNER_FIRMWARES, Machine
 from ..schema import KIND_EXTRUDE_ONLY, KIND_WAIT, LIMITS_DTYPE
 from . import scan as S
@@ -102,7 +102,10 @@ class Interpreter(StateCommands, MotionCommands, Rs274Commands, GrblLines):
     def _init_build(self, m: Machine) -> None:
         """The CNC G codes this printer's firmware lacks (PRINTER_CNC_G less those a Marlin build's switches add,
         marlin_build.py) and the codes refused by name (a switch whose codes gcodeplan does not model)."""
-        build = build_options(m.marlin_build) if m.flavor == "marlin" else frozenset()
+        try:
+            build = build_options(m.marlin_build) if m.flavor == "marlin" else frozenset()
+        except ValueError as err:           # a Machine made in Python (a TOML's is checked on loading)
+            raise ConfigError(f"marlin_build: {err}") from None
         added = {g for name in build if name in BUILD_MODELLED for g in BUILD_MODELLED[name][0]}
         self._printer_cnc_g = PRINTER_CNC_G.get(m.flavor, frozenset()) - added
         self._build_refused = {g: (name, BUILD_UNMODELLED[name][1]) for name in build if name in BUILD_UNMODELLED
