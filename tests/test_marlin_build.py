@@ -151,3 +151,48 @@ def test_a_machine_toml_sets_it(tmp_path):
 def test_a_python_machine_with_an_unknown_switch_is_a_config_error():
     with pytest.raises(ConfigError, match=r"marlin_build: unknown Marlin build option 'FOO'"):
         gp.estimate(["G1 X1"], machine=Machine(flavor="marlin", marlin_build="FOO"))
+
+
+FWRETRACT = """#define FWRETRACT
+#if ENABLED(FWRETRACT)
+  #define FWRETRACT_AUTORETRACT           // Override slicer retractions
+  #define RETRACT_LENGTH 4                // (mm) Default retract length (positive value)
+  #define RETRACT_FEEDRATE 40             // (mm/s) Default feedrate for retracting
+  #define RETRACT_ZRAISE 0                // (mm) Default retract Z-raise
+  #define RETRACT_RECOVER_LENGTH 0.5      // (mm) Default additional recover length (added to retract length on recover)
+  #define RETRACT_RECOVER_FEEDRATE 20     // (mm/s) Default feedrate for recovering from retraction
+#endif
+"""
+
+
+def _with_adv(tmp_path, extra):
+    d = tmp_path / "cfg"
+    d.mkdir(exist_ok=True)
+    (d / "Configuration.h").write_text((DATA / "Configuration.h").read_text())
+    (d / "Configuration_adv.h").write_text((DATA / "Configuration_adv.h").read_text() + extra)
+    return load(d / "Configuration.h")
+
+
+def test_fwretract_sets_the_firmware_retraction(tmp_path):
+    # fwretract.cpp: G10 draws RETRACT_LENGTH back at RETRACT_FEEDRATE; G11 recovers it plus RETRACT_RECOVER_LENGTH
+    m, w = _with_adv(tmp_path, FWRETRACT)
+    assert w == []
+    assert (m.retract_length, m.retract_speed, m.unretract_extra_length, m.unretract_speed) == (4.0, 40.0, 0.5, 20.0)
+    got, _ = read_both(tmp_path, "G1 X1 F600\nG10\nG1 X2\nG11\n", m, "p.gcode")
+    e = [(int(r["line"]), float(r["e1"]) - float(r["e0"]), float(r["feed_v"])) for r in got if r["line"] in (2, 4)]
+    assert e == [(2, -4.0, 40.0), (4, 4.5, 20.0)]
+
+
+def test_without_fwretract_g10_moves_nothing(tmp_path):
+    m, _ = load(DATA / "Configuration.h")
+    assert m.retract_length == 0.0
+    got, _ = read_both(tmp_path, "G1 X1 F600\nG10\nG1 X2\nG11\n", m, "p.gcode")
+    assert [int(r["line"]) for r in got] == [1, 3]
+
+
+def test_a_z_raise_and_a_negative_recover_length_are_named(tmp_path):
+    m, w = _with_adv(tmp_path, FWRETRACT.replace("RETRACT_ZRAISE 0 ", "RETRACT_ZRAISE 0.4 ")
+                     .replace("RETRACT_RECOVER_LENGTH 0.5", "RETRACT_RECOVER_LENGTH -0.1"))
+    assert m.unretract_extra_length == 0.0
+    assert any("RETRACT_ZRAISE 0.4 mm: the Z hop of G10/G11 is not modelled" in x for x in w)
+    assert any("RETRACT_RECOVER_LENGTH -0.1 mm" in x for x in w)

@@ -33,7 +33,8 @@ ADAPTIVE_STEP_SMOOTHING, XY_FREQUENCY_LIMIT, BACKLASH_COMPENSATION, bed levellin
 COREXY and COREXZ give the corexy and corexz kinematics (Marlin's Core builds); another kinematics is an error.
 The switches that add G codes (INCH_MODE_SUPPORT, CNC_WORKSPACE_PLANES, GCODE_MOTION_MODES, and the refused
 CNC_COORDINATE_SYSTEMS, SAVED_POSITIONS, BEZIER_CURVE_SUPPORT, G38_PROBE_TARGET: gcodeplan/marlin_build.py) become
-the machine's ``marlin_build``.
+the machine's ``marlin_build``; FWRETRACT's RETRACT_LENGTH, RETRACT_FEEDRATE, RETRACT_RECOVER_LENGTH and
+RETRACT_RECOVER_FEEDRATE its ``[firmware_retraction]`` (off: G10/G11 move nothing).
 """
 from __future__ import annotations
 
@@ -101,7 +102,9 @@ READ = {"DEFAULT_AXIS_STEPS_PER_UNIT", "DEFAULT_MAX_FEEDRATE", "DEFAULT_MAX_ACCE
         "MM_PER_ARC_SEGMENT", "MIN_CIRCLE_SEGMENTS", "ARC_SEGMENTS_PER_SEC", "N_ARC_CORRECTION",
         "ARC_P_CIRCLES", "JD_HANDLE_SMALL_SEGMENTS", "SLOWDOWN", "DEFAULT_MINIMUMFEEDRATE",
         "DEFAULT_MINTRAVELFEEDRATE", "INCH_MODE_SUPPORT", "CNC_WORKSPACE_PLANES", "GCODE_MOTION_MODES",
-        "CNC_COORDINATE_SYSTEMS", "SAVED_POSITIONS", "BEZIER_CURVE_SUPPORT", "G38_PROBE_TARGET", *FIXED, *UNMODELLED,
+        "CNC_COORDINATE_SYSTEMS", "SAVED_POSITIONS", "BEZIER_CURVE_SUPPORT", "G38_PROBE_TARGET", "FWRETRACT",
+        "RETRACT_LENGTH", "RETRACT_FEEDRATE", "RETRACT_RECOVER_LENGTH", "RETRACT_RECOVER_FEEDRATE", "RETRACT_ZRAISE",
+        *FIXED, *UNMODELLED,
         *KINEMATICS, *CORE_KINEMATICS}
 
 
@@ -332,6 +335,7 @@ def load_marlin_config(path: str, adv_path: str | None = None):
         _fixed_and_unmodelled(pre, notes, main_path)
         _software_endstops(pre, axes)
         top["marlin_build"] = _build_switches(pre, notes, main_path)
+        _fwretract_settings(pre, top, notes, main_path)
     finally:
         for msg in notes:
             warnings.warn(msg, stacklevel=2)
@@ -553,6 +557,27 @@ def _build_switches(pre: _Pre, notes: list[str], main_path: str) -> str:
             _note(pre, notes, main_path, f"{name} on: this build runs {codes}; {UNMODELLED[name][1]}: gcodeplan "
                   "refuses a program that has them", name)
     return " ".join(on)
+
+
+def _fwretract_settings(pre: _Pre, top: dict, notes: list[str], main_path: str) -> None:
+    """FWRETRACT's G10/G11 as ``[firmware_retraction]`` (feature/fwretract.cpp): G10 draws RETRACT_LENGTH mm back at
+    RETRACT_FEEDRATE mm/s, G11 pushes that length plus RETRACT_RECOVER_LENGTH mm at RETRACT_RECOVER_FEEDRATE mm/s
+    (Marlin's shipped 3, 45, 0, 8 when not given). Without FWRETRACT the build has no G10/G11 ("Unknown command"):
+    the length stays 0, so they move nothing."""
+    if not pre.enabled("FWRETRACT"):
+        return
+    for name, key, default, lo_ok in (("RETRACT_LENGTH", "retract_length", 3.0, True),
+                                      ("RETRACT_FEEDRATE", "retract_speed", 45.0, False),
+                                      ("RETRACT_RECOVER_FEEDRATE", "unretract_speed", 8.0, False)):
+        top[key] = _scalar(pre, name, lo_ok=lo_ok) if name in pre.values else default
+    extra = _number(pre, "RETRACT_RECOVER_LENGTH") if "RETRACT_RECOVER_LENGTH" in pre.values else 0.0
+    if extra < 0:
+        _note(pre, notes, main_path, f"RETRACT_RECOVER_LENGTH {extra:g} mm: gcodeplan recovers at least the "
+              "retracted length (unretract_extra_length >= 0): 0 taken", "RETRACT_RECOVER_LENGTH")
+    top["unretract_extra_length"] = max(extra, 0.0)
+    if "RETRACT_ZRAISE" in pre.values and _number(pre, "RETRACT_ZRAISE") > 0:
+        _note(pre, notes, main_path, f"RETRACT_ZRAISE {_number(pre, 'RETRACT_ZRAISE'):g} mm: the Z hop of G10/G11 is "
+              "not modelled (the E moves are)", "RETRACT_ZRAISE")
 
 
 def _software_endstops(pre: _Pre, axes: dict) -> None:
