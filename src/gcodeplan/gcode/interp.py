@@ -58,7 +58,8 @@ UNKNOWN_AXIS_LINE_FLAVORS = frozenset(("marlin", "klipper"))
 #: parser drops the ".1" of G59.1. Klipper (klippy/gcode.py, extras/gcode_move.py, gcode_arcs.py) registers
 #: none of them (G17-G19 come with [gcode_arcs]; G20 is an error there, see PRINTER_G20_ERROR). The firmware
 #: answers "Unknown command" to a line led by one and does nothing; later on a line it is a parameter of the
-#: line's command, which reads no G parameter.
+#: line's command, which reads no G parameter. A Marlin machine's ``marlin_build`` switches add some back
+#: (gcodeplan/marlin_build.py: Interpreter._init_build).
 PRINTER_CNC_G = {
     "marlin": frozenset((17, 18, 19, 20, 40, 43, 49, 53, 54, 55, 56, 57, 58, 59, 61, 64, 73, 80, 81, 82, 83, 84,
                          85, 86, 87, 88, 89, 93, 94, 98, 99)),
