@@ -104,6 +104,9 @@ class Machine:
     # a Marlin build's ARC_SUPPORT settings (gcode.arcs_marlin.MarlinArcSettings, from its Configuration_adv.h);
     # None = Marlin 2.1.2's defaults with arc_resolution as MAX_ARC_SEGMENT_MM
     marlin_arcs: object = None
+    # a Marlin build's switches that add G codes (MARLIN_BUILD_OPTIONS; its Configuration(_adv).h, or TOML
+    # marlin_build = "INCH_MODE_SUPPORT CNC_WORKSPACE_PLANES"): names separated by blanks or commas, "" = none
+    marlin_build: str = ""
 
     # firmware retraction (G10/G11)
     retract_length: float = 0.0              # mm

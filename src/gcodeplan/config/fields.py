@@ -11,6 +11,7 @@ from dataclasses import dataclass
 from typing import Any, Callable
 
 from ..errors import ConfigError
+from ..marlin_build import rule_marlin_build
 from ..machine import ACCELERATION_PROFILES, AXES, FIRMWARES, FLAVORS, KINEMATICS, POLICIES, SHAPER_TYPES, Axis, Machine, firmware_policy_conflict
 
 
@@ -238,6 +239,7 @@ FIELDS: tuple[Field, ...] = (
     Field("", "flavor", "flavor", rule_choice(FLAVORS), "string", ""),
     Field("", "firmware", "firmware", rule_choice(FIRMWARES), "string", ""),
     Field("", "grbl_idle_lock_ms", "grbl_idle_lock_ms", _rule_non_negative, "number", "ms"),
+    Field("", "marlin_build", "marlin_build", lambda v: rule_marlin_build(v), "string", ""),
     Field("", "acceleration_profile", "acceleration_profile", rule_choice(ACCELERATION_PROFILES), "string", ""),
     Field("toolhead", "max_velocity", "max_velocity", _SPEED, "number", "mm/s"),
     Field("toolhead", "max_accel", "max_accel", _ACCEL, "number", "mm/s²"),

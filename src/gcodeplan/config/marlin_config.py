@@ -31,6 +31,10 @@ BLOCK_BUFFER_SIZE 16, SLOWDOWN with divisor 2, JD_HANDLE_SMALL_SEGMENTS) are che
 warning. Features that change the time and that the model does not run (INPUT_SHAPING_X/Y, FT_MOTION,
 ADAPTIVE_STEP_SMOOTHING, XY_FREQUENCY_LIMIT, BACKLASH_COMPENSATION, bed levelling, …) are named warnings;
 COREXY and COREXZ give the corexy and corexz kinematics (Marlin's Core builds); another kinematics is an error.
+The switches that add G codes (INCH_MODE_SUPPORT, CNC_WORKSPACE_PLANES, GCODE_MOTION_MODES, and the refused
+CNC_COORDINATE_SYSTEMS, SAVED_POSITIONS, BEZIER_CURVE_SUPPORT, G38_PROBE_TARGET: gcodeplan/marlin_build.py) become
+the machine's ``marlin_build``; FWRETRACT's RETRACT_LENGTH, RETRACT_FEEDRATE, RETRACT_RECOVER_LENGTH and
+RETRACT_RECOVER_FEEDRATE its ``[firmware_retraction]`` (off: G10/G11 move nothing).
 """
 from __future__ import annotations
 
@@ -97,7 +101,11 @@ READ = {"DEFAULT_AXIS_STEPS_PER_UNIT", "DEFAULT_MAX_FEEDRATE", "DEFAULT_MAX_ACCE
         "LIN_ADVANCE", "ADVANCE_K", "LIN_ADVANCE_K", "ARC_SUPPORT", "MIN_ARC_SEGMENT_MM", "MAX_ARC_SEGMENT_MM",
         "MM_PER_ARC_SEGMENT", "MIN_CIRCLE_SEGMENTS", "ARC_SEGMENTS_PER_SEC", "N_ARC_CORRECTION",
         "ARC_P_CIRCLES", "JD_HANDLE_SMALL_SEGMENTS", "SLOWDOWN", "DEFAULT_MINIMUMFEEDRATE",
-        "DEFAULT_MINTRAVELFEEDRATE", *FIXED, *UNMODELLED, *KINEMATICS, *CORE_KINEMATICS}
+        "DEFAULT_MINTRAVELFEEDRATE", "INCH_MODE_SUPPORT", "CNC_WORKSPACE_PLANES", "GCODE_MOTION_MODES",
+        "CNC_COORDINATE_SYSTEMS", "SAVED_POSITIONS", "BEZIER_CURVE_SUPPORT", "G38_PROBE_TARGET", "FWRETRACT",
+        "RETRACT_LENGTH", "RETRACT_FEEDRATE", "RETRACT_RECOVER_LENGTH", "RETRACT_RECOVER_FEEDRATE", "RETRACT_ZRAISE",
+        *FIXED, *UNMODELLED,
+        *KINEMATICS, *CORE_KINEMATICS}
 
 
 # ============================================================================ recognising
@@ -326,6 +334,8 @@ def load_marlin_config(path: str, adv_path: str | None = None):
         top["marlin_arcs"] = _arc_settings(pre, top, notes, main_path)
         _fixed_and_unmodelled(pre, notes, main_path)
         _software_endstops(pre, axes)
+        top["marlin_build"] = _build_switches(pre, notes, main_path)
+        _fwretract_settings(pre, top, notes, main_path)
     finally:
         for msg in notes:
             warnings.warn(msg, stacklevel=2)
@@ -532,6 +542,42 @@ def _fixed_and_unmodelled(pre: _Pre, notes: list[str], main_path: str) -> None:
             _note(pre, notes, main_path,
                   f"{name} on: {what} is not modelled by the marlin-2.1.2 model; its times are those of a build "
                   "without it", name)
+
+
+def _build_switches(pre: _Pre, notes: list[str], main_path: str) -> str:
+    """The switches that add G codes (marlin_build.py), as the machine's ``marlin_build``: those gcodeplan
+    models run as Marlin runs them; the others are named in a warning, and a program using their codes is
+    refused at its line."""
+    from ..marlin_build import MARLIN_BUILD_OPTIONS, UNMODELLED
+
+    on = [name for name in MARLIN_BUILD_OPTIONS if pre.enabled(name)]
+    for name in on:
+        if name in UNMODELLED:
+            codes = ", ".join(f"G{g}" for g in UNMODELLED[name][0])
+            _note(pre, notes, main_path, f"{name} on: this build runs {codes}; {UNMODELLED[name][1]}: gcodeplan "
+                  "refuses a program that has them", name)
+    return " ".join(on)
+
+
+def _fwretract_settings(pre: _Pre, top: dict, notes: list[str], main_path: str) -> None:
+    """FWRETRACT's G10/G11 as ``[firmware_retraction]`` (feature/fwretract.cpp): G10 draws RETRACT_LENGTH mm back at
+    RETRACT_FEEDRATE mm/s, G11 pushes that length plus RETRACT_RECOVER_LENGTH mm at RETRACT_RECOVER_FEEDRATE mm/s
+    (Marlin's shipped 3, 45, 0, 8 when not given). Without FWRETRACT the build has no G10/G11 ("Unknown command"):
+    the length stays 0, so they move nothing."""
+    if not pre.enabled("FWRETRACT"):
+        return
+    for name, key, default, lo_ok in (("RETRACT_LENGTH", "retract_length", 3.0, True),
+                                      ("RETRACT_FEEDRATE", "retract_speed", 45.0, False),
+                                      ("RETRACT_RECOVER_FEEDRATE", "unretract_speed", 8.0, False)):
+        top[key] = _scalar(pre, name, lo_ok=lo_ok) if name in pre.values else default
+    extra = _number(pre, "RETRACT_RECOVER_LENGTH") if "RETRACT_RECOVER_LENGTH" in pre.values else 0.0
+    if extra < 0:
+        _note(pre, notes, main_path, f"RETRACT_RECOVER_LENGTH {extra:g} mm: gcodeplan recovers at least the "
+              "retracted length (unretract_extra_length >= 0): 0 taken", "RETRACT_RECOVER_LENGTH")
+    top["unretract_extra_length"] = max(extra, 0.0)
+    if "RETRACT_ZRAISE" in pre.values and _number(pre, "RETRACT_ZRAISE") > 0:
+        _note(pre, notes, main_path, f"RETRACT_ZRAISE {_number(pre, 'RETRACT_ZRAISE'):g} mm: the Z hop of G10/G11 is "
+              "not modelled (the E moves are)", "RETRACT_ZRAISE")
 
 
 def _software_endstops(pre: _Pre, axes: dict) -> None:

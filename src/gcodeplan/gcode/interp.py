@@ -26,7 +26,7 @@ from collections import deque
 
 import numpy as np
 
-from ..errors import GcodeError, quote
+from ..errors import ConfigError, GcodeError, quote
 from ..machine import OWN_PLANNER_FIRMWARES, Machine
 from ..schema import KIND_EXTRUDE_ONLY, KIND_WAIT, LIMITS_DTYPE
 from . import scan as S
@@ -35,6 +35,7 @@ from .lexing import (CHECKSUM_RE, EXT_RE, FREE_TEXT_M, FREE_TEXT_RE, HMS_RE, M48
                      Word, parse_number)
 from .ngc import expand_line, needs_expansion
 from .objects import KlipperExclude, ObjectTable
+from ..marlin_build import MODELLED as BUILD_MODELLED, UNMODELLED as BUILD_UNMODELLED, build_options
 
 from .commands_motion import MotionCommands
 from .commands_state import StateCommands
@@ -57,13 +58,17 @@ UNKNOWN_AXIS_LINE_FLAVORS = frozenset(("marlin", "klipper"))
 #: parser drops the ".1" of G59.1. Klipper (klippy/gcode.py, extras/gcode_move.py, gcode_arcs.py) registers
 #: none of them (G17-G19 come with [gcode_arcs]; G20 is an error there, see PRINTER_G20_ERROR). The firmware
 #: answers "Unknown command" to a line led by one and does nothing; later on a line it is a parameter of the
-#: line's command, which reads no G parameter.
+#: line's command, which reads no G parameter. A Marlin machine's ``marlin_build`` switches add some back
+#: (gcodeplan/marlin_build.py: Interpreter._init_build).
 PRINTER_CNC_G = {
     "marlin": frozenset((17, 18, 19, 20, 40, 43, 49, 53, 54, 55, 56, 57, 58, 59, 61, 64, 73, 80, 81, 82, 83, 84,
                          85, 86, 87, 88, 89, 93, 94, 98, 99)),
     "klipper": frozenset((20, 40, 43, 49, 53, 54, 55, 56, 57, 58, 59, 61, 64, 73, 80, 81, 82, 83, 84, 85, 86, 87,
                           88, 89, 93, 94, 98, 99)),
 }
+#: flavors whose firmware runs a line's first command only, the rest of the line being its parameters (Marlin's
+#: parser.cpp GCodeParser::parse, Klipper's gcode.py _process_commands): ``G90 G1 X50`` is G90 alone, no move
+ONE_COMMAND_FLAVORS = frozenset(("marlin", "klipper"))
 #: Klipper's answer to G20 (gcode_move.py cmd_G20 raises it): an error, which ends a virtual_sdcard print
 PRINTER_G20_ERROR = "Machine does not support G20 (inches) command"
 
@@ -77,6 +82,7 @@ class Interpreter(StateCommands, MotionCommands, Rs274Commands, GrblLines):
         m = machine
         self.dialect = (S.DIALECT_KLIPPER if m.flavor == "klipper" else
                         S.DIALECT_CNC if m.is_cnc else S.DIALECT_MARLIN)
+        self._init_build(m)
         self.st, self.ist = self._power_up_state(m)
         #: Marlin clamps a target to its software endstops (apply_motion_limits) where Klipper refuses the move
         self.soft_endstops = (m.flavor == "marlin" and m.kinematics in ("cartesian", "corexy", "corexz")
@@ -93,6 +99,20 @@ class Interpreter(StateCommands, MotionCommands, Rs274Commands, GrblLines):
         self.ngc = None
         self._ngc_on = m.flavor == "linuxcnc"
         self._cnc_init()
+
+    def _init_build(self, m: Machine) -> None:
+        """The CNC G codes this printer's firmware lacks (PRINTER_CNC_G less those a Marlin build's switches add,
+        marlin_build.py) and the codes refused by name (a switch whose codes gcodeplan does not model)."""
+        try:
+            build = build_options(m.marlin_build) if m.flavor == "marlin" else frozenset()
+        except ValueError as err:           # a Machine made in Python (a TOML's is checked on loading)
+            raise ConfigError(f"marlin_build: {err}") from None
+        added = {g for name in build if name in BUILD_MODELLED for g in BUILD_MODELLED[name][0]}
+        self._printer_cnc_g = PRINTER_CNC_G.get(m.flavor, frozenset()) - added
+        self._build_refused = {g: (name, BUILD_UNMODELLED[name][1]) for name in build if name in BUILD_UNMODELLED
+                               for g in BUILD_UNMODELLED[name][0]}
+        #: Marlin's GCODE_MOTION_MODES: a line led by an axis word repeats the last G0-G3 (none at power-up)
+        self._motion_modes = "GCODE_MOTION_MODES" in build
 
     def _power_up_state(self, m: Machine) -> tuple[np.ndarray, np.ndarray]:
         """The modal state arrays ``st`` / ``ist`` (scan.py's indices) as the firmware powers up: feed,
@@ -118,9 +138,11 @@ class Interpreter(StateCommands, MotionCommands, Rs274Commands, GrblLines):
         ist[S.I_F32_REL] = 1 if m.firmware.startswith("marlin") else 0
         # modal motion at start: grbl powers up in G0, LinuxCNC with no motion mode (G80), printers in G1
         ist[S.I_MOTION] = {"grbl": 0, "linuxcnc": 80}.get(m.flavor, 1)
+        if self._motion_modes:
+            ist[S.I_MOTION] = 80           # parser.cpp: motion_mode_codenum = -1 until a G0-G3
         # a line led by an axis word: a modal G0/G1 on CNC controls (and reprap, as before), an unknown command on
         # Marlin (without GCODE_MOTION_MODES, its default) and Klipper (see PRINTER_LINE_LETTERS)
-        ist[S.I_AXIS_LINES] = 0 if m.flavor in UNKNOWN_AXIS_LINE_FLAVORS else 1
+        ist[S.I_AXIS_LINES] = 0 if m.flavor in UNKNOWN_AXIS_LINE_FLAVORS and not self._motion_modes else 1
         ist[S.I_DIALECT] = self.dialect
         ist[S.I_LAYER] = -1
         ist[S.I_FEATURE] = -1
@@ -589,8 +611,9 @@ class Interpreter(StateCommands, MotionCommands, Rs274Commands, GrblLines):
             # letter (a CNC post's ``O100 call``, ``O100 sub``) is an unknown command, reported and ignored
             self._unknown_or_macro(code.split(None, 1)[0][:40].upper())
             return
-        if not self.ist[S.I_AXIS_LINES] and code[:1].upper() in "XYZEF":
-            self._axis_led_line(code)
+        if code[:1].upper() in "XYZEF" and (not self.ist[S.I_AXIS_LINES] or (self._motion_modes and
+                                                                            self.ist[S.I_MOTION] == 80)):
+            self._axis_led_line(code)       # Marlin with GCODE_MOTION_MODES: no motion mode yet, or after G80
             return
         m486 = None if self._grbl_reads else M486_RE.match(code)
         if m486:
@@ -620,10 +643,14 @@ class Interpreter(StateCommands, MotionCommands, Rs274Commands, GrblLines):
                     return
             raise try_words_error
 
+        if self._build_refused:
+            self._refuse_build_code(words)
         if self.machine.flavor in PRINTER_CNC_G:
             words = self._printer_cnc_words(words)
             if words is None:
                 return
+        if self.machine.flavor in ONE_COMMAND_FLAVORS:
+            words = self._printer_one_command(words)
         gs: list[float] = []
         ms: list[int] = []
         params: dict[str, Word] = {}
@@ -658,7 +685,7 @@ class Interpreter(StateCommands, MotionCommands, Rs274Commands, GrblLines):
         is an error naming its answer; a CNC G code after the line's command is a parameter the command does not
         read, dropped from the words returned. One named warning per code and file."""
         flavor = self.machine.flavor
-        cnc = PRINTER_CNC_G[flavor]
+        cnc = self._printer_cnc_g
         firmware = "Klipper" if flavor == "klipper" else "Marlin"
         first = words[0] if words else None
         if first is not None and first.letter == "G" and first.value is not None and int(first.value) in cnc:
@@ -683,6 +710,45 @@ class Interpreter(StateCommands, MotionCommands, Rs274Commands, GrblLines):
             kept.append(w)
         return kept
 
+    def _refuse_build_code(self, words: list[Word]) -> None:
+        """A line led by a G code a Marlin build's switch adds and gcodeplan does not model: an error naming the
+        switch (marlin_build.py UNMODELLED)."""
+        first = words[0] if words else None
+        if first is None or first.letter != "G" or first.value is None or int(first.value) not in self._build_refused:
+            return
+        name, why = self._build_refused[int(first.value)]
+        self.error(f"G{round(first.value, 1):g}: this Marlin build has {name} (marlin_build): {why}")
+
+    def _printer_one_command(self, words: list[Word]) -> list[Word]:
+        """The words of a Marlin or Klipper line as its firmware runs them: the first G/M/T word is the command
+        and every later word its parameter (Marlin's parser.cpp GCodeParser::parse, Klipper's gcode.py
+        _process_commands). A later G or M word (or a T word after a G or T command, which none of them reads)
+        is a parameter the command does not read: dropped, counted, one named warning per file. A letter given
+        twice on such a line keeps its last value, as both parsers store parameters (Marlin's
+        FASTER_GCODE_PARSER, on by default, keeps the last offset per letter; Klipper's params dict the last
+        value); a line of one command keeps gcodeplan's "word repeated" error."""
+        if len(words) < 2:
+            return words
+        first = words[0]
+        reads_t = first.letter == "M"           # M104 T1, M109 T0: the M code's own parameter
+        extra = [i for i, w in enumerate(words) if i and (w.letter in "GM" or (w.letter == "T" and not reads_t))]
+        if not extra:
+            return words
+        firmware = "Klipper" if self.machine.flavor == "klipper" else "Marlin"
+        command = f"{first.letter}{first.text}"
+        rest = " ".join(f"{w.letter}{w.text}" for w in words[extra[0]:])
+        self._note_once("one command per line", f"{firmware} runs {command} only; {rest} are its parameters (a "
+                        "printer's firmware runs a line's first command alone: each later command is counted as "
+                        "ignored)")
+        kept: dict[str, Word] = {}
+        for i, w in enumerate(words[1:], 1):
+            if i in extra:
+                self.ignore(f"{w.letter}{w.text} after a line's command")
+                continue
+            kept.pop(w.letter, None)                 # the last value wins, in the order of the line
+            kept[w.letter] = w
+        return [first, *kept.values()]
+
     def _axis_led_line(self, code: str) -> None:
         """A line led by an axis or F word (``X10 Y10``, ``E5 F300``) on Marlin or Klipper: no modal G1 there
         (Marlin's parser takes it as a command only with GCODE_MOTION_MODES, off by default; Klipper's takes
@@ -696,8 +762,10 @@ class Interpreter(StateCommands, MotionCommands, Rs274Commands, GrblLines):
         if self.strict:
             self.error(f"unknown command {head}: a line without G is no move on {firmware} "
                        f"('Unknown command')")
+        why = ("no motion mode in force: none since power-up or G80, GCODE_MOTION_MODES" if self._motion_modes
+               else "no modal G1 there")
         self._note_once("axis-led line", f"{code[:40]}: {firmware} answers 'Unknown command' to a line led by "
-                                         f"{code[:1].upper()} (no modal G1 there): the line does nothing (each such "
+                                         f"{code[:1].upper()} ({why}): the line does nothing (each such "
                                          f"line is counted as an unknown command)")
         name = f"{code[:1].upper()}... without G"
         self.unknown[name] = self.unknown.get(name, 0) + 1
@@ -788,7 +856,11 @@ class Interpreter(StateCommands, MotionCommands, Rs274Commands, GrblLines):
         # Marlin and Klipper read F only on moves: on an M-code line it is that command's parameter (as X Y Z E
         # are, below). CNC controls take F as a modal word on any line.
         f = None
-        if ms and not motion_codes and not self.machine.is_cnc:
+        # Marlin and Klipper: a line's command is its first word, so without a motion G code X Y Z E F are the
+        # parameters of whatever command leads it (G90 X50, G21 F600: no move, no feed; G28 and G92 read them)
+        params_only = not motion_codes and (bool(ms) or (self.machine.flavor in ONE_COMMAND_FLAVORS
+                                                         and (bool(gs) or tool is not None)))
+        if params_only and not self.machine.is_cnc:
             used.add("F")
         else:
             f = self._value(params, "F")
@@ -814,7 +886,7 @@ class Interpreter(StateCommands, MotionCommands, Rs274Commands, GrblLines):
         for g in motion_codes:
             self._set_motion(g)
         # on a line with an M code and no motion G code, X Y Z E are the M code's parameters (M201 X1000)
-        axis_consumed = axis_consumed or (bool(ms) and not motion_codes)
+        axis_consumed = axis_consumed or params_only
         has_axes = any(k in params for k in "XYZE") and not axis_consumed
         motion = int(ist[S.I_MOTION])
         if motion_codes and motion_codes[0] != 80 and not has_axes and motion in (2, 3):

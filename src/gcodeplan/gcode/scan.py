@@ -429,7 +429,9 @@ def scan_words(buf, q, end):
     T R, each at most once, with numbers :func:`parse_decimal` takes. Returns ``(ok, has, vx, vy, vz, ve,
     vf, vs, vp, vt, vr, eol)``: ``has`` the WORD_* bits present, the values in program units (0 when
     absent), eol the index of the line feed (or ``end``). ok False: another word, a repeated word or a
-    number left to Python."""
+    number left to Python. A second G or M word on the line is "another word": such a line is always the
+    interpreter's (each flavor's reading of it, e.g. Marlin's and Klipper's first command only: interp.py
+    _printer_one_command)."""
     has = 0
     vx = vy = vz = ve = vf = vs = vp = vt = vr = 0.0
     while True:
