@@ -293,14 +293,14 @@ def test_quantised_against_continuous_on_the_cube():
 
 
 def test_batches_give_the_whole_programs_rows():
-    """Fed in batches of 7 rows (the window's buffers shift after each), the continuous model's PLAN rows are
-    those of the program fed at once, for an unbounded and a 16-block buffer."""
+    """Fed in batches of 7 rows (the window's buffers shift after each; an unbounded ring grows between them), the
+    model's PLAN rows are those of the program fed at once, quantised or not, for 4, 16 and unbounded buffers."""
     machine = load_machine("marlin-2.1.2")
     moves, limits, sets = _read(SAMPLES / "d_slicer_like.gcode", machine)
-    for n in (None, 16):
+    for n, q in [(None, False), (16, False), (4, False), (None, True), (4, True)]:
         whole, _ = run_marlin(moves, limits, machine, e_position_sets=deque(sets or ()), buffer_blocks=n,
-                              quantised=False)
-        m = MarlinModel(machine, e_position_sets=deque(sets or ()), buffer_blocks=n, quantised=False)
+                              quantised=q)
+        m = MarlinModel(machine, e_position_sets=deque(sets or ()), buffer_blocks=n, quantised=q)
         outs = []
         for i in range(0, len(moves), 7):
             outs += m.feed(moves[i:i + 7], limits)
