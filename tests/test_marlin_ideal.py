@@ -340,3 +340,17 @@ def test_corexy_diagonal_is_limited_per_motor(tmp_path):
     assert out[-1, mi.OT_NOMINAL] == pytest.approx(v, rel=1e-12)
     assert out[-1, mi.OT_ACCEL] == pytest.approx(a, rel=1e-12)
     assert ends[-1] == pytest.approx(_trapezoid_t(MIN_SQR, MIN_SQR, v, a, d), rel=1e-12)
+
+
+def test_linear_advance_caps_the_acceleration(tmp_path):
+    """Linear advance (M900 K0.05) caps a print move's acceleration so that E can jump to its advance speed within
+    its jerk (planner.cpp ``use_advance_lead``): E jerk / (K · e/D) = 4.5 / (0.05 · 2/10) = 450 mm/s², under
+    M204 P1000. The quantised model gets it in whole steps/s² (449.99 mm/s² at 100 steps/mm)."""
+    path = tmp_path / "la.gcode"
+    path.write_text("M204 P1000 T1000 R1000\nM900 K0.05\nG92 E0\nG1 X10 E2 F1200\n")
+    machine = load_machine("marlin-2.1.2")
+    *_, ends, out = _run(path, machine, quantised=False)
+    assert out[-1, mi.OT_ACCEL] == pytest.approx(450.0, rel=1e-12)
+    assert ends[-1] == pytest.approx(_trapezoid_t(MIN_SQR, MIN_SQR, 20.0, 450.0, 10.0), rel=1e-12)
+    _run(path, machine)
+    assert _run.of[-1, mk.OF_ACCEL] == pytest.approx(450.0, abs=0.02)
