@@ -313,9 +313,10 @@ def test_batches_give_the_whole_programs_rows():
 def test_bad_settings_are_named_errors():
     """A ring that is not a power of 2 (Marlin's SanityCheck.h), and the modes the switch does not cover."""
     machine = load_machine("marlin-2.1.2")
-    for bad in (0, 1, 12, 2.5, True):
+    for bad in (0, 1, 12, 2.5, 16.0, True, "16"):
         with pytest.raises(ConfigError, match="power of 2"):
             MarlinModel(machine, buffer_blocks=bad)
+    assert MarlinModel(machine, buffer_blocks=math.inf).buffer_blocks is None
     with pytest.raises(ConfigError, match="quantised=False"):
         MarlinModel(load_machine("marlin-bugfix"), quantised=False)
     m = MarlinModel(machine, quantised=False)

@@ -207,11 +207,11 @@ class MarlinModel:
     ``(n_rows, plan)`` pieces whose concatenation is one PLAN row per MOVE row.
 
     ``buffer_blocks``: the planner's ring, BLOCK_BUFFER_SIZE (a power of 2, one slot always free; 16 by default,
-    the firmware's), or None for an unbounded buffer (nothing runs until the input ends or a wait drains it,
-    and SLOWDOWN never acts). ``quantised=False`` (Marlin 2.1.2 only) plans in float64 and times in continuous
-    time: no whole-step targets, no 6-step minimum block, no float32 / integer rates or step boundaries, no
-    120 steps/s floor, no stepper interrupt, 25 MHz ticks or 1 ms idle poll; Marlin's junction rule,
-    MINIMUM_PLANNER_SPEED, limits, SLOWDOWN and buffer stay (:mod:`gcodeplan.planner.marlin_ideal` lists both
+    the firmware's), or None (or ``math.inf``) for an unbounded buffer (nothing runs until the input ends or a
+    wait drains it, and SLOWDOWN never acts). ``quantised=False`` (Marlin 2.1.2 only) plans in float64 and times
+    in continuous time: no whole-step targets, no 6-step minimum block, no float32 / integer rates or step
+    boundaries, no 120 steps/s floor, no stepper interrupt, 25 MHz ticks or 1 ms idle poll; Marlin's junction
+    rule, MINIMUM_PLANNER_SPEED, limits, SLOWDOWN and buffer stay (:mod:`gcodeplan.planner.marlin_ideal` lists both
     sides). With both, the plan is the full look-ahead trapezoid plan on Marlin's junction caps
     (tests/test_marlin_ideal.py). It has no step pulses (``want_steps`` is an error)."""
 
@@ -219,9 +219,11 @@ class MarlinModel:
                  junction: str | None = None, buffer_blocks: int | None = mk.BLOCK_BUFFER_SIZE,
                  quantised: bool = True):
         self.machine = machine
-        # BLOCK_BUFFER_SIZE: a power of 2 (Marlin's SanityCheck.h), one slot always free; None = unbounded
-        if buffer_blocks is not None and (isinstance(buffer_blocks, bool) or int(buffer_blocks) != buffer_blocks
-                                          or buffer_blocks < 2 or int(buffer_blocks) & (int(buffer_blocks) - 1)):
+        # BLOCK_BUFFER_SIZE: a power of 2 (Marlin's SanityCheck.h), one slot always free; None (or inf) = unbounded
+        if buffer_blocks == float("inf"):
+            buffer_blocks = None
+        if buffer_blocks is not None and (not isinstance(buffer_blocks, (int, np.integer)) or isinstance(
+                buffer_blocks, bool) or buffer_blocks < 2 or int(buffer_blocks) & (int(buffer_blocks) - 1)):
             raise ConfigError(f"buffer_blocks: {buffer_blocks!r} is not a power of 2 of at least 2 (Marlin's "
                               f"BLOCK_BUFFER_SIZE), nor None (unbounded)")
         self.buffer_blocks = None if buffer_blocks is None else int(buffer_blocks)
