@@ -22,6 +22,10 @@ at the stepper's next 1 ms idle poll after the wait (the dwell rounded up to who
 
 Reference: ``shared/reference/marlin`` (Marlin 2.1.2.4's planner.cpp / stepper.cpp on a simulated clock);
 ``tools/compare_marlin.py`` prints the agreement.
+
+``MarlinModel(..., buffer_blocks=N, quantised=False)``: another buffer size (None: unbounded), and the plan without
+quantisation (:mod:`gcodeplan.planner.marlin_ideal`): issue 21's proof that an unbounded buffer and no quantisation
+give the ideal look-ahead plan back (tests/test_marlin_ideal.py).
 """
 from __future__ import annotations
 
@@ -32,6 +36,7 @@ from .._jit import njit
 from ..errors import ConfigError
 from ..schema import (KIND_DWELL, KIND_EXTRUDE_ONLY, KIND_WAIT, LIMIT_ACCEL, LIMIT_FEED, LIMIT_NONE, PLAN_DTYPE)
 from ..stepper.marlin_isr import MARLIN_TIMER_HZ
+from . import marlin_ideal as mi
 from . import marlin_kernels as mk
 
 F32 = np.float32
@@ -199,11 +204,32 @@ class MarlinModel:
     """Marlin 2.1.2's host loop, planner and stepper over a stream of MOVE rows.
 
     ``feed(moves, limits)`` then ``finish()`` return PLAN rows for the rows they settle, in order:
-    ``(n_rows, plan)`` pieces whose concatenation is one PLAN row per MOVE row."""
+    ``(n_rows, plan)`` pieces whose concatenation is one PLAN row per MOVE row.
+
+    ``buffer_blocks``: the planner's ring, BLOCK_BUFFER_SIZE (a power of 2, one slot always free; 16 by default,
+    the firmware's), or None (or ``math.inf``) for an unbounded buffer (nothing runs until the input ends or a
+    wait drains it, and SLOWDOWN never acts). ``quantised=False`` (Marlin 2.1.2 only) plans in float64 and times
+    in continuous time: no whole-step targets, no 6-step minimum block, no float32 / integer rates or step
+    boundaries, no 120 steps/s floor, no stepper interrupt, 25 MHz ticks or 1 ms idle poll; Marlin's junction
+    rule, MINIMUM_PLANNER_SPEED, limits, SLOWDOWN and buffer stay (:mod:`gcodeplan.planner.marlin_ideal` lists both
+    sides). With both, the plan is the full look-ahead trapezoid plan on Marlin's junction caps
+    (tests/test_marlin_ideal.py). It has no step pulses (``want_steps`` is an error)."""
 
     def __init__(self, machine, timer_hz: int = MARLIN_TIMER_HZ, e_position_sets=None,
-                 junction: str | None = None):
+                 junction: str | None = None, buffer_blocks: int | None = mk.BLOCK_BUFFER_SIZE,
+                 quantised: bool = True):
         self.machine = machine
+        # BLOCK_BUFFER_SIZE: a power of 2 (Marlin's SanityCheck.h), one slot always free; None (or inf) = unbounded
+        if buffer_blocks == float("inf"):
+            buffer_blocks = None
+        if buffer_blocks is not None and (not isinstance(buffer_blocks, (int, np.integer)) or isinstance(
+                buffer_blocks, bool) or buffer_blocks < 2 or int(buffer_blocks) & (int(buffer_blocks) - 1)):
+            raise ConfigError(f"buffer_blocks: {buffer_blocks!r} is not a power of 2 of at least 2 (Marlin's "
+                              f"BLOCK_BUFFER_SIZE), nor None (unbounded)")
+        self.buffer_blocks = None if buffer_blocks is None else int(buffer_blocks)
+        # quantised=False: the plan in float64 and continuous time (planner.marlin_ideal says what it turns off)
+        self.quantised = bool(quantised)
+        self._window = _WINDOW if self.quantised else _WINDOW + mi.WINDOW
         # the firmware version whose rules run (a machine of another firmware gets 2.1.2's, as before)
         self.firmware = getattr(machine, "firmware", FIRMWARES[0])
         if self.firmware not in _VERSIONS:
@@ -230,7 +256,16 @@ class MarlinModel:
             raise ConfigError(f"{self.firmware}: every axis needs steps_per_mm > 0")
         self.mm_per_step = (np.float32(1) / self.spm).astype(np.float32)
         self.acc_rate_scale = np.float32(np.float32(16777216.0) / np.float32(self.timer_hz))
-        self.state = mk.new_state()
+        self.state = mk.new_state(self.buffer_blocks)
+        if not self.quantised:
+            if self.version != mk.VERSION_2_1_2:
+                raise ConfigError(f"firmware {self.firmware}: quantised=False runs Marlin 2.1.2's plan only (bugfix's "
+                                  f"start/stop speed and look-ahead are defined in steps); use marlin-2.1.2")
+            self._ideal = mi.new_state(self.buffer_blocks)
+            self._ideal[2][mk.GI_CORE] = _CORE_KINDS.get(getattr(machine, "kinematics", "cartesian"), mk.CORE_NONE)
+            self._ideal_last = np.zeros(2)       # s, mm/s: the end and exit speed of the last settled row
+            self._scratch64 = np.zeros((2, 4))
+            self._scratch32 = np.zeros((8, 4), np.float32)
         # COREXY / COREXZ builds: blocks, limits and pulses per motor (A, B / A, C), the length the head's
         kinematics = getattr(machine, "kinematics", "cartesian")
         if kinematics == "delta":            # (a plug-in kinematics is refused with its limits: stream.py)
@@ -273,6 +308,11 @@ class MarlinModel:
         n = len(moves)
         a = self._reserve(n)
         k = moves["kind"]
+        if not self.quantised:
+            mi.ideal_row_inputs_kernel(k, moves["x0"], moves["y0"], moves["z0"], moves["e0"], moves["x1"], moves["y1"],
+                                       moves["z1"], moves["e1"], moves["feed_v"], moves["accel"], moves["dwell_t"],
+                                       np.array(self._acc, np.float64), a["d"], a["fr64"], a["acc64"], a["dwell64"])
+            a["out_t"][:] = 0
         # the G92 E lines before the batch's last row (the others wait for the rows after them)
         sets = self.e_position_sets
         set_line, set_v = [], []
@@ -364,6 +404,13 @@ class MarlinModel:
             jdev=limits["junction_dev"].astype(np.float32), advance_k=limits["pa_k"].astype(np.float32),
             min_feed=limits["min_feed_v"].astype(np.float32), min_travel=limits["min_travel_v"].astype(np.float32))
         tab["nonpos"] = bool((tab["vmax"] <= 0).any() or (tab["amax"] <= 0).any())    # _check_zero_limits
+        if not self.quantised:
+            # quantised=False: the settings as given (float64; no limit where unbounded)
+            tab.update(vmax64=np.ascontiguousarray(np.where(np.isfinite(vmax), vmax, 1e300)),
+                       amax64=np.ascontiguousarray(np.where(np.isfinite(amax_mm), amax_mm, 1e300)),
+                       advance_k64=limits["pa_k"].astype(np.float64),
+                       min_feed64=limits["min_feed_v"].astype(np.float64),
+                       min_travel64=limits["min_travel_v"].astype(np.float64))
         self._tables = (key, tab)
         return tab
 
@@ -384,7 +431,7 @@ class MarlinModel:
         n = self._n
         if self._arrays is None or n + m > len(self._out_i):
             cap = max(2 * len(self._out_i), n + m)
-            grown = {k: np.empty((cap,) + shape, dtype) for k, dtype, shape in _WINDOW}
+            grown = {k: np.empty((cap,) + shape, dtype) for k, dtype, shape in self._window}
             out_i = np.empty((cap, mk.N_OI), dtype=np.int64)
             out_f = np.empty((cap, mk.N_OF), dtype=np.float32)
             if self._arrays is not None:
@@ -402,8 +449,15 @@ class MarlinModel:
         return self._run(final=True)
 
     def _run(self, final: bool):
+        if not self.quantised:
+            return self._run_ideal(final)
         a = {k: v[:self._n] for k, v in self._arrays.items()}
         bf, bi, gi, gf = self.state
+        if self.buffer_blocks is None:
+            # unbounded: room for every row still to read (a G92 among them may add a sync block)
+            pending = self._n - (int(gi[mk.GI_NEXT_ROW]) - self.row_base)
+            bf, bi = mk.grow_ring(bf, bi, gi, 2 * pending + 1)
+            self.state = (bf, bi, gi, gf)
         tab = self._tables[1]
         out_i, out_f = self._out_i[:self._n], self._out_f[:self._n]
         first = mk.marlin_run_kernel(a["kind"], a["tgt"], a["reset_bits"], a["reset_pos"], a["fr"], a["acc_p"],
@@ -435,12 +489,44 @@ class MarlinModel:
                 la = advance_fields(oi, lead, k)
             self.last_steps = block_pulses(oi, self.timer_hz, self.s_curve, la, self._la_state,
                                            bugfix=self.version == mk.VERSION_BUGFIX)
-        # the rows not settled move to the front of the buffers (a few: the blocks still queued)
+        self._settle(n_done)
+        return [(n_done, plan)]
+
+    def _settle(self, n_done: int) -> None:
+        """The rows not settled move to the front of the buffers (a few: the blocks still queued)."""
         rest = self._n - n_done
         for v in (*self._arrays.values(), self._out_i, self._out_f):
             v[:rest] = v[n_done:self._n].copy()
         self._n = rest
         self.row_base += n_done
+
+    def _run_ideal(self, final: bool):
+        """:meth:`_run` with ``quantised=False``: :func:`gcodeplan.planner.marlin_ideal.ideal_run_kernel`."""
+        if self.want_steps:
+            raise ConfigError(f"firmware {self.firmware}: quantised=False has no step pulses (no stepper "
+                              f"interrupt runs); leave it on for steps")
+        a = {k: v[:self._n] for k, v in self._arrays.items()}
+        rf, ri, gi, gf, gd = self._ideal
+        if self.buffer_blocks is None:
+            pending = self._n - (int(gi[mk.GI_NEXT_ROW]) - self.row_base)
+            rf, ri = mk.grow_ring(rf, ri, gi, 2 * pending + 1)
+            self._ideal = (rf, ri, gi, gf, gd)
+        tab = self._tables[1]
+        first = mi.ideal_run_kernel(a["kind"], a["d"], a["fr64"], a["acc64"], a["dwell64"], a["reset_bits"], a["lim"],
+                                    tab["vmax64"], tab["amax64"], tab["amax_mm"], tab["jerk"], tab["min_feed64"],
+                                    tab["min_travel64"], tab["jdev"], tab["advance_k64"], float(MIN_SEGMENT_TIME_US),
+                                    self.junction_mode, final, self.row_base, rf, ri, gi, gf, gd, a["out_t"],
+                                    self._scratch64, self._scratch32)
+        n_done = self._n if final else int(first) - self.row_base
+        if n_done <= 0:
+            return []
+        out_t = a["out_t"][:n_done]
+        plan = np.zeros(n_done, dtype=PLAN_DTYPE)
+        mi.ideal_plan_rows_kernel(out_t, a["move_d"][:n_done], a["move_kind"][:n_done], self._ideal_last,
+                                  *(plan[f] for f in _PLAN_FIELDS))
+        if self.keep_blocks:
+            self.blocks.append((out_t.copy(), None, a["line"][:n_done].copy()))
+        self._settle(n_done)
         return [(n_done, plan)]
 
     def _plan_rows(self, move_d: np.ndarray, move_kind: np.ndarray, oi: np.ndarray, of: np.ndarray) -> np.ndarray:
@@ -643,9 +729,11 @@ def block_pulses(oi: np.ndarray, timer_hz: int, s_curve: bool, la: np.ndarray | 
 
 
 def run_marlin(moves: np.ndarray, limits: np.ndarray, machine, keep_blocks: bool = False, e_position_sets=None,
-               junction: str | None = None):
-    """Whole-program convenience: PLAN rows for ``moves`` (and the model, for its ``blocks``)."""
-    m = MarlinModel(machine, e_position_sets=e_position_sets, junction=junction)
+               junction: str | None = None, buffer_blocks: int | None = mk.BLOCK_BUFFER_SIZE, quantised: bool = True):
+    """Whole-program convenience: PLAN rows for ``moves`` (and the model, for its ``blocks``; with
+    ``quantised=False`` each is (per-row ``out_t`` of :mod:`gcodeplan.planner.marlin_ideal`, None, lines))."""
+    m = MarlinModel(machine, e_position_sets=e_position_sets, junction=junction, buffer_blocks=buffer_blocks,
+                    quantised=quantised)
     m.keep_blocks = keep_blocks
     outs = m.feed(moves, limits) + m.finish()
     plan = np.concatenate([p for _, p in outs]) if outs else np.zeros(0, dtype=PLAN_DTYPE)

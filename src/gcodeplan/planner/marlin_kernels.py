@@ -10,7 +10,8 @@ step boundaries come out as Marlin's, and so do the step times (:mod:`gcodeplan.
 
 What it models (docs/design.md, "Marlin 2.1.2 model"):
 
-* the ring buffer of ``BLOCK_BUFFER_SIZE`` (16) blocks, 15 usable; the block the stepper runs is frozen
+* the ring buffer of ``BLOCK_BUFFER_SIZE`` (16) blocks, 15 usable (another power of 2 by the ring arrays' size,
+  :func:`new_state`; unbounded, grown by :func:`grow_ring`); the block the stepper runs is frozen
   (``is_block_busy``); the reverse and forward passes run over the queued blocks from
   ``block_buffer_planned``, Marlin's "already optimal" pointer, so the look-ahead is what the buffer holds;
 * the host of the reference runs: Marlin's main loop takes no time, so the buffer is refilled as soon as a
@@ -73,8 +74,8 @@ N_BF = 7
 N_BI = 19
 # integer global state (gi[...])
 (GI_HEAD, GI_TAIL, GI_PLANNED, GI_NONBUSY, GI_BUSY, GI_PX, GI_PY, GI_PZ, GI_PE, GI_CLOCK, GI_NEXT_ROW,
- GI_STARTED, GI_RESET_DONE, GI_SETTINGS_ROW, GI_CORE) = range(15)
-N_GI = 15
+ GI_STARTED, GI_RESET_DONE, GI_SETTINGS_ROW, GI_CORE, GI_SLOWDOWN_MAX) = range(16)
+N_GI = 16
 # the build's kinematics (gi[GI_CORE]): cartesian, COREXY (motors A = X + Y, B = X − Y) or COREXZ (A = X + Z,
 # C = X − Z); the planner's position stays the head's, in steps (planner.cpp)
 CORE_NONE, CORE_XY, CORE_XZ = 0, 1, 2
@@ -112,13 +113,45 @@ F32 = np.float32
 INLINE = "always"
 
 
-def new_state():
-    """(bf, bi, gi, gf): an empty buffer, the stepper idle, position 0 steps."""
-    bf = np.zeros((BLOCK_BUFFER_SIZE, N_BF), dtype=np.float32)
-    bi = np.zeros((BLOCK_BUFFER_SIZE, N_BI), dtype=np.int64)
+def new_state(buffer_blocks: int | None = BLOCK_BUFFER_SIZE):
+    """(bf, bi, gi, gf): an empty buffer of ``buffer_blocks`` slots (a power of 2, ``buffer_blocks - 1`` usable, as
+    Marlin's ring), the stepper idle, position 0 steps. ``None``: an unbounded buffer, a ring of 16 slots to
+    start with that :func:`grow_ring` doubles before it fills (SLOWDOWN then never acts: its window of 2 …
+    BLOCK_BUFFER_SIZE / 2 − 1 queued blocks is a buffer running low, which an unbounded one never does)."""
+    size = BLOCK_BUFFER_SIZE if buffer_blocks is None else int(buffer_blocks)
+    bf = np.zeros((size, N_BF), dtype=np.float32)
+    bi = np.zeros((size, N_BI), dtype=np.int64)
     gi = np.zeros(N_GI, dtype=np.int64)
     gf = np.zeros(N_GF, dtype=np.float32)
+    # planner.cpp SLOWDOWN: WITHIN(moves_queued, 2, (BLOCK_BUFFER_SIZE) / (SLOWDOWN_DIVISOR) - 1)
+    gi[GI_SLOWDOWN_MAX] = 1 if buffer_blocks is None else size // SLOWDOWN_DIVISOR - 1
     return bf, bi, gi, gf
+
+
+def grow_ring(bf, bi, gi, need):
+    """The ring (``bf``, ``bi``) with room for ``need`` more blocks: the same arrays when it has it, else new ones of
+    a power-of-2 size, the queued blocks moved to slots 0 … in order and ``gi``'s ring pointers (head, tail,
+    planned, non-busy) moved with them (an unbounded buffer, :func:`new_state` ``None``)."""
+    size = len(bi)
+    queued = int((gi[GI_HEAD] - gi[GI_TAIL]) & (size - 1))
+    if queued + need < size - 1:
+        return bf, bi
+    new = size
+    while queued + need >= new - 1:
+        new *= 2
+    order = (int(gi[GI_TAIL]) + np.arange(queued)) & (size - 1)
+    bf2 = np.zeros((new, bf.shape[1]), dtype=bf.dtype)
+    bi2 = np.zeros((new, bi.shape[1]), dtype=bi.dtype)
+    bf2[:queued] = bf[order]
+    bi2[:queued] = bi[order]
+    tail = int(gi[GI_TAIL])
+    for k in (GI_PLANNED, GI_NONBUSY):
+        gi[k] = (int(gi[k]) - tail) & (size - 1)
+        if gi[k] > queued:           # a pointer outside the queue (not in use) goes to the head
+            gi[k] = queued
+    gi[GI_TAIL] = 0
+    gi[GI_HEAD] = queued
+    return bf2, bi2
 
 
 #: rows of the block-time memo (a power of 2): a sliced plate repeats its objects' blocks; on the 50 MB plate
@@ -139,13 +172,16 @@ def new_scratch():
 
 
 @njit(cache=True)
-def _next(i):
-    return (i + 1) & (BLOCK_BUFFER_SIZE - 1)
+def _next(bi, i):
+    """The ring slot after ``i``: the ring's size is ``bi``'s row count, a power of 2 (Marlin's SanityCheck.h
+    requires BLOCK_BUFFER_SIZE to be one; planner.h's next_block_index masks with it)."""
+    return (i + 1) & (bi.shape[0] - 1)
 
 
 @njit(cache=True)
-def _prev(i):
-    return (i - 1) & (BLOCK_BUFFER_SIZE - 1)
+def _prev(bi, i):
+    """The ring slot before ``i`` (ring size: ``bi``'s row count, a power of 2)."""
+    return (i - 1) & (bi.shape[0] - 1)
 
 
 # ceil and floor as np.ceil / np.floor: numba compiles them to the processor's rounding instruction, where
@@ -256,13 +292,13 @@ def reverse_pass(bf, bi, gi):
     planned = gi[GI_PLANNED]
     if planned == head:
         return
-    idx = _prev(head)
+    idx = _prev(bi, head)
     nxt = -1
     while idx != planned:
         if (bi[idx, BI_FLAG] & FLAG_SYNC_POSITION) == 0:
             reverse_pass_kernel(bf, bi, gi, idx, nxt)
             nxt = idx
-        idx = _prev(idx)
+        idx = _prev(bi, idx)
 
 
 @njit(cache=True)
@@ -292,7 +328,7 @@ def forward_pass(bf, bi, gi):
             if prv < 0 or not _is_busy(gi, prv):
                 forward_pass_kernel(bf, bi, gi, prv, idx, idx)
             prv = idx
-        idx = _next(idx)
+        idx = _next(bi, idx)
 
 
 @njit(cache=True, inline=INLINE)
@@ -302,7 +338,7 @@ def recalculate_trapezoids(bf, bi, gi):
     idx = gi[GI_TAIL]
     head_idx = gi[GI_HEAD]
     while head_idx != idx:
-        p = _prev(head_idx)
+        p = _prev(bi, head_idx)
         if (bi[p, BI_FLAG] & FLAG_SYNC_POSITION) == 0:
             break
         head_idx = p
@@ -322,7 +358,7 @@ def recalculate_trapezoids(bf, bi, gi):
                         calculate_trapezoid_for_block(bf, bi, block, F32(cur_entry * nomr), F32(nxt_entry * nomr))
                     bi[block, BI_FLAG] &= ~FLAG_RECALCULATE
             block = nxt
-        idx = _next(idx)
+        idx = _next(bi, idx)
     if nxt >= 0 and (bi[nxt, BI_FLAG] & FLAG_SYNC_POSITION) == 0:
         if block < 0 or not _is_busy(gi, block):
             nxt_entry = F32(math.sqrt(bf[nxt, BF_ENTRY_SQR]))
@@ -341,7 +377,7 @@ def recalculate_trapezoids(bf, bi, gi):
 @njit(cache=True, inline=INLINE)
 def recalculate(bf, bi, gi):
     """Planner::recalculate(): both passes unless the newest block is the planned one, then trapezoids."""
-    if _prev(gi[GI_HEAD]) != gi[GI_PLANNED]:
+    if _prev(bi, gi[GI_HEAD]) != gi[GI_PLANNED]:
         reverse_pass(bf, bi, gi)
         forward_pass(bf, bi, gi)
     recalculate_trapezoids(bf, bi, gi)
@@ -438,7 +474,7 @@ def reverse_pass_kernel_bugfix(bf, bi, cur, nxt, safe_exit_speed_sqr):
 def reverse_pass_bugfix(bf, bi, gi, safe_exit_speed_sqr):
     """bugfix-2.1.x: from the newest block back to the first non-busy one (whose entry is the busy block's exit,
     not changed), sync blocks skipped; it stops at the first block whose entry speed cannot rise."""
-    idx = _prev(gi[GI_HEAD])
+    idx = _prev(bi, gi[GI_HEAD])
     nonbusy = gi[GI_NONBUSY]
     nxt = -1
     while idx != nonbusy:
@@ -446,7 +482,7 @@ def reverse_pass_bugfix(bf, bi, gi, safe_exit_speed_sqr):
             if not reverse_pass_kernel_bugfix(bf, bi, idx, nxt, safe_exit_speed_sqr):
                 return
             nxt = idx
-        idx = _prev(idx)
+        idx = _prev(bi, idx)
 
 
 @njit(cache=True)
@@ -495,7 +531,7 @@ def recalculate_trapezoids_bugfix(bf, bi, gi, safe_exit_speed_sqr, timer_hz):
                                                              timer_hz)
                     bi[block, BI_FLAG] &= ~FLAG_RECALCULATE
             block = nxt
-        idx = _next(idx)
+        idx = _next(bi, idx)
     if block >= 0 and (bi[block, BI_FLAG] & FLAG_RECALCULATE) != 0:
         calculate_trapezoid_for_block_bugfix(bf, bi, block, next_entry_speed,
                                              F32(math.sqrt(safe_exit_speed_sqr)), timer_hz)
@@ -510,14 +546,14 @@ def recalculate_bugfix(bf, bi, gi, safe_exit_speed_sqr, timer_hz):
 
 
 @njit(cache=True)
-def _queued(gi):
-    return (gi[GI_HEAD] - gi[GI_TAIL]) & (BLOCK_BUFFER_SIZE - 1)
+def _queued(bi, gi):
+    return (gi[GI_HEAD] - gi[GI_TAIL]) & (bi.shape[0] - 1)
 
 
 @njit(cache=True)
-def _nonbusy_queued(gi):
-    first = _next(gi[GI_TAIL]) if gi[GI_BUSY] != 0 else gi[GI_TAIL]
-    return (gi[GI_HEAD] - first) & (BLOCK_BUFFER_SIZE - 1)
+def _nonbusy_queued(bi, gi):
+    first = _next(bi, gi[GI_TAIL]) if gi[GI_BUSY] != 0 else gi[GI_TAIL]
+    return (gi[GI_HEAD] - first) & (bi.shape[0] - 1)
 
 
 @njit(cache=True)
@@ -530,7 +566,7 @@ def buffer_sync_block(bf, bi, gi, row):
         bi[h, k] = 0
     bi[h, BI_FLAG] = FLAG_SYNC_POSITION
     bi[h, BI_ROW] = row
-    gi[GI_HEAD] = _next(h)
+    gi[GI_HEAD] = _next(bi, h)
 
 
 @njit(cache=True)
@@ -711,11 +747,12 @@ def _head_millimeters(da, mm_per_step):
 
 
 @njit(cache=True, inline=INLINE)
-def _slowdown(inverse_secs, moves_queued, min_segment_time_us):
-    """_populate_block's SLOWDOWN: with 2 to 7 blocks queued, a segment shorter than MIN_SEGMENT_TIME (µs) is
-    slowed towards it, by twice the shortfall over the blocks queued; returns 1 / segment time (1/s)."""
+def _slowdown(inverse_secs, moves_queued, min_segment_time_us, slowdown_max):
+    """_populate_block's SLOWDOWN: with 2 to ``slowdown_max`` blocks queued (BLOCK_BUFFER_SIZE / 2 − 1: 7 in a
+    16-block buffer), a segment shorter than MIN_SEGMENT_TIME (µs) is slowed towards it, by twice the shortfall
+    over the blocks queued; returns 1 / segment time (1/s)."""
     segment_time_us = _lroundf(F32(F32(1000000) / inverse_secs))
-    if moves_queued >= 2 and moves_queued <= BLOCK_BUFFER_SIZE // SLOWDOWN_DIVISOR - 1:
+    if moves_queued >= 2 and moves_queued <= slowdown_max:
         time_diff = min_segment_time_us - segment_time_us
         if time_diff > 0:
             # int32 division, as the firmware's LROUND(2 * time_diff / moves_queued)
@@ -786,8 +823,8 @@ def _populate_block(bf, bi, gi, gf, row, tgt, fr_mm_s, acc_p, acc_t, acc_r, vmax
     fr = fr_min if fr_mm_s < fr_min else fr_mm_s
     inverse_millimeters = F32(F32(1) / millimeters)
     inverse_secs = F32(fr * inverse_millimeters)
-    moves_queued = _nonbusy_queued(gi)
-    inverse_secs = _slowdown(inverse_secs, moves_queued, min_segment_time_us)
+    moves_queued = _nonbusy_queued(bi, gi)
+    inverse_secs = _slowdown(inverse_secs, moves_queued, min_segment_time_us, gi[GI_SLOWDOWN_MAX])
     nominal_speed = F32(millimeters * inverse_secs)
     nominal_rate = _ceilf(F32(F32(sec) * inverse_secs))
     current_speed = scratch_f[1]
@@ -988,16 +1025,16 @@ def _pick_and_run(bf, bi, gi, out_i, out_f, timer_hz, acc_rate_scale, row_base, 
     """The stepper: finish the busy block, skip sync blocks, pick up the next move block and time it
     (get_current_block + block_phase_isr). Returns False when the buffer is empty."""
     if gi[GI_BUSY] != 0:
-        gi[GI_TAIL] = _next(gi[GI_TAIL])
+        gi[GI_TAIL] = _next(bi, gi[GI_TAIL])
         gi[GI_BUSY] = 0
-    while _queued(gi) > 0:
+    while _queued(bi, gi) > 0:
         t = gi[GI_TAIL]
         # get_current_block(): the block becomes busy, the planned pointer is pushed past it
-        gi[GI_NONBUSY] = _next(t)
+        gi[GI_NONBUSY] = _next(bi, t)
         if gi[GI_PLANNED] == t:
             gi[GI_PLANNED] = gi[GI_NONBUSY]
         if (bi[t, BI_FLAG] & FLAG_SYNC_POSITION) != 0:
-            gi[GI_TAIL] = _next(t)
+            gi[GI_TAIL] = _next(bi, t)
             continue
         gi[GI_BUSY] = 1
         gi[GI_STARTED] = 1
@@ -1080,11 +1117,11 @@ def marlin_run_kernel(kind, tgt, reset_bits, reset_pos, fr, acc_p, acc_t, acc_r,
     end_row = row_base + n
     while True:
         # the host: Marlin's main loop fills the buffer (15 usable slots) in no time
-        while gi[GI_NEXT_ROW] < end_row and _queued(gi) < BLOCK_BUFFER_SIZE - 1:
+        while gi[GI_NEXT_ROW] < end_row and _queued(bi, gi) < len(bi) - 1:
             r = gi[GI_NEXT_ROW] - row_base
             k = kind[r]
             if k == ROW_WAIT:
-                if _queued(gi) > 0 or gi[GI_BUSY] != 0:
+                if _queued(bi, gi) > 0 or gi[GI_BUSY] != 0:
                     break                      # M400 / G4 / G28: wait for the buffer to drain
                 out_i[r, OI_HAS_BLOCK] = 2
                 out_i[r, OI_T_PICK] = gi[GI_CLOCK]
@@ -1108,7 +1145,7 @@ def marlin_run_kernel(kind, tgt, reset_bits, reset_pos, fr, acc_p, acc_t, acc_r,
                         gi[GI_PX + a] = _lroundf(F32(reset_pos[r, a] * spm[a]))
                         gf[GF_POS_FLOAT + a] = reset_pos[r, a]
                 gi[GI_RESET_DONE] = 1
-                if _queued(gi) > 0 or gi[GI_BUSY] != 0:
+                if _queued(bi, gi) > 0 or gi[GI_BUSY] != 0:
                     buffer_sync_block(bf, bi, gi, gi[GI_NEXT_ROW])
                     continue                   # the move needs a slot of its own
             gi[GI_RESET_DONE] = 0
@@ -1118,14 +1155,14 @@ def marlin_run_kernel(kind, tgt, reset_bits, reset_pos, fr, acc_p, acc_t, acc_r,
                                min_segment_time_us, junction_mode, amax_mm[L], jdev[L], advance_k[L], scratch_f,
                                scratch_i, version):
                 h = gi[GI_HEAD]
-                gi[GI_HEAD] = _next(h)
+                gi[GI_HEAD] = _next(bi, h)
                 if version == VERSION_BUGFIX:
                     # the newest block must be able to stop at its own minimum speed (no arc hint here)
                     recalculate_bugfix(bf, bi, gi, bf[h, BF_MIN_ENTRY_SQR], timer_hz)
                 else:
                     recalculate(bf, bi, gi)
             gi[GI_NEXT_ROW] += 1
-        if not final and gi[GI_NEXT_ROW] >= end_row and _queued(gi) < BLOCK_BUFFER_SIZE - 1:
+        if not final and gi[GI_NEXT_ROW] >= end_row and _queued(bi, gi) < len(bi) - 1:
             break                              # the host would queue more: wait for the next rows
         if not _pick_and_run(bf, bi, gi, out_i, out_f, timer_hz, acc_rate_scale, row_base, s_curve, scratch_i, memo,
                              version):
@@ -1135,9 +1172,9 @@ def marlin_run_kernel(kind, tgt, reset_bits, reset_pos, fr, acc_p, acc_t, acc_r,
     first = gi[GI_NEXT_ROW]
     t = gi[GI_TAIL]
     if gi[GI_BUSY] != 0:
-        t = _next(t)
+        t = _next(bi, t)
     while t != gi[GI_HEAD]:
         if bi[t, BI_ROW] < first:
             first = bi[t, BI_ROW]
-        t = _next(t)
+        t = _next(bi, t)
     return first
