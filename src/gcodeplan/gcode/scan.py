@@ -600,8 +600,8 @@ def dwell(out, n_out, line, dialect, st, ist, has, vs, vp):
     negative or NaN time."""
     if has & ~(WORD_S | WORD_P):
         return False, n_out
-    if dialect == DIALECT_CNC and has != WORD_P:
-        return False, n_out      # grbl: G4 without P is its error:28, S is the spindle speed (gcode/rs274.py)
+    if dialect == DIALECT_CNC:
+        return False, n_out      # CNC: the interpreter runs G4 (grbl: a sync, after which a $ setting applies)
     dwell_t = 0.0
     if has & WORD_P:
         dwell_t = vp if dialect == DIALECT_CNC else vp / 1000.0
