@@ -15,8 +15,12 @@ step, and so of every line and of the whole program, is the one the firmware giv
   the interrupt *after* the one that decided it;
 * the main loop as grbl-sim's lock-step mode runs it: parsing and planning take no time, the planner is
   refilled as soon as a block leaves it (a block leaves when its last segment is *prepared*, not executed),
-  the cycle starts when the 15 blocks are full or at a sync (G4, M2/M30, spindle/coolant changes: KIND_DWELL /
-  KIND_WAIT rows), G4 P is rounded up to 50 ms steps (``DWELL_TIME_STEP``).
+  the cycle starts when the 15 blocks are full or at a sync (G4, M2/M30, spindle/coolant changes, laser mode's
+  syncs: KIND_DWELL / KIND_WAIT rows, gcode/commands_state.py), G4 P is rounded up to 50 ms steps
+  (``DWELL_TIME_STEP``);
+* a program's ``$`` settings (``$11``, ``$110``-``$122``, accepted only while grbl is idle, gcode/grbl_line.py)
+  arrive as a new LIMITS row: the operations of its rows are planned with those settings (the stream mode's
+  ``_feed``; :func:`run` takes one set of settings for the whole program).
 
 Floating point follows the C source: ``float`` variables are float32 and ``double`` literals promote an
 expression to float64 before it is stored back into a float (the x86 build grbl-sim runs, the reference).
