@@ -179,3 +179,19 @@ def test_reference_programs_take_the_same_time_with_laser_mode(tmp_path, name):
         path_synced, _ = _reference_program(tmp_path, name, extra)
         assert t1 == gp.estimate(path_synced, m).total_time_s
         assert t1 > t0
+
+
+@pytest.mark.parametrize("laser", [0, 1])
+def test_scanner_and_interpreter_give_the_same_rows(tmp_path, laser):
+    """Laser mode under M3 and grbl's idle state send lines to the interpreter (scan.I_TO_PYTHON): the rows are
+    those of the interpreter alone."""
+    from conftest import same_rows
+    from gcodeplan.gcode.reader import read_moves
+
+    text = "\n".join(row[0] for row in PROGRAM[:-1]) + "\nG0 X1 Y1\nG4 P0.2\n$110=3000\nG0 X90\nG1 X10 Y2\n"
+    p = tmp_path / "p.gcode"
+    p.write_text(text)
+    a, _ = read_moves(str(p), _machine(laser))
+    b, _ = read_moves(str(p), _machine(laser), force_python=True)
+    assert same_rows(a, b)
+    assert int(a["limits"][-1]) == 1          # the $110 after G4 applied
