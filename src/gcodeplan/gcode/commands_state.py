@@ -128,7 +128,6 @@ class StateCommands:
             changes["mcr"] = max(0.0, 1.0 - a2d / accel)
         self._new_limits(**changes)
 
-    # ------------------------------------------------------------------ M commands
     # ------------------------------------------------------------------ grbl: syncs, laser mode, idle state
     def _grbl_state_init(self) -> None:
         """grbl's parser state the syncs depend on (gcode.c gc_state: spindle M5, coolant M9, S0), laser mode
@@ -258,6 +257,7 @@ class StateCommands:
             self.grbl_idle = True
         self._grbl_route()
 
+    # ------------------------------------------------------------------ M commands
     def _m_command(self, mc: int, params: dict[str, Word], used: set[str]) -> None:
         st, ist = self.st, self.ist
         m = self.machine
