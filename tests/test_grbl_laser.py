@@ -195,3 +195,15 @@ def test_scanner_and_interpreter_give_the_same_rows(tmp_path, laser):
     b, _ = read_moves(str(p), _machine(laser), force_python=True)
     assert same_rows(a, b)
     assert int(a["limits"][-1]) == 1          # the $110 after G4 applied
+
+
+def test_two_collinear_lines_with_their_own_power_hand_worked(tmp_path):
+    """grbl-sim's settings (X 500 mm/s², $1 = 255: no idle delay), two collinear 100 mm lines at F3000 under M4,
+    each with its own S. Laser mode: one trapezoid over 200 mm, 200/50 + 50/500 = 4.1 s; spindle mode: the S
+    change stops between them, two trapezoids of 100/50 + 50/500 = 2.1 s each (grbl's timer adds < 0.1 %)."""
+    m = gp.load_machine(str(shared_path("reference", "grbl", "grbl_settings.txt")))
+    text = "G21 G90 F3000\nM4 S0\nG1 X100 S10\nG1 X200 S20\nM5\n"
+    t_laser, _ = _total(tmp_path, text, replace(m, grbl_laser_mode=1))
+    t_spindle, _ = _total(tmp_path, text, replace(m, grbl_laser_mode=0))
+    assert t_laser == pytest.approx(200 / 50 + 50 / 500, rel=1e-3)
+    assert t_spindle == pytest.approx(2 * (100 / 50 + 50 / 500), rel=1e-3)
