@@ -190,7 +190,7 @@ class GrblLines:
             self._new_limits(**{column: value * factor})
         elif number == 12:
             if not value > 0.0:
-                self.error(f"{name}: an arc tolerance of 0 makes grbl cut arcs into no chords")
+                self.error(f"{name}: an arc tolerance of 0 makes grbl cut each arc into endless chords")
             from dataclasses import replace
 
             self.machine = replace(self.machine, arc_tolerance=value)
