@@ -124,16 +124,24 @@ def test_a_jog_in_inches_and_machine_coordinates(tmp_path):
     assert moves == [(3, 25.4, 10 * 25.4 / 60), (4, 5.0, float("inf"))]
 
 
-def test_a_timing_setting_in_the_file_is_named(tmp_path):
+def test_a_timing_setting_in_the_file_applies_when_grbl_is_idle(tmp_path):
+    """system.c stores a setting only when grbl is idle: after M3's sync (line 4) $110 applies from line 5 on (a
+    new LIMITS row, tests/test_grbl_settings_lines.py times it); after a motion line it is error:8."""
     got, s = rows_of(tmp_path, HEAD + "$110=5000\n" + TAIL)
     blank, _ = rows_of(tmp_path, HEAD + "\n" + TAIL, name="q.nc")
+    assert [int(r["limits"]) for r in got] == [0, 0, 0] + [1] * (len(got) - 3)
+    got["limits"] = 0
+    assert same_rows(got, blank)
+    assert s.warnings == [] and s.unknown_commands == {}
+    moving = HEAD.replace("M3 S1000\n", "G1 X3\n")
+    got, s = rows_of(tmp_path, moving + "$110=5000\n" + TAIL)
+    blank, _ = rows_of(tmp_path, moving + "\n" + TAIL, name="q.nc")
     assert same_rows(got, blank)
     assert [w.split("/")[-1] for w in s.warnings] == [
-        "p.nc:5: $110=5000: grbl changes its setting $110 here (when idle; error:8 while it moves); gcodeplan "
-        "plans the whole file with the machine's settings: set $110 there"]
-    assert s.unknown_commands == {"$110": 1}
+        "p.nc:5: $110=5000 while grbl moves (it stores a setting only when idle): grbl rejects it (error:8, not "
+        "idle); the line is skipped"]
     path = tmp_path / "p.nc"
-    with pytest.raises(GcodeError, match=r"p\.nc:5: \$110=5000: grbl changes its setting"):
+    with pytest.raises(GcodeError, match=r"p\.nc:5: \$110=5000 while grbl moves"):
         read_moves(str(path), grbl(), strict=True)
 
 

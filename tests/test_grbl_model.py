@@ -350,8 +350,8 @@ def test_operations_of_move_rows():
     assert dwell_ticks.tolist() == [0, 0, 3 * 800_000, 0, 0]
 
 
-def test_a_machine_files_warning_is_one_line_on_the_command_line(tmp_path, capsys):
-    """$32=1 (laser mode) is not modelled: a named warning, printed as one `gcodeplan: warning:` line."""
+def test_a_machine_files_laser_mode_is_no_warning_on_the_command_line(tmp_path, capsys):
+    """$32=1 (laser mode) is modelled (tests/test_grbl_laser.py): no warning on standard error."""
     from gcodeplan.cli import main
 
     s = tmp_path / "settings.txt"
@@ -359,5 +359,4 @@ def test_a_machine_files_warning_is_one_line_on_the_command_line(tmp_path, capsy
     g = tmp_path / "p.gcode"
     g.write_text("G21 G90\nG1 X10 F600\n")
     assert main(["estimate", str(g), "--machine", str(s)]) == 0
-    err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and err[0].startswith("gcodeplan: warning: ") and "$32=1" in err[0]
+    assert capsys.readouterr().err == ""

@@ -70,6 +70,7 @@ class Machine:
     # a firmware model's speed ramps (ACCELERATION_PROFILES): "s-curve" = Marlin's S_CURVE_ACCELERATION
     acceleration_profile: str = "trapezoid"
     grbl_idle_lock_ms: float = 255.0     # grbl $1: ms the stepper ISR holds at every stop; 255 = keep enabled (none)
+    grbl_laser_mode: int = 0             # grbl $32: 1 = laser mode (an S change on a motion line does not stop)
 
     # toolhead
     max_velocity: float = 300.0          # mm/s

@@ -128,6 +128,12 @@ def _rule_non_negative(v: Any) -> str | None:
     return None
 
 
+def _rule_zero_or_one(v: Any) -> str | None:
+    if not is_number(v) or v not in (0, 1):
+        return "must be 0 or 1"
+    return None
+
+
 def _rule_non_negative_or_inf(v: Any) -> str | None:
     if not is_number(v) or not v >= 0:
         return "must be a number >= 0 (inf = no limit)"
@@ -240,6 +246,7 @@ FIELDS: tuple[Field, ...] = (
     Field("", "firmware", "firmware", rule_choice(FIRMWARES), "string", ""),
     Field("", "grbl_idle_lock_ms", "grbl_idle_lock_ms", _rule_non_negative, "number", "ms"),
     Field("", "marlin_build", "marlin_build", lambda v: rule_marlin_build(v), "string", ""),
+    Field("", "grbl_laser_mode", "grbl_laser_mode", _rule_zero_or_one, "number", ""),
     Field("", "acceleration_profile", "acceleration_profile", rule_choice(ACCELERATION_PROFILES), "string", ""),
     Field("toolhead", "max_velocity", "max_velocity", _SPEED, "number", "mm/s"),
     Field("toolhead", "max_accel", "max_accel", _ACCEL, "number", "mm/s²"),

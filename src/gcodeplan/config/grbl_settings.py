@@ -3,15 +3,15 @@ lines): the ``grbl`` preset with the report's steps/mm, rates, accelerations, ju
 and travel, run on the ``grbl-1.1`` firmware model (planner/grbl.py).
 
 Recognised by content (:func:`is_grbl_settings`): every meaningful line is ``$N=value``, optionally followed by
-grbl 0.9's ``(comment)``; ``ok`` lines, blank lines and ``;``/``(`` comment lines are passed over. Settings that
-change the time of a program and that the model does not run are refused or warned about by name; the others
-(pulse width, pin inversions, reports, homing) do not change the time.
+grbl 0.9's ``(comment)``; ``ok`` lines, blank lines and ``;``/``(`` comment lines are passed over. ``$1`` is the
+stepper idle delay, ``$32`` laser mode (``grbl_laser_mode``); settings that change the time of a program and that
+the model does not run are refused by name; the others (pulse width, pin inversions, reports, homing, the
+spindle's rpm range) do not change the time.
 """
 from __future__ import annotations
 
 import math
 import re
-import warnings
 from dataclasses import replace
 
 from ..errors import ConfigError
@@ -100,10 +100,9 @@ def load_grbl_settings(path: str):
         elif key == 1:
             top["grbl_idle_lock_ms"] = value
         elif key == 32:
-            if value != 0:
-                warnings.warn(f"{path}: $32=1 (laser mode): spindle speed changes on motion lines do not stop the "
-                              "motion in grbl's laser mode; gcodeplan's grbl model stops as in spindle mode",
-                              stacklevel=2)
+            # settings.c: any value that truncates to non-zero turns laser mode on (gcode.c: no stop at an S
+            # change on a motion line; gcode/commands_state.py _grbl_syncs)
+            top["grbl_laser_mode"] = 1 if math.trunc(value) != 0 else 0
         elif key in NO_TIMING:
             pass
         else:

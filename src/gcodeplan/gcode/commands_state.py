@@ -128,19 +128,71 @@ class StateCommands:
             changes["mcr"] = max(0.0, 1.0 - a2d / accel)
         self._new_limits(**changes)
 
-    # ------------------------------------------------------------------ M commands
+    # ------------------------------------------------------------------ grbl: syncs, laser mode, idle state
+    def _grbl_state_init(self) -> None:
+        """grbl's parser state the syncs depend on (gcode.c gc_state: spindle M5, coolant M9, S0), laser mode
+        ($32, the machine's ``grbl_laser_mode``) and whether the machine is idle (grbl is idle at the program's
+        start: system.c runs a ``$`` setting then, gcode/grbl_line.py)."""
+        self.grbl_laser = int(getattr(self.machine, "grbl_laser_mode", 0)) != 0
+        self.grbl_spindle = 5
+        self.grbl_coolant = frozenset()
+        self.grbl_s = 0.0
+        self.grbl_idle = True
+        self._grbl_route()
+
+    def _grbl_route(self) -> None:
+        """Which lines the Python interpreter must see on grbl (scan.I_TO_PYTHON): every line while the machine
+        is idle (the first motion line ends that, :meth:`_grbl_syncs`) and while an M3 laser is on (a G0 / G1
+        without axis words, or a move of no length, syncs there: gcode.c LASER_FORCE_SYNC, motion_control.c
+        mc_line), which the scanner does not know; otherwise what the excluded objects need."""
+        grbl_needs = self.grbl_idle or (self.grbl_laser and self.grbl_spindle == 3)
+        exclude = getattr(self, "exclude", None)       # (set after the CNC state at start-up)
+        excluded = exclude is not None and exclude.active
+        self.ist[S.I_TO_PYTHON] = 1 if (grbl_needs or excluded) else 0
+
+    def _grbl_line_shape(self, params: dict[str, Word]):
+        """(motion mode after the line, axis words move in the motion mode, the line's G codes) from the grbl
+        words of the line being run (gcode.c step 3: axis_command)."""
+        words = self.grbl_words or ()
+        gs = {round(w.value, 1) for w in words if w.letter == "G"}
+        motion = int(self.ist[S.I_MOTION])
+        for g in (0.0, 1.0, 2.0, 3.0, 38.2, 38.3, 38.4, 38.5, 80.0):
+            if g in gs:
+                motion = int(g) if g < 38 or g == 80.0 else int(round(g * 10))
+        axes = any(k in params for k in "XYZ")
+        axis_motion = axes and not gs & {10.0, 28.0, 30.0, 92.0, 43.1} and motion != 80
+        return motion, axis_motion, gs
+
     def _grbl_syncs(self, ms, params: dict[str, Word]) -> None:
         """grbl 1.1's gc_execute stops the motion (``spindle_sync`` / ``coolant_sync``: the planner drains, the
-        cycle ends) for a spindle speed change while the spindle turns, a spindle state change (M3/M4/M5) and
-        a coolant change (M7/M8/M9); a repeated command that changes nothing does not stop. Each stop is a
-        wait row (zero time: what it costs is the stop itself)."""
-        spindle = getattr(self, "grbl_spindle", 5)
-        coolant = getattr(self, "grbl_coolant", frozenset())
+        cycle ends) for a spindle speed change while the spindle turns (step 4), a spindle state change M3 / M4
+        / M5 (step 7, in laser mode too) and a coolant change M7 / M8 / M9 (step 8); a repeated command that
+        changes nothing does not stop. Each stop is a wait row (zero time: what it costs is the stop itself).
+
+        In laser mode ($32=1, gcode.c "If in laser mode"): an S change on a line whose axis words move in the
+        motion mode (GC_PARSER_LASER_ISMOTION; G0 too) does not stop; on a line without motion it still stops
+        while the laser is on; under M3 a line without motion that changes the motion mode from G1/G2/G3 to
+        another, or from another to G1/G2/G3 (a bare ``G1`` after ``G0``), stops even without an S change
+        (LASER_FORCE_SYNC); and a G0 / G1 of no steps stops under M3 (motion_control.c mc_line, the empty
+        block). Then the idle state of the machine after the line (:meth:`_grbl_idle_after`)."""
+        spindle = self.grbl_spindle
+        coolant = self.grbl_coolant
+        motion, axis_motion, gs = self._grbl_line_shape(params)
+        laser = self.grbl_laser
+        if laser and ("S" in params or 3 in ms or 4 in ms):
+            self._note_once("grbl laser", "grbl laser mode ($32=1): an S change on a line that moves does not "
+                                          "stop the motion; M3 / M4 / M5 and S changes without motion still do")
+        synced = False
         s_word = params.get("S")
-        if s_word is not None and s_word.value is not None:
-            if s_word.value != getattr(self, "grbl_s", 0.0) and spindle != 5:
-                self._wait("S")
-            self.grbl_s = s_word.value
+        s_new = s_word.value if (s_word is not None and s_word.value is not None) else self.grbl_s
+        force = False
+        if laser and not axis_motion and spindle == 3:
+            was_cut, is_cut = int(self.ist[S.I_MOTION]) in (1, 2, 3), motion in (1, 2, 3)
+            force = was_cut != is_cut
+        if (s_new != self.grbl_s or force) and spindle != 5 and not (laser and axis_motion):
+            self._wait("S" if s_new != self.grbl_s else f"laser M3 G{motion}")
+            synced = True
+        self.grbl_s = s_new
         new_spindle, new_coolant = spindle, set(coolant)
         for mc in ms:
             if mc in (3, 4, 5):
@@ -152,10 +204,60 @@ class StateCommands:
         if new_spindle != spindle:
             self._wait(f"M{new_spindle}")
             self.grbl_spindle = new_spindle
+            synced = True
         if new_coolant != coolant:
             self._wait("M9" if not new_coolant else f"M{max(new_coolant)}")
             self.grbl_coolant = frozenset(new_coolant)
+            synced = True
+        moves = axis_motion and motion != 80
+        laser_m3 = laser and new_spindle == 3
+        if moves and motion in (0, 1) and (laser_m3 or synced or self.grbl_idle):
+            moves = self._grbl_line_moves(gs, params, laser_m3)
+        probe = axis_motion and motion in (382, 383, 384, 385)
+        self._grbl_idle_after(ms, gs, moves or bool(gs & {28.0, 30.0}), synced, probe)
 
+    def _grbl_line_moves(self, gs: set, params: dict[str, Word], laser_m3: bool) -> bool:
+        """Whether a G0 / G1 makes a planner block (planner.c: some axis changes by a step, its target
+        ``lround(target·steps/mm)`` in grbl's floats); under an M3 laser a move of no steps stops the motion
+        (motion_control.c mc_line on PLAN_EMPTY_BLOCK: spindle_sync)."""
+        from ..planner.grbl import grbl_steps_of
+
+        here = [float(self.st[S.S_X + a]) for a in range(3)]
+        target = self._grbl_block_target(gs, params)
+        spm = self._grbl_steps_per_mm()
+        if (grbl_steps_of(target, spm) != grbl_steps_of(here, spm)).any():
+            return True
+        if laser_m3:
+            self._wait("laser M3 move of no steps")
+        return False
+
+    def _grbl_steps_per_mm(self):
+        """grbl's steps/mm ($100-$102) as the firmware holds them (float32)."""
+        spm = getattr(self, "_grbl_spm", None)
+        if spm is None:
+            from ..planner.grbl import steps_per_mm_of
+
+            spm = self._grbl_spm = steps_per_mm_of(self.machine)
+        return spm
+
+    def _grbl_idle_after(self, ms, gs: set, moves: bool, synced: bool, probe: bool) -> None:
+        """The machine's state after a grbl line, for the ``$`` settings that follow (system.c runs them only
+        when idle): a line that plans motion leaves it moving (a sender that waits for each ``ok``, grbl's
+        simple_stream.py, lets grbl start the cycle at once); a sync with no motion after it (a spindle or
+        coolant change, G4: mc_dwell) leaves it idle, and so do a probe (mc_probe_cycle waits for it to end)
+        and M0 / M2 / M30 after the line's motion (gcode.c step 21: protocol_buffer_synchronize; M1 is ignored);
+        any other line leaves it as it was."""
+        if probe:
+            self.grbl_idle = True
+        elif moves:
+            self.grbl_idle = False
+        elif synced or 4.0 in gs:
+            self.grbl_idle = True
+        if any(mc in (0, 2, 30) for mc in ms):
+            self.grbl_idle = True
+        self._grbl_route()
+
+    # ------------------------------------------------------------------ M commands
     def _m_command(self, mc: int, params: dict[str, Word], used: set[str]) -> None:
         st, ist = self.st, self.ist
         m = self.machine

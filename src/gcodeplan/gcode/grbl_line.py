@@ -16,6 +16,7 @@ These functions only say what grbl keeps and where its lexer stops; the interpre
 """
 from __future__ import annotations
 
+import math
 import re
 
 from .lexing import Word
@@ -74,11 +75,15 @@ def joins_numbers(spaced: bytes) -> bool:
 
 
 # grbl settings ($N=value, settings.c) that change a program's time: $1 step idle delay (a wait at each stop),
-# $11 junction deviation, $12 arc tolerance, $30 / $31 spindle range, $32 laser mode (no stop at S changes),
-# $100-$102 steps/mm, $110-$112 max rates, $120-$122 accelerations
-TIMING_SETTINGS = frozenset((1, 11, 12, 30, 31, 32, 100, 101, 102, 110, 111, 112, 120, 121, 122))
-# the other settings grbl 1.1 has (report/motion polarity, limits, homing, travel): no effect on the time
-OTHER_SETTINGS = frozenset((0, 2, 3, 4, 5, 6, 10, 13, 20, 21, 22, 23, 24, 25, 26, 27, 130, 131, 132))
+# $11 junction deviation, $12 arc tolerance, $32 laser mode (no stop at S changes), $100-$102 steps/mm,
+# $110-$112 max rates, $120-$122 accelerations
+TIMING_SETTINGS = frozenset((1, 11, 12, 32, 100, 101, 102, 110, 111, 112, 120, 121, 122))
+# the other settings grbl 1.1 has (report/motion polarity, limits, homing, travel, the spindle's rpm range): no
+# effect on the time
+OTHER_SETTINGS = frozenset((0, 2, 3, 4, 5, 6, 10, 13, 20, 21, 22, 23, 24, 25, 26, 27, 30, 31, 130, 131, 132))
+# the settings a program's line changes from there on (LIMITS columns; mm/min → mm/s for the rates)
+LIMITS_SETTINGS = {11: ("junction_dev", 1.0), 110: ("axis_v_x", 1 / 60), 111: ("axis_v_y", 1 / 60),
+                   112: ("axis_v_z", 1 / 60), 120: ("axis_a_x", 1.0), 121: ("axis_a_y", 1.0), 122: ("axis_a_z", 1.0)}
 # system commands that neither move nor change a setting (system.c): help, settings / parameters / modes /
 # build info / startup lines reports, alarm unlock
 REPORT_COMMANDS = frozenset((b"$", b"$$", b"$#", b"$G", b"$I", b"$N", b"$X"))
@@ -99,6 +104,7 @@ class GrblLines:
         if raw.startswith(b"\xef\xbb\xbf"):
             raw = raw[3:]                # a UTF-8 byte order mark: a sender does not send it
         kept, spaced, overflow = protocol_line(raw)
+        self._grbl_route()          # (the machine's start wait hands the first line here and resets the route)
         self.grbl_words = None
         self.grbl_line_number = None
         if overflow:
@@ -131,8 +137,8 @@ class GrblLines:
     # ------------------------------------------------------------------ $ lines
     def _grbl_system_line(self, kept: bytes) -> None:
         """A ``$`` line of a program (system.c system_execute_line): ``$J=`` jogs (:meth:`_grbl_jog`); a setting
-        ``$N=value`` that changes the time is warned about by name (gcodeplan plans with the machine's settings;
-        an error under ``--strict``), another one counted as ignored; homing, check mode, sleep and reset are
+        ``$N=value`` that changes the time is applied when grbl is idle, rejected (error:8) while it moves
+        (:meth:`_grbl_setting`), another one counted as ignored; homing, check mode, sleep and reset are
         warned about (their effect is not modelled); reports and the alarm unlock do nothing; anything else is
         grbl's error:3 (invalid statement)."""
         name = kept[:12].decode("latin-1")
@@ -149,9 +155,7 @@ class GrblLines:
                 self.ignore(f"${number}")
                 return
             if number in TIMING_SETTINGS:
-                self._grbl_not_modelled(f"${number}", f"{name}: grbl changes its setting ${number} here (when idle; "
-                                                      f"error:8 while it moves); gcodeplan plans the whole file "
-                                                      f"with the machine's settings: set ${number} there")
+                self._grbl_setting(number, float(m.group(2)), name)
                 return
         what = {b"$H": "the homing cycle is not timed (its length depends on where the machine stands) and the "
                        "position after it is not known",
@@ -164,6 +168,42 @@ class GrblLines:
             self._grbl_not_modelled(name, f"{name}: {what}")
             return
         self.grbl_reject(3, name)
+
+    def _grbl_setting(self, number: int, value: float, name: str) -> None:
+        """``$N=value`` of a setting that changes the time (system.c system_execute_line, settings.c
+        settings_store_global_setting): grbl stores it only when idle (error:8 while it moves: the line is
+        rejected, the setting unchanged; :meth:`._grbl_idle_after` says when grbl is idle) and refuses a
+        negative value (error:4). Applied from that line on: $11 and $110-$122 as a new LIMITS row (the grbl
+        model and the policies read it), $12 for the arcs that follow, $32 laser mode. $1 and $100-$102 are
+        warned about and not applied (steps/mm: grbl keeps its position in steps, so the position in mm moves
+        with the new value; not modelled)."""
+        if not self.grbl_idle:
+            self.grbl_reject(8, f"{name} while grbl moves (it stores a setting only when idle)")
+            return
+        if value < 0.0:
+            self.grbl_reject(4, f"{name} (a setting is never negative)")
+            return
+        if number in LIMITS_SETTINGS:
+            column, factor = LIMITS_SETTINGS[number]
+            if not value > 0.0 and number != 11:
+                self.error(f"{name}: a rate or acceleration of 0 stops grbl's planner (it would never end)")
+            self._new_limits(**{column: value * factor})
+        elif number == 12:
+            if not value > 0.0:
+                self.error(f"{name}: an arc tolerance of 0 makes grbl cut each arc into endless chords")
+            from dataclasses import replace
+
+            self.machine = replace(self.machine, arc_tolerance=value)
+        elif number == 32:
+            self.grbl_laser = math.trunc(value) != 0        # settings.c: int_value = trunc(value)
+            self._grbl_route()
+        else:
+            what = ("grbl keeps its position in steps: the position in mm moves with the new steps/mm"
+                    if number >= 100 else "the idle delay at each stop stays the machine's")
+            self._grbl_not_modelled(f"${number}", f"{name}: not applied in a program by gcodeplan ({what}); set "
+                                                  f"${number} in the machine")
+            return
+        self.event(f"{name} applied")
 
     def _grbl_not_modelled(self, name: str, message: str) -> None:
         """A ``$`` line whose effect on the time is not modelled: one warning naming it, counted as unknown (an
@@ -202,3 +242,5 @@ class GrblLines:
         self._note_once("$J", "$J= jog: timed as a feed move from rest to rest (grbl starts a jog only when "
                               "idle; its modes stay as they were)")
         self._exact_feed_row(target, params["F"].value * unit / 60.0, "$J")
+        self.grbl_idle = False          # jogging: a $ setting now is error:8 (system.c: JOG is not IDLE)
+        self._grbl_route()

@@ -97,6 +97,7 @@ GRBL_M = {0, 1, 2, 3, 4, 5, 8, 9, 30}
 GRBL_WORDS = frozenset("EFIJKLNPRSTXYZ")
 # grbl 1.1's status texts of the errors a block can fail with (report.h, the grbl wiki's error table)
 GRBL_ERRORS = {1: "expected command letter", 2: "bad number format", 3: "invalid statement", 4: "negative value",
+               8: "not idle",
                11: "line overflow", 16: "invalid jog command", 20: "unsupported command",
                21: "modal group violation", 22: "undefined feed rate", 23: "command value not integer",
                24: "axis command conflict", 25: "word repeated", 26: "no axis words", 27: "invalid line number",
@@ -270,6 +271,8 @@ class Rs274Commands:
         self._grbl_reads = m.flavor == "grbl"   # lines read as grbl reads them first (grbl_line.py)
         self.grbl_words: list[Word] | None = None    # the words of the grbl line being run, in order (step 2)
         self.grbl_line_number: int | None = None     # its N (gcode.c: a larger N than 10,000,000 is error:27)
+        if self._grbl_reads:
+            self._grbl_state_init()      # spindle, coolant, laser mode, idle (commands_state.py)
         if not m.is_cnc:
             return
         # grbl: the scanner rejects inert lines itself (scan.I_GRBL_INERT, grbl_rejected_lines); --strict and a

@@ -597,16 +597,14 @@ def set_logical_e(line, dialect, st, has, ve, eset_line, eset_v, eset_n):
 
 @njit(cache=True, error_model="numpy", inline="always")
 def dwell(out, n_out, line, dialect, st, ist, has, vs, vp):
-    """G4: a KIND_DWELL row of ``dwell_t`` s: P in ms on printers, in s on the CNC dialects; S in s
-    (refused on Klipper, which has no G4 S). Returns ``(ok, n_out)``; ok False: another word or a
-    negative or NaN time."""
-    if has & ~(WORD_S | WORD_P):
+    """G4 on a printer: a KIND_DWELL row of ``dwell_t`` s: P in ms; S in s (refused on Klipper, which has no
+    G4 S). Returns ``(ok, n_out)``; ok False: another word, a negative or NaN time, or a CNC dialect (the
+    interpreter runs G4 there: on grbl a sync, after which a ``$`` setting applies, gcode/grbl_line.py)."""
+    if dialect == DIALECT_CNC or has & ~(WORD_S | WORD_P):
         return False, n_out
-    if dialect == DIALECT_CNC and has != WORD_P:
-        return False, n_out      # grbl: G4 without P is its error:28, S is the spindle speed (gcode/rs274.py)
     dwell_t = 0.0
     if has & WORD_P:
-        dwell_t = vp if dialect == DIALECT_CNC else vp / 1000.0
+        dwell_t = vp / 1000.0
     if has & WORD_S:
         if dialect == DIALECT_KLIPPER:
             return False, n_out

@@ -15,8 +15,12 @@ step, and so of every line and of the whole program, is the one the firmware giv
   the interrupt *after* the one that decided it;
 * the main loop as grbl-sim's lock-step mode runs it: parsing and planning take no time, the planner is
   refilled as soon as a block leaves it (a block leaves when its last segment is *prepared*, not executed),
-  the cycle starts when the 15 blocks are full or at a sync (G4, M2/M30, spindle/coolant changes: KIND_DWELL /
-  KIND_WAIT rows), G4 P is rounded up to 50 ms steps (``DWELL_TIME_STEP``).
+  the cycle starts when the 15 blocks are full or at a sync (G4, M2/M30, spindle/coolant changes, laser mode's
+  syncs: KIND_DWELL / KIND_WAIT rows, gcode/commands_state.py), G4 P is rounded up to 50 ms steps
+  (``DWELL_TIME_STEP``);
+* a program's ``$`` settings (``$11``, ``$110``-``$122``, accepted only while grbl is idle, gcode/grbl_line.py)
+  arrive as a new LIMITS row: the operations of its rows are planned with those settings (the stream mode's
+  ``_feed``; :func:`run` takes one set of settings for the whole program).
 
 Floating point follows the C source: ``float`` variables are float32 and ``double`` literals promote an
 expression to float64 before it is stored back into a float (the x86 build grbl-sim runs, the reference).
@@ -105,6 +109,15 @@ def grbl_float(x: float) -> np.float32:
     return grbl_floats(np.array([x], dtype=np.float64))[0]
 
 
+def grbl_steps_of(target_mm, steps_per_mm: np.ndarray) -> np.ndarray:
+    """planner.c plan_buffer_line's target in steps of the X Y Z target ``target_mm`` (mm, as gcodeplan read
+    it): ``lround(target·steps/mm)`` on grbl's floats (:func:`grbl_floats`; ``steps_per_mm`` float32, as
+    :class:`GrblSettings` holds them). Two targets of equal steps make no block."""
+    prod = (grbl_floats(np.asarray(target_mm, dtype=np.float64)) * steps_per_mm).astype(np.float32)
+    p = prod.astype(np.float64)
+    return (np.sign(p) * np.floor(np.abs(p) + 0.5)).astype(np.int64)      # C lround: half away from zero
+
+
 def grbl_floats(values: np.ndarray) -> np.ndarray:
     """:func:`grbl_float` of every value (float32 array): the shortest decimal of each value (the fewest
     decimals d ≤ 8 that give it back), then read_float's arithmetic on its digits."""
@@ -179,6 +192,26 @@ class GrblSettings:
         idle_ms = int(getattr(m, "grbl_idle_lock_ms", 255))
         s.idle_lock_ticks = 0 if idle_ms == 255 else idle_ms * (F_CPU // 1000)
         return s
+
+
+def steps_per_mm_of(machine) -> np.ndarray:
+    """grbl's steps/mm ($100-$102) of ``machine``'s X Y Z as the firmware holds them (float32), as
+    :meth:`GrblSettings.from_machine` reads them."""
+    return np.array([read_float(_decimal(machine.axes[a].steps_per_mm)) for a in "xyz"], dtype=np.float32)
+
+
+def settings_of_limits(machine, limits_row) -> "GrblSettings":
+    """The settings of ``machine`` with the max rates ($110-$112), accelerations ($120-$122) and junction
+    deviation ($11) of a LIMITS row (mm/s, mm/s², mm): a program's ``$`` lines change those
+    (gcode/grbl_line.py); each value is the float grbl holds for its ``$`` line, as in :meth:`from_machine`."""
+    from dataclasses import replace
+
+    axes = dict(machine.axes)
+    for a in "xyz":
+        axes[a] = replace(axes[a], max_velocity=float(limits_row["axis_v_" + a]),
+                          max_accel=float(limits_row["axis_a_" + a]))
+    return GrblSettings.from_machine(replace(machine, axes=axes,
+                                             junction_deviation=float(limits_row["junction_dev"])))
 
 
 def _decimal(v: float) -> str:
@@ -1219,6 +1252,9 @@ class _GrblStreamMode:
             raise ConfigError(f"the grbl-1.1 firmware model steps a cartesian machine, not "
                               f"{sp.machine.kinematics!r} (grbl's COREXY build is not modelled)")
         self.settings = GrblSettings.from_machine(sp.machine)
+        self.limits_idx = 0                            # the LIMITS row the settings in force come from
+        self.limits = None                             # the LIMITS table (prepare's)
+        self.settings_of = {0: self.settings}          # LIMITS row → its settings
         self.reach = reach_mm(self.settings)            # mm, check_reach's
         self.state = GrblState(self.settings)
         self.want_steps = bool(getattr(sp, "want_firmware_steps", False))
@@ -1256,6 +1292,7 @@ class _GrblStreamMode:
             raise _reach_error(moves_chunk, self.settings, k, i)
         from .prepare import unread_prep
 
+        self.limits = limits
         return unread_prep(len(moves_chunk))
 
     def window_prep(self, moves_chunk, limits):
@@ -1270,11 +1307,11 @@ class _GrblStreamMode:
     def plan(self, final: bool):
         """Run grbl on the rows not fed yet; emit the rows before the first whose last pulse is not out."""
         sp = self.sp
-        kind, target, rate, rapid, dwell = self._add_ops(sp.pending_moves[self.fed:])
+        new = sp.pending_moves[self.fed:]
+        kind, target, rate, rapid, dwell, rows = self._add_ops(new)
         if self.want_steps:
             self._make_room(kind, target)
-        self.state.feed(kind, target, rate, rapid, dwell, final, self.op_base, self.op_end, self.op_info,
-                        self.no_steps, self.no_dirs, self.n_out)
+        self._feed(kind, target, rate, rapid, dwell, new["limits"][rows], final)
         self.fed = len(sp.pending_moves)
         if final:
             n_rows = len(sp.pending_moves)
@@ -1293,12 +1330,38 @@ class _GrblStreamMode:
 
     def _add_ops(self, new):
         """grbl's operations of the new MOVE rows, appended to the pending ones (global indices go on);
-        returns what the feed kernel takes: (kind, target, rate, rapid, dwell ticks)."""
+        returns what the feed kernel takes: (kind, target, rate, rapid, dwell ticks), and the row of each."""
         kind, target, rate, rapid, dwell, rows = operations(new)
         self.row_op, self.op_kind, self.op_rapid, self.op_end, self.op_info = _append_ops_kernel(
             self.row_op, self.op_kind, self.op_rapid, self.op_end, self.op_info, len(new), rows, kind, rapid,
             self.op_base + len(self.op_kind))
-        return kind, target, rate, rapid, dwell
+        return kind, target, rate, rapid, dwell, rows
+
+    def _feed(self, kind, target, rate, rapid, dwell, limits_idx, final):
+        """Run grbl on the new operations, with the settings of the LIMITS row of each: a program's ``$`` line
+        changes them only when grbl is idle (gcode/grbl_line.py), where its planner is empty, so the ops of
+        one row run on its settings (system.c: the next block is planned with the stored values)."""
+        n = len(kind)
+        start = 0
+        while True:
+            if start < n and limits_idx[start] != self.limits_idx:
+                self._use_limits(int(limits_idx[start]))
+            other = np.flatnonzero(limits_idx[start:] != self.limits_idx)
+            end = start + int(other[0]) if other.size else n
+            self.state.feed(kind[start:end], target[start:end], rate[start:end], rapid[start:end],
+                            dwell[start:end], final and end == n, self.op_base, self.op_end, self.op_info,
+                            self.no_steps, self.no_dirs, self.n_out)
+            if end == n:
+                return
+            start = end
+
+    def _use_limits(self, idx: int) -> None:
+        """The settings of LIMITS row ``idx`` from now on (:func:`settings_of_limits`)."""
+        s = self.settings_of.get(idx)
+        if s is None:
+            s = self.settings_of[idx] = settings_of_limits(self.sp.machine, self.limits[idx])
+        self.limits_idx = idx
+        self.settings = self.state.settings = s
 
     def _make_room(self, kind, target):
         """Room in the pulse buffers for every step the new lines can make (their step-rounded lengths)."""
