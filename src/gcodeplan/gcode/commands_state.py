@@ -209,12 +209,38 @@ class StateCommands:
             self._wait("M9" if not new_coolant else f"M{max(new_coolant)}")
             self.grbl_coolant = frozenset(new_coolant)
             synced = True
+        offsets = self._grbl_offset_change(gs, params)
+        if offsets is not None:
+            self._wait(offsets)
+            synced = True
         moves = axis_motion and motion != 80
         laser_m3 = laser and new_spindle == 3
         if moves and motion in (0, 1) and (laser_m3 or synced or self.grbl_idle):
             moves = self._grbl_line_moves(gs, params, laser_m3)
         probe = axis_motion and motion in (382, 383, 384, 385)
         self._grbl_idle_after(ms, gs, moves or bool(gs & {28.0, 30.0}), synced, probe)
+
+    def _grbl_offset_change(self, gs: set, params: dict[str, Word]) -> str | None:
+        """The code of a grbl line that stops the motion before its own because it changes the work offset or
+        writes the EEPROM (None if none): grbl 1.1h's default build (config.h FORCE_BUFFER_SYNC_DURING_WCO_CHANGE,
+        FORCE_BUFFER_SYNC_DURING_EEPROM_WRITE) drains the planner in gc_execute_line's steps 14, 15 and 19 —
+        a G43.1 / G49 that changes the tool length offset, a G54-G59 other than the one in force, and every G10
+        L2 / L20, G28.1 / G30.1 (EEPROM writes), G92 and G92.1, even when the values do not change. G28 / G30
+        themselves do not stop."""
+        for g in (10.0, 28.1, 30.1, 92.0, 92.1):
+            if g in gs:
+                return f"G{g:g}"
+        for i, g in enumerate((54.0, 55.0, 56.0, 57.0, 58.0, 59.0)):
+            if g in gs and i != self.work_index:
+                return f"G{g:g}"
+        if 49.0 in gs and self.tool_z != 0.0:
+            return "G49"
+        z = params.get("Z")
+        if 43.1 in gs and z is not None and z.value is not None:
+            unit = 25.4 if 20.0 in gs else (1.0 if 21.0 in gs else float(self.st[S.S_UNIT]))
+            if z.value * unit != self.tool_z:
+                return "G43.1"
+        return None
 
     def _grbl_line_moves(self, gs: set, params: dict[str, Word], laser_m3: bool) -> bool:
         """Whether a G0 / G1 makes a planner block (planner.c: some axis changes by a step, its target
@@ -270,6 +296,8 @@ class StateCommands:
             self._wait(f"M{mc}", m.heat_wait_time if mc in (109, 190, 191) else 0.0)
         elif mc == 400:
             self._wait("M400")
+        elif mc == 1 and m.flavor == "grbl":
+            used.update(params)     # grbl 1.1 (gcode.c): "Optional stop not supported. Ignore." — no stop
         elif mc in (0, 1, 60):     # M60: LinuxCNC's pallet-change pause, a pause like M0
             used.update(params)
             self.event(f"M{mc} pause")
