@@ -108,6 +108,9 @@ class Machine:
     # a Marlin build's switches that add G codes (MARLIN_BUILD_OPTIONS; its Configuration(_adv).h, or TOML
     # marlin_build = "INCH_MODE_SUPPORT CNC_WORKSPACE_PLANES"): names separated by blanks or commas, "" = none
     marlin_build: str = ""
+    # a Marlin build's BLOCK_BUFFER_SIZE (Configuration_adv.h; a power of 2): the planner ring of the Marlin
+    # models (one slot always free); 16 is Marlin's default, 32 or 64 are common on 32-bit boards
+    marlin_block_buffer: int = 16
 
     # firmware retraction (G10/G11)
     retract_length: float = 0.0              # mm

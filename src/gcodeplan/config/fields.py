@@ -134,6 +134,12 @@ def _rule_zero_or_one(v: Any) -> str | None:
     return None
 
 
+def _rule_power_of_two(v: Any) -> str | None:
+    if not is_number(v) or not (v >= 2 and v == int(v) and int(v) & (int(v) - 1) == 0 and v <= 1024):
+        return "must be a power of 2 from 2 to 1024 (Marlin's SanityCheck.h wants a power of 2)"
+    return None
+
+
 def _rule_non_negative_or_inf(v: Any) -> str | None:
     if not is_number(v) or not v >= 0:
         return "must be a number >= 0 (inf = no limit)"
@@ -247,6 +253,7 @@ FIELDS: tuple[Field, ...] = (
     Field("", "grbl_idle_lock_ms", "grbl_idle_lock_ms", _rule_non_negative, "number", "ms"),
     Field("", "marlin_build", "marlin_build", lambda v: rule_marlin_build(v), "string", ""),
     Field("", "grbl_laser_mode", "grbl_laser_mode", _rule_zero_or_one, "number", ""),
+    Field("", "marlin_block_buffer", "marlin_block_buffer", _rule_power_of_two, "number", "blocks"),
     Field("", "acceleration_profile", "acceleration_profile", rule_choice(ACCELERATION_PROFILES), "string", ""),
     Field("toolhead", "max_velocity", "max_velocity", _SPEED, "number", "mm/s"),
     Field("toolhead", "max_accel", "max_accel", _ACCEL, "number", "mm/s²"),

@@ -27,8 +27,8 @@ JUNCTION_DEVIATION_MM, S_CURVE_ACCELERATION, LIN_ADVANCE with ADVANCE_K (LIN_ADV
 MIN/MAX_ARC_SEGMENT_MM (MM_PER_ARC_SEGMENT), MIN_CIRCLE_SEGMENTS, ARC_SEGMENTS_PER_SEC, N_ARC_CORRECTION,
 ARC_P_CIRCLES, and the travel (X/Y/Z_MIN_POS, _MAX_POS with MIN/MAX_SOFTWARE_ENDSTOPS). Settings the model
 runs at fixed values (MINIMUM_PLANNER_SPEED 0.05, DEFAULT_MINSEGMENTTIME 20000, MIN_STEPS_PER_SEGMENT 6,
-BLOCK_BUFFER_SIZE 16, SLOWDOWN with divisor 2, JD_HANDLE_SMALL_SEGMENTS) are checked: another value is a named
-warning. Features that change the time and that the model does not run (INPUT_SHAPING_X/Y, FT_MOTION,
+SLOWDOWN with divisor 2, JD_HANDLE_SMALL_SEGMENTS) are checked: another value is a named warning. BLOCK_BUFFER_SIZE
+is the machine's ``marlin_block_buffer`` (the model's planner ring). Features that change the time and that the model does not run (INPUT_SHAPING_X/Y, FT_MOTION,
 ADAPTIVE_STEP_SMOOTHING, XY_FREQUENCY_LIMIT, BACKLASH_COMPENSATION, bed levelling, …) are named warnings;
 COREXY and COREXZ give the corexy and corexz kinematics (Marlin's Core builds); another kinematics is an error.
 The switches that add G codes (INCH_MODE_SUPPORT, CNC_WORKSPACE_PLANES, GCODE_MOTION_MODES, and the refused
@@ -63,7 +63,6 @@ ADV_DEFAULTS = {"ARC_SUPPORT": "", "MIN_ARC_SEGMENT_MM": "0.1", "MAX_ARC_SEGMENT
 FIXED = {"MINIMUM_PLANNER_SPEED": (0.05, "mm/s, the slowest junction/stop speed"),
          "DEFAULT_MINSEGMENTTIME": (20000, "µs, SLOWDOWN's minimum segment time (M205 B)"),
          "MIN_STEPS_PER_SEGMENT": (6, "steps, shorter moves merge into the next"),
-         "BLOCK_BUFFER_SIZE": (16, "planner blocks"),
          "SLOWDOWN_DIVISOR": (2, "SLOWDOWN's buffer fraction")}
 
 #: options on that change the time of a program and that the model does not run
@@ -104,7 +103,7 @@ READ = {"DEFAULT_AXIS_STEPS_PER_UNIT", "DEFAULT_MAX_FEEDRATE", "DEFAULT_MAX_ACCE
         "DEFAULT_MINTRAVELFEEDRATE", "INCH_MODE_SUPPORT", "CNC_WORKSPACE_PLANES", "GCODE_MOTION_MODES",
         "CNC_COORDINATE_SYSTEMS", "SAVED_POSITIONS", "BEZIER_CURVE_SUPPORT", "G38_PROBE_TARGET", "FWRETRACT",
         "RETRACT_LENGTH", "RETRACT_FEEDRATE", "RETRACT_RECOVER_LENGTH", "RETRACT_RECOVER_FEEDRATE", "RETRACT_ZRAISE",
-        *FIXED, *UNMODELLED,
+        "BLOCK_BUFFER_SIZE", *FIXED, *UNMODELLED,
         *KINEMATICS, *CORE_KINEMATICS}
 
 
@@ -335,6 +334,7 @@ def load_marlin_config(path: str, adv_path: str | None = None):
         _fixed_and_unmodelled(pre, notes, main_path)
         _software_endstops(pre, axes)
         top["marlin_build"] = _build_switches(pre, notes, main_path)
+        top["marlin_block_buffer"] = _block_buffer(pre, main_path)
         _fwretract_settings(pre, top, notes, main_path)
     finally:
         for msg in notes:
@@ -387,7 +387,9 @@ def _read_configs(path: str, adv_path: str | None, notes: list[str]):
 
     for name, (f, no, cond) in sorted(pre.unsure.items()):
         if name in FIXED and _number(pre, name) == FIXED[name][0]:
-            continue                    # the value the model runs anyway (BLOCK_BUFFER_SIZE under #if HAS_MEDIA)
+            continue                    # the value the model runs anyway
+        if name == "BLOCK_BUFFER_SIZE" and _number(pre, name) == 16:
+            continue                    # Marlin's shipped file: 16 under #if HAS_MEDIA and in its #else
         if name in READ:
             notes.append(f"{f}:{no}: {name} is defined under '{cond}', a condition gcodeplan does not evaluate: "
                          "taken as if the condition held")
@@ -513,6 +515,18 @@ def _arc_settings(pre: _Pre, top: dict, notes: list[str], main_path: str):
               "ARC_SEGMENTS_PER_R: not a Marlin 2.1.2 setting; the segment length rule is MIN/MAX_ARC_SEGMENT_MM",
               "ARC_SEGMENTS_PER_R")
     return arcs
+
+
+def _block_buffer(pre: _Pre, main_path: str) -> int:
+    """BLOCK_BUFFER_SIZE (Configuration_adv.h; Marlin's SanityCheck.h wants a power of 2): the Marlin model's
+    planner ring. A value the firmware would not build is an error naming the line."""
+    if "BLOCK_BUFFER_SIZE" not in pre.values:
+        return 16
+    v = _number(pre, "BLOCK_BUFFER_SIZE")
+    if not (v >= 2 and v == int(v) and int(v) & (int(v) - 1) == 0 and v <= 1024):
+        f, no = pre.where.get("BLOCK_BUFFER_SIZE", (main_path, None))
+        raise ConfigError(f"BLOCK_BUFFER_SIZE {v:g}: Marlin builds only with a power of 2 (SanityCheck.h)", f, no)
+    return int(v)
 
 
 def _fixed_and_unmodelled(pre: _Pre, notes: list[str], main_path: str) -> None:

@@ -761,7 +761,8 @@ def make_stream_mode(base_cls):
 
         def _new_model(self):
             sp = self.sp
-            m = MarlinModel(sp.machine, e_position_sets=getattr(sp, "e_position_sets", None), junction=sp.policy)
+            m = MarlinModel(sp.machine, e_position_sets=getattr(sp, "e_position_sets", None), junction=sp.policy,
+                            buffer_blocks=int(getattr(sp.machine, "marlin_block_buffer", mk.BLOCK_BUFFER_SIZE)))
             m.want_steps = self.want_steps
             return m
 
