@@ -191,6 +191,27 @@ def test_a_signal_inside_the_jit_waits_until_the_main_thread_is_out_of_it():
         restore()
 
 
+def test_a_signal_after_the_command_ended_does_not_kill_its_process(tmp_path):
+    """The gcodeplan command's process, its work written, exits next: restore(process_ends=True) sweeps and
+    leaves the handlers in place, ignoring, so a SIGHUP arriving in that window leaves the exit status 0 (it once
+    came as "killed by SIGHUP" in tools/fuzz.py's signal round, after the estimate had finished)."""
+    before = {sig: signal.getsignal(sig) for sig in signals.HANDLED}
+    restore = signals.install()
+    fd, name = output.make_temp_file(tmp_path / "x.bin")
+    os.close(fd)
+    try:
+        restore(process_ends=True)
+        assert os.listdir(tmp_path) == []                      # swept all the same
+        os.kill(os.getpid(), signal.SIGHUP)                    # the default action would end this process
+        t0 = time.monotonic()
+        while time.monotonic() - t0 < 0.2:
+            time.sleep(0.001)                                  # the handler runs (and ignores it) here
+        assert signal.getsignal(signal.SIGHUP) is not signal.SIG_DFL
+    finally:
+        for sig, old in before.items():
+            signal.signal(sig, old)
+
+
 def test_registered_temporaries_are_swept_on_the_way_out(tmp_path):
     restore = signals.install()
     fd, name = output.make_temp_file(tmp_path / "x.bin")

@@ -99,7 +99,9 @@ def main(argv: list[str] | None = None) -> int:
         warnings.showwarning = shown
         if isinstance(sys.stdout, _GuardedStdout):
             sys.stdout = stdout
-        restore()
+        from . import _jit
+
+        restore(process_ends=_jit.command_process)
 
 
 def _main(argv: list[str] | None = None) -> int:

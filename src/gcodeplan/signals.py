@@ -172,10 +172,15 @@ def install():
     if not getattr(old_hook, "gcodeplan", False):
         sys.unraisablehook = _unraisable(old_hook)
 
-    def restore() -> None:
+    def restore(process_ends: bool = False) -> None:
+        """Back to the previous handlers; ``process_ends``: the command's process exits next (the gcodeplan
+        command, not a library call): the handlers stay, ignoring what comes now, so a signal that arrives
+        after the work is done and written does not kill the process on its way out (its status stays 0)."""
         _caught.set()              # stops the re-raising thread; later signals are ignored until reset
         for sweep in list(_sweeps):
             sweep()                # the last safety net (report/output.py: no registered temporary survives)
+        if process_ends:
+            return
         for sig, old in previous.items():
             try:
                 signal.signal(sig, old if old is not None else signal.SIG_DFL)
