@@ -14,9 +14,11 @@ sequence near turning points); delta towers keep the exact kernel.
 Then the kinematics plug-ins (issue 22): the generic path for plug-in motors against the exact linear kernel on the
 same cartesian plan — a plug-in whose three motors are ik functions x, y, z — (target: generic within 1.5× of
 linear per step), both ways a plug-in motor can be stepped: Klipper's search with the compiled inverse kinematics as
-its callback (kernel.itersolve_steps, the default: ik_search="klipper") and the step engine's guarded
-search (kernel.gen_steps_ik); then steps/s per kinematics on Klipper's seven reference configs, both ways
-(../shared/reference/klipper/kinematics/*.cfg; polar on the input shifted by (+30, +30) mm as the reference is).
+its callback (kernel.itersolve_steps, the default: ik_search="klipper"), the step engine's guarded
+search (kernel.gen_steps_ik) and the step engine on verified polynomial stand-ins of the ik (ik_search="fit":
+kernel.ik_fit_pieces, kernel.gen_steps_ik_fit, no ik call per step); then steps/s per kinematics on Klipper's seven
+reference configs, all three ways (../shared/reference/klipper/kinematics/*.cfg; polar on the input shifted by
+(+30, +30) mm as the reference is).
 """
 from __future__ import annotations
 
@@ -83,11 +85,11 @@ def _rate(source, machine, runs: int, rails=None, ik_search="klipper") -> tuple[
 
 
 def bench_kinematics(path: str, runs: int) -> None:
-    """The generic path against the linear kernel, then steps/s per plug-in kinematics; each plug-in figure both
-    with Klipper's search (default) and with the guarded search."""
+    """The generic path against the linear kernel, then steps/s per plug-in kinematics; each plug-in figure with
+    Klipper's search (default), the guarded search and the verified fit."""
     from gcodeplan.kinematics import rails_for
 
-    engines = (("Klipper's search", "klipper"), ("guarded search", "exact"))
+    engines = (("Klipper's search", "klipper"), ("guarded search", "exact"), ("verified fit", "fit"))
     plain = _machine("plain")
     plug = _generic_cartesian_ik()
     lin_steps, lin_t = _rate(path, plain, runs)
