@@ -527,6 +527,18 @@ class StepGenerator:
                                                                  self.ik_fit_tol_s, self.ik_fit_round)
         start = 0
         n_fit = len(ft0)
+        if n_fit and np.all(mode == kernel.FIT_CUBIC):
+            # every stand-in a cubic (a linear ik): the linear kernel itself, on the same (p, v, a, j) the fit
+            # kernel hands its functions (the same steps, without the per-step choice of mode)
+            p1 = np.ascontiguousarray(coef[:, 0])
+            v1 = np.ascontiguousarray(coef[:, 1])
+            a1 = 2.0 * coef[:, 2]
+            j1 = 6.0 * coef[:, 3]
+            while start < n_fit:
+                nxt, fill, need = kernel.gen_steps(ft0, fdt, p1, v1, a1, j1, freset, rail.step_dist, self.states[si],
+                                                   start, self._buf_t[si], self._buf_d[si], self._fill[si])
+                start = self._after_kernel(si, ft0, nxt, fill, need, n_fit)
+            return
         while start < n_fit:
             nxt, fill, need = kernel.gen_steps_ik_fit(ft0, fdt, coef, mode, src, freset, p, v, a, j, fn, period, refs,
                                                       t0, dt, rail.step_dist, self.states[si], start,

@@ -2039,7 +2039,7 @@ def _fit_newton_to_power(m, u, deg, dd, out, row, h):
         scale *= inv_h
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", inline="always")
 def _fit_span(pc, vc, ac, jc, i, ik, period, ref, s_lo, h, deg, tol_t, round_rel, m, dd, out, row):
     """Fit piece i's motor position on τ in [s_lo, s_lo + h] by a polynomial of degree ``deg`` (power basis in
     τ − s_lo, into out[row, :]) and verify it (section comment): FIT_REJECTED, FIT_ROUNDING (accepted by (b)) or
@@ -2105,9 +2105,14 @@ def _fit_mode(deg, code):
 def _fit_piece_spans(pc, vc, ac, jc, i, span, ik, period, ref, tol_t, round_rel, m, dd, out, mode, row):
     """Fit piece i (duration ``span``) whole, then in 2, 4, … sub-spans (IK_FIT_SPLITS halvings), coefficients and
     modes written from row ``row`` on: the number of accepted sub-spans, 0 when no level passed whole."""
-    jerk = jc[i, 0] != 0.0 or jc[i, 1] != 0.0 or jc[i, 2] != 0.0
-    # the whole piece: degree 2 (3 with jerk) first, exact for a linear ik, then 5
-    deg = 3 if jerk else 2
+    # the whole piece: first the toolhead's own degree (1 cruising, 2 accelerating, 3 with jerk), at which a
+    # linear ik is exact and its steps take the linear kernel's closed forms (a = 0 exactly when cruising), then 5
+    deg = 1
+    for q in range(3):
+        if jc[i, q] != 0.0:
+            deg = 3
+        elif ac[i, q] != 0.0 and deg < 2:
+            deg = 2
     code = _fit_span(pc, vc, ac, jc, i, ik, period, ref, 0.0, span, deg, tol_t, round_rel, m, dd, out, row)
     if code == FIT_REJECTED:
         deg = IK_FIT_DEG
@@ -2147,7 +2152,7 @@ def ik_fit_pieces(t0, dt, pc, vc, ac, jc, reset, ik, period, refs, tol_t, round_
     cap = n << IK_FIT_SPLITS
     o_t0 = np.empty(cap)
     o_dt = np.empty(cap)
-    coef = np.zeros((cap, POLY_NCOEF))
+    coef = np.empty((cap, POLY_NCOEF))     # every fitted row is written whole; a FIT_EXACT row's is not read
     mode = np.empty(cap, np.int8)
     src = np.empty(cap, np.int64)
     o_reset = np.empty(cap, np.uint8)
