@@ -2006,29 +2006,38 @@ FIT_NODE_U, FIT_CHECK_U = _fit_tables()
 
 
 @njit(cache=True, inline="always")
-def _fit_ik_at(pc, vc, ac, jc, i, ik, period, ref, s):
-    """(motor position on the branch nearest ``ref``, largest |x|, |y|, |z|) at τ = s of piece i's x, y, z cubics
-    (the same arithmetic as :func:`_ik_at`)."""
-    x = pc[i, 0] + s * (vc[i, 0] + s * (0.5 * ac[i, 0] + s * (jc[i, 0] * (1.0 / 6.0))))
-    y = pc[i, 1] + s * (vc[i, 1] + s * (0.5 * ac[i, 1] + s * (jc[i, 1] * (1.0 / 6.0))))
-    z = pc[i, 2] + s * (vc[i, 2] + s * (0.5 * ac[i, 2] + s * (jc[i, 2] * (1.0 / 6.0))))
+def _fit_cubics(pc, vc, ac, jc, i):
+    """Piece i's x, y, z cubics in the power basis (p, v, a/2, j/6 per axis, as :func:`_ik_piece`), as floats: an
+    array handed to the fit's helpers would cost two atomic reference counts per call, more than the ik."""
+    return (pc[i, 0], vc[i, 0], 0.5 * ac[i, 0], jc[i, 0] * (1.0 / 6.0),
+            pc[i, 1], vc[i, 1], 0.5 * ac[i, 1], jc[i, 1] * (1.0 / 6.0),
+            pc[i, 2], vc[i, 2], 0.5 * ac[i, 2], jc[i, 2] * (1.0 / 6.0))
+
+
+@njit(cache=True, inline="always")
+def _fit_ik_at(cub, ik, period, ref, s):
+    """(motor position on the branch nearest ``ref``, largest |x|, |y|, |z|) at τ = s of the cubics ``cub``
+    (:func:`_fit_cubics`; the same arithmetic as :func:`_ik_at`)."""
+    x = cub[0] + s * (cub[1] + s * (cub[2] + s * cub[3]))
+    y = cub[4] + s * (cub[5] + s * (cub[6] + s * cub[7]))
+    z = cub[8] + s * (cub[9] + s * (cub[10] + s * cub[11]))
     return _ik_unwrap(ik(x, y, z), ref, period), max(abs(x), abs(y), abs(z))
 
 
 @njit(cache=True, inline="always")
 def _fit_newton_to_power(m, u, deg, dd, out, row, h):
-    """Interpolate values m[0..deg] at nodes u[0..deg] (u[0] = 0): Newton divided differences, expanded to the
+    """Interpolate values m[0..deg] at nodes u[deg, 0..deg] (u[deg, 0] = 0): Newton divided differences, expanded to the
     power basis in u, then scaled to τ = u·h into out[row, :] (zero above ``deg``). out[row, 0] = m[0] exactly."""
     for k in range(deg + 1):
         dd[k] = m[k]
     for lvl in range(1, deg + 1):
         for k in range(deg, lvl - 1, -1):
-            dd[k] = (dd[k] - dd[k - 1]) / (u[k] - u[k - lvl])
+            dd[k] = (dd[k] - dd[k - 1]) / (u[deg, k] - u[deg, k - lvl])
     for q in range(POLY_NCOEF):
         out[row, q] = 0.0
     out[row, 0] = dd[deg]
     for k in range(deg - 1, -1, -1):
-        uk = u[k]
+        uk = u[deg, k]
         for q in range(deg - k, 0, -1):
             out[row, q] = out[row, q - 1] - uk * out[row, q]
         out[row, 0] = dd[k] - uk * out[row, 0]
@@ -2040,43 +2049,44 @@ def _fit_newton_to_power(m, u, deg, dd, out, row, h):
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def _fit_span(pc, vc, ac, jc, i, ik, period, ref, s_lo, h, deg, tol_t, round_rel, m, dd, out, row):
-    """Fit piece i's motor position on τ in [s_lo, s_lo + h] by a polynomial of degree ``deg`` (power basis in
+def _fit_span(cub, ik, period, ref, s_lo, h, deg, tol_t, round_rel, m, dd, out, row):
+    """Fit the motor position along the cubics ``cub`` (:func:`_fit_cubics`) on τ in [s_lo, s_lo + h] by a polynomial of degree ``deg`` (power basis in
     τ − s_lo, into out[row, :]) and verify it (section comment): FIT_REJECTED, FIT_ROUNDING (accepted by (b)) or
     FIT_MONOTONE (by (a)). ``ref``: the motor position at
     the piece's start (the exact search's, on a cyclic motor's branch)."""
-    nodes = FIT_NODE_U[deg]
+    node_u = FIT_NODE_U
+    check_u = FIT_CHECK_U
     mag = 0.0
     for k in range(deg + 1):
         if k == 0 and s_lo == 0.0:
             mk = ref
-            g = max(abs(pc[i, 0]), abs(pc[i, 1]), abs(pc[i, 2]))
+            g = max(abs(cub[0]), abs(cub[4]), abs(cub[8]))
             m[0] = mk
         else:
-            mk, g = _fit_ik_at(pc, vc, ac, jc, i, ik, period, ref, s_lo + nodes[k] * h)
+            mk, g = _fit_ik_at(cub, ik, period, ref, s_lo + node_u[deg, k] * h)
             m[k] = mk
+            m[IK_FIT_DEG + 1] = mk          # the last node's: the span's end (what the next piece may start on)
         if not (math.isfinite(mk) and math.isfinite(g)):
             return FIT_REJECTED
         mag = max(mag, abs(mk), g)
-    _fit_newton_to_power(m, nodes, deg, dd, out, row, h)
+    _fit_newton_to_power(m, node_u, deg, dd, out, row, h)
+    c0, c1, c2, c3, c4, c5 = out[row, 0], out[row, 1], out[row, 2], out[row, 3], out[row, 4], out[row, 5]
     err = 0.0
     for q in range(2 * deg):
-        s = FIT_CHECK_U[deg, q] * h
-        mk, g = _fit_ik_at(pc, vc, ac, jc, i, ik, period, ref, s_lo + s)
+        s = check_u[deg, q] * h
+        mk, g = _fit_ik_at(cub, ik, period, ref, s_lo + s)
         if not (math.isfinite(mk) and math.isfinite(g)):
             return FIT_REJECTED
         mag = max(mag, abs(mk), g)
-        err = max(err, abs(mk - _horner(out, row, deg, s)))
+        err = max(err, abs(mk - (c0 + s * (c1 + s * (c2 + s * (c3 + s * (c4 + s * c5)))))))
     if err <= round_rel * mag:
         return FIT_ROUNDING
     # the speed p' at every node and check point: one sign, and its smallest magnitude
     v_min = math.inf
     sg = 0.0
     for q in range(3 * deg + 1):
-        s = (nodes[q] if q <= deg else FIT_CHECK_U[deg, q - deg - 1]) * h
-        d = out[row, deg] * deg
-        for c in range(deg - 1, 0, -1):
-            d = d * s + out[row, c] * c
+        s = (node_u[deg, q] if q <= deg else check_u[deg, q - deg - 1]) * h
+        d = c1 + s * (2.0 * c2 + s * (3.0 * c3 + s * (4.0 * c4 + s * 5.0 * c5)))
         if d == 0.0 or (sg != 0.0 and (d > 0.0) != (sg > 0.0)):
             return FIT_REJECTED
         sg = 1.0 if d > 0.0 else -1.0
@@ -2085,12 +2095,10 @@ def _fit_span(pc, vc, ac, jc, i, ik, period, ref, s_lo, h, deg, tol_t, round_rel
 
 
 @njit(cache=True, inline="always")
-def _fit_still(pc, vc, ac, jc, i):
-    """True when piece i's x, y, z do not move (no derivative term): the motor is still."""
-    for q in range(3):
-        if vc[i, q] != 0.0 or ac[i, q] != 0.0 or jc[i, q] != 0.0:
-            return False
-    return True
+def _fit_still(cub):
+    """True when the cubics ``cub`` do not move (no derivative term): the motor is still."""
+    return (cub[1] == 0.0 and cub[2] == 0.0 and cub[3] == 0.0 and cub[5] == 0.0 and cub[6] == 0.0 and cub[7] == 0.0
+            and cub[9] == 0.0 and cub[10] == 0.0 and cub[11] == 0.0)
 
 
 @njit(cache=True, inline="always")
@@ -2102,21 +2110,20 @@ def _fit_mode(deg, code):
 
 
 @njit(cache=True, inline="always")
-def _fit_piece_spans(pc, vc, ac, jc, i, span, ik, period, ref, tol_t, round_rel, m, dd, out, mode, row):
-    """Fit piece i (duration ``span``) whole, then in 2, 4, … sub-spans (IK_FIT_SPLITS halvings), coefficients and
+def _fit_piece_spans(cub, span, ik, period, ref, tol_t, round_rel, m, dd, out, mode, row):
+    """Fit the piece of cubics ``cub`` (duration ``span``) whole, then in 2, 4, … sub-spans (IK_FIT_SPLITS halvings), coefficients and
     modes written from row ``row`` on: the number of accepted sub-spans, 0 when no level passed whole."""
     # the whole piece: first the toolhead's own degree (1 cruising, 2 accelerating, 3 with jerk), at which a
     # linear ik is exact and its steps take the linear kernel's closed forms (a = 0 exactly when cruising), then 5
     deg = 1
-    for q in range(3):
-        if jc[i, q] != 0.0:
-            deg = 3
-        elif ac[i, q] != 0.0 and deg < 2:
-            deg = 2
-    code = _fit_span(pc, vc, ac, jc, i, ik, period, ref, 0.0, span, deg, tol_t, round_rel, m, dd, out, row)
+    if cub[3] != 0.0 or cub[7] != 0.0 or cub[11] != 0.0:
+        deg = 3
+    elif cub[2] != 0.0 or cub[6] != 0.0 or cub[10] != 0.0:
+        deg = 2
+    code = _fit_span(cub, ik, period, ref, 0.0, span, deg, tol_t, round_rel, m, dd, out, row)
     if code == FIT_REJECTED:
         deg = IK_FIT_DEG
-        code = _fit_span(pc, vc, ac, jc, i, ik, period, ref, 0.0, span, deg, tol_t, round_rel, m, dd, out, row)
+        code = _fit_span(cub, ik, period, ref, 0.0, span, deg, tol_t, round_rel, m, dd, out, row)
     if code != FIT_REJECTED:
         mode[row] = _fit_mode(deg, code)
         return 1
@@ -2126,7 +2133,7 @@ def _fit_piece_spans(pc, vc, ac, jc, i, span, ik, period, ref, tol_t, round_rel,
         for k in range(n_sub):
             s_lo = span * k / n_sub
             s_hi = span if k == n_sub - 1 else span * (k + 1) / n_sub
-            code = _fit_span(pc, vc, ac, jc, i, ik, period, ref, s_lo, s_hi - s_lo, IK_FIT_DEG, tol_t, round_rel,
+            code = _fit_span(cub, ik, period, ref, s_lo, s_hi - s_lo, IK_FIT_DEG, tol_t, round_rel,
                              m, dd, out, row + k)
             if code == FIT_REJECTED:
                 ok = False
@@ -2135,6 +2142,19 @@ def _fit_piece_spans(pc, vc, ac, jc, i, span, ik, period, ref, tol_t, round_rel,
         if ok:
             return n_sub
     return 0
+
+
+@njit(cache=True, inline="always")
+def _fit_same(a, b):
+    """a and b the same float, bit for bit but for NaN (±0 told apart: an ik may take atan2 of them)."""
+    return a == b and (a != 0.0 or math.copysign(1.0, a) == math.copysign(1.0, b))
+
+
+@njit(cache=True, inline="always")
+def _fit_end(cub, s):
+    """x, y, z (mm) of the cubics ``cub`` at τ = s, as :func:`_fit_ik_at` computes them."""
+    return (cub[0] + s * (cub[1] + s * (cub[2] + s * cub[3])), cub[4] + s * (cub[5] + s * (cub[6] + s * cub[7])),
+            cub[8] + s * (cub[9] + s * (cub[10] + s * cub[11])))
 
 
 @njit(cache=True, error_model="numpy")
@@ -2156,9 +2176,12 @@ def ik_fit_pieces(t0, dt, pc, vc, ac, jc, reset, ik, period, refs, tol_t, round_
     mode = np.empty(cap, np.int8)
     src = np.empty(cap, np.int64)
     o_reset = np.empty(cap, np.uint8)
-    m = np.empty(IK_FIT_DEG + 1)
+    m = np.empty(IK_FIT_DEG + 2)
     dd = np.empty(IK_FIT_DEG + 1)
     row = 0
+    # where the last piece fitted whole ends (x, y, z mm) and the motor there: the next piece's start when it
+    # starts there bit for bit (one ik call less; a NaN matches nothing)
+    ex = ey = ez = em = math.nan
     for i in range(n):
         span = dt[i]
         fitted = 0
@@ -2166,20 +2189,33 @@ def ik_fit_pieces(t0, dt, pc, vc, ac, jc, reset, ik, period, refs, tol_t, round_
         for q in range(3):
             finite = finite and math.isfinite(pc[i, q]) and math.isfinite(vc[i, q]) and math.isfinite(ac[i, q]) \
                 and math.isfinite(jc[i, q])
+        ref = math.nan
         if finite:
-            x0, y0, z0 = pc[i, 0], pc[i, 1], pc[i, 2]
-            ref = refs[i] if period > 0.0 else ik(x0, y0, z0)
+            cub = _fit_cubics(pc, vc, ac, jc, i)
+            if period > 0.0:
+                ref = refs[i]
+            elif _fit_same(cub[0], ex) and _fit_same(cub[4], ey) and _fit_same(cub[8], ez):
+                ref = em
+            else:
+                ref = ik(cub[0], cub[4], cub[8])
+            ex = math.nan
             if not math.isfinite(ref):
                 pass
-            elif _fit_still(pc, vc, ac, jc, i) or not (span > 0.0):
+            elif _fit_still(cub) or not (span > 0.0):
                 coef[row, 0] = ref          # no motion (or no time): the start position, no step
                 for q in range(1, POLY_NCOEF):
                     coef[row, q] = 0.0
                 mode[row] = FIT_CUBIC
                 fitted = 1
+                ex, ey, ez = _fit_end(cub, span)
+                em = ref
             else:
-                fitted = _fit_piece_spans(pc, vc, ac, jc, i, span, ik, period, ref, tol_t, round_rel, m, dd, coef,
-                                          mode, row)
+                fitted = _fit_piece_spans(cub, span, ik, period, ref, tol_t, round_rel, m, dd, coef, mode, row)
+                if fitted == 1:
+                    ex, ey, ez = _fit_end(cub, span)
+                    em = m[IK_FIT_DEG + 1]
+        else:
+            ex = math.nan
         if fitted == 0:
             o_t0[row] = t0[i]
             o_dt[row] = span
