@@ -48,10 +48,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                      metavar="S",
                      help="drop a step and its immediate reversal when closer than S "
                           f"(Klipper's step+dir+step filter; default S = {KLIPPER_SDS_FILTER_T * 1e6:g} µs)")
-    out.add_argument("--ik-search", choices=("klipper", "exact"), default="klipper",
+    out.add_argument("--ik-search", choices=("klipper", "exact", "fit"), default="klipper",
                      help="how a plug-in kinematics' motors are stepped: Klipper's own search (default; within "
-                          "~10 ns of Klipper's steps) or the guarded exact search (about 2x faster, each step within "
-                          "1 ns of its half-step point; rotary joints up to ~1.3 µs from Klipper's)")
+                          "~10 ns of Klipper's steps), the guarded exact search (about 2x faster, each step within "
+                          "1 ns of its half-step point; rotary joints up to ~1.3 µs from Klipper's) or 'fit': the "
+                          "exact search's steps from verified polynomial stand-ins of the ik (no ik call per step)")
     out.add_argument("--klipper-batch", action="store_true",
                      help="generate the steps in the windows of Klipper's batch mode (klippy.py -i FILE -o OUT) "
                           "for exactly this file's bytes, as Klipper's reference step files were made; default: "

@@ -62,8 +62,11 @@ class StepGenerator:
     #: (:meth:`_run_ik_klipper`, steps within ~10 ns of Klipper's on every reference file, the default); "exact" —
     #: the step engine's guarded search (:func:`kernel.gen_steps_ik`, about 2x faster, each step within 1 ns of
     #: its half-step point), which differs from Klipper's by up to ~1.3 µs on rotary motors (rad) at low angular
-    #: speed, where Klipper's search stops within 1e-9 rad of the point (1e-9 rad / 0.0008 rad/s = 1.2 µs)
-    IK_SEARCHES = ("klipper", "exact")
+    #: speed, where Klipper's search stops within 1e-9 rad of the point (1e-9 rad / 0.0008 rad/s = 1.2 µs); "fit" — the
+    #: step engine on verified polynomial stand-ins of the ik along each piece (:func:`kernel.ik_fit_pieces`: no ik
+    #: call per step; each step within ``ik_fit_tol_s`` of the exact search's where the motor moves, the exact search
+    #: itself where no stand-in verifies, as near turning points)
+    IK_SEARCHES = ("klipper", "exact", "fit")
 
 
     def __init__(self, rails: list[Rail], sink: Sink, *, chunk_steps: int = DEFAULT_CHUNK_STEPS,
@@ -82,6 +85,9 @@ class StepGenerator:
 
             raise ConfigError(f"ik_search: {ik_search!r} is not one of {', '.join(self.IK_SEARCHES)}")
         self.ik_klipper_search = ik_search == "klipper"   # plug-in motors: Klipper's search, else the exact one
+        self.ik_fit = ik_search == "fit"                   # ... on verified polynomial stand-ins where they verify
+        self.ik_fit_tol_s = kernel.IK_FIT_TOL_S            # s, the stand-ins' step-time bound (kernel section comment)
+        self.ik_fit_round = kernel.IK_FIT_ROUND            # their rounding floor (negative: none; tests force fallback)
         self.rails = list(rails)
         self.flush_times = None if flush_times is None else np.asarray(flush_times, np.float64)
         self.sink = sink
@@ -501,6 +507,9 @@ class StepGenerator:
         period = float(rail.period or 0.0)
         start = 0
         refs = kernel.ik_branch_refs(t0, dt, p, v, a, j, fn, period, self.states[si], start)
+        if self.ik_fit:
+            self._run_ik_fit(si, t0, dt, p, v, a, j, reset, fn, period, refs)
+            return
         while start < n_pieces:
             nxt, fill, need = kernel.gen_steps_ik(t0, dt, p, v, a, j, reset, fn, period, refs,
                                                   rail.step_dist, self.states[si], start, self._buf_t[si],
@@ -509,6 +518,35 @@ class StepGenerator:
                 raise ConfigError(f"{rail.name}: the kinematics cannot reach the position at t = {float(t0[nxt])!r} s "
                                   f"(its inverse kinematics gives no motor position there)")
             start = self._after_kernel(si, t0, nxt, fill, need, n_pieces)
+
+    def _run_ik_fit(self, si, t0, dt, p, v, a, j, reset, fn, period, refs):
+        """Steps of plug-in motor ``si`` on verified polynomial stand-ins of its ik (:func:`kernel.ik_fit_pieces`),
+        the exact search where none verifies (:func:`kernel.gen_steps_ik_fit`)."""
+        rail = self.rails[si]
+        ft0, fdt, coef, mode, src, freset = kernel.ik_fit_pieces(t0, dt, p, v, a, j, reset, fn, period, refs,
+                                                                 self.ik_fit_tol_s, self.ik_fit_round)
+        start = 0
+        n_fit = len(ft0)
+        if n_fit and np.all(mode == kernel.FIT_CUBIC):
+            # every stand-in a cubic (a linear ik): the linear kernel itself, on the same (p, v, a, j) the fit
+            # kernel hands its functions (the same steps, without the per-step choice of mode)
+            p1 = np.ascontiguousarray(coef[:, 0])
+            v1 = np.ascontiguousarray(coef[:, 1])
+            a1 = 2.0 * coef[:, 2]
+            j1 = 6.0 * coef[:, 3]
+            while start < n_fit:
+                nxt, fill, need = kernel.gen_steps(ft0, fdt, p1, v1, a1, j1, freset, rail.step_dist, self.states[si],
+                                                   start, self._buf_t[si], self._buf_d[si], self._fill[si])
+                start = self._after_kernel(si, ft0, nxt, fill, need, n_fit)
+            return
+        while start < n_fit:
+            nxt, fill, need = kernel.gen_steps_ik_fit(ft0, fdt, coef, mode, src, freset, p, v, a, j, fn, period, refs,
+                                                      t0, dt, rail.step_dist, self.states[si], start,
+                                                      self._buf_t[si], self._buf_d[si], self._fill[si])
+            if need == kernel.PIECE_UNREACHABLE:
+                raise ConfigError(f"{rail.name}: the kinematics cannot reach the position at t = {float(ft0[nxt])!r} s "
+                                  f"(its inverse kinematics gives no motor position there)")
+            start = self._after_kernel(si, ft0, nxt, fill, need, n_fit)
 
     def _run_ik_klipper(self, si, t0, dt, p, v, a, j, reset, reach=(0.0, 0.0), horizon=None):
         """Steps of plug-in motor ``si`` from pieces with (n, ≥3) x, y, z coefficient columns: Klipper's search

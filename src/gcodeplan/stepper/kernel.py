@@ -1951,3 +1951,448 @@ def gen_steps_ik(t0, dt, pc, vc, ac, jc, reset, ik, period, refs, step_dist, sta
     return step_pieces(_ik_piece, _ik_position, _ik_turning_points, _ik_stretch, _ik_crossing,
                        (pc, vc, ac, jc, ik, period, refs, t0, dt), IK_CHECK_SAMPLES,
                        t0, dt, reset, step_dist, state, start, out_t, out_dir, out_n)
+
+
+# ------------------------------------------------------------------ plug-in motors by a verified polynomial stand-in
+#
+# ik_search="fit" (issue 22): no ik call per step. Along a piece the toolhead x, y, z are cubics in time, so the motor
+# position m(τ) = ik(x(τ), y(τ), z(τ)) is a smooth function of τ; :func:`ik_fit_pieces` replaces it by a polynomial
+# p(τ) of degree ≤ 5 interpolating m at Chebyshev–Lobatto nodes of the span (the ends included, so p starts on the
+# exact search's start position), then VERIFIES it at 2·degree further points (two inside each node interval, the
+# inner points of the 3·degree Lobatto set). The step engine then steps p (closed-form crossings for degree ≤ 2, the
+# linear kernel's functions for a cubic, bracketed Newton for degree 5) and calls no ik at all.
+#
+# The bound. A crossing of the half-step level L by p at t_p, with |m − p| ≤ e, has |m(t_p) − L| ≤ e, so the true
+# crossing is |t_p − t*| ≤ e / |v| away, v the motor speed between the two. A span is accepted when
+#   (a) the motor is monotone on it (p' keeps one sign at all 3·degree + 1 samples) and the sampled
+#       max |m − p| ≤ ½·IK_FIT_TOL_S·min |p'| (the ½ covers the error and the speed between samples: interpolation
+#       error is smooth for a smooth ik), so every step of the span is within IK_FIT_TOL_S of its exact time; or
+#   (b) the sampled max |m − p| ≤ IK_FIT_ROUND × the magnitudes the ik computes with: a stand-in as exact as the
+#       ik's own floating point (any ik linear in x, y, z on a piece of degree ≤ 3 fits so: cartesian, corexy,
+#       hybrid written as plug-ins), whatever the speed.
+# Near a turning point (v → 0) no error bound in time holds for (a): such spans fail and are halved (up to
+# IK_FIT_SPLITS times, degree 5 each); a piece with a half that still fails is left whole to the exact search
+# (:func:`gen_steps_ik`), as is one where the ik gives no position (which reports it). Between samples a motor could
+# reverse twice unseen (a wiggle shorter than a sixth of a node interval); the exact search's 8 samples miss
+# such wiggles too.
+
+IK_FIT_TOL_S = 1e-9            # s, the step-time error a verified stand-in may add where the motor moves
+IK_FIT_ROUND = 64 * 2.220446049250313e-16   # of |m|, |x|, |y|, |z|: a fit error at the ik's own rounding
+IK_FIT_SPLITS = 2              # halvings of a piece whose fit fails before the exact search takes it
+IK_FIT_DEG = 5                 # the highest degree (the step engine steps degree-5 pieces exactly)
+FIT_CUBIC = 0                  # a fitted piece of degree ≤ 3, stepped by the linear kernel's functions
+FIT_QUINTIC = 1                # a fitted piece of degree 5, stepped by bracketed Newton
+FIT_EXACT = 2                  # the original piece, stepped by the exact search (gen_steps_ik)
+FIT_QUINTIC_MONOTONE = 3       # a FIT_QUINTIC piece verified monotone (acceptance (a)): no turning point to find
+FIT_REJECTED = 0               # _fit_span's verdicts: rejected, accepted by (b), accepted by (a)
+FIT_ROUNDING = 1
+FIT_MONOTONE = 2
+QUINTIC_DONE_S = 1e-12         # s, a quintic crossing's Newton iteration stops after a step this small
+
+
+def _fit_tables() -> tuple[np.ndarray, np.ndarray]:
+    """(nodes, checks): row d holds the d + 1 Chebyshev–Lobatto nodes of degree d on [0, 1] (0 and 1 exact) and
+    the 2·d verification points (the 3·d Lobatto set without the nodes)."""
+    nodes = np.zeros((IK_FIT_DEG + 1, IK_FIT_DEG + 1))
+    checks = np.zeros((IK_FIT_DEG + 1, 2 * IK_FIT_DEG))
+    for d in range(1, IK_FIT_DEG + 1):
+        nodes[d, :d + 1] = 0.5 * (1.0 - np.cos(np.pi * np.arange(d + 1) / d))
+        q = np.array([k for k in range(1, 3 * d) if k % 3], np.float64)
+        checks[d, :2 * d] = 0.5 * (1.0 - np.cos(np.pi * q / (3 * d)))
+    return nodes, checks
+
+
+FIT_NODE_U, FIT_CHECK_U = _fit_tables()
+
+
+@njit(cache=True, inline="always")
+def _fit_cubics(pc, vc, ac, jc, i):
+    """Piece i's x, y, z cubics in the power basis (p, v, a/2, j/6 per axis, as :func:`_ik_piece`), as floats: an
+    array handed to the fit's helpers would cost two atomic reference counts per call, more than the ik."""
+    return (pc[i, 0], vc[i, 0], 0.5 * ac[i, 0], jc[i, 0] * (1.0 / 6.0),
+            pc[i, 1], vc[i, 1], 0.5 * ac[i, 1], jc[i, 1] * (1.0 / 6.0),
+            pc[i, 2], vc[i, 2], 0.5 * ac[i, 2], jc[i, 2] * (1.0 / 6.0))
+
+
+@njit(cache=True, inline="always")
+def _fit_ik_at(cub, ik, period, ref, s):
+    """(motor position on the branch nearest ``ref``, largest |x|, |y|, |z|) at τ = s of the cubics ``cub``
+    (:func:`_fit_cubics`; the same arithmetic as :func:`_ik_at`)."""
+    x = cub[0] + s * (cub[1] + s * (cub[2] + s * cub[3]))
+    y = cub[4] + s * (cub[5] + s * (cub[6] + s * cub[7]))
+    z = cub[8] + s * (cub[9] + s * (cub[10] + s * cub[11]))
+    return _ik_unwrap(ik(x, y, z), ref, period), max(abs(x), abs(y), abs(z))
+
+
+@njit(cache=True, inline="always")
+def _fit_newton_to_power(m, u, deg, dd, out, row, h):
+    """Interpolate values m[0..deg] at nodes u[deg, 0..deg] (u[deg, 0] = 0): Newton divided differences, expanded to the
+    power basis in u, then scaled to τ = u·h into out[row, :] (zero above ``deg``). out[row, 0] = m[0] exactly."""
+    for k in range(deg + 1):
+        dd[k] = m[k]
+    for lvl in range(1, deg + 1):
+        for k in range(deg, lvl - 1, -1):
+            dd[k] = (dd[k] - dd[k - 1]) / (u[deg, k] - u[deg, k - lvl])
+    for q in range(POLY_NCOEF):
+        out[row, q] = 0.0
+    out[row, 0] = dd[deg]
+    for k in range(deg - 1, -1, -1):
+        uk = u[deg, k]
+        for q in range(deg - k, 0, -1):
+            out[row, q] = out[row, q - 1] - uk * out[row, q]
+        out[row, 0] = dd[k] - uk * out[row, 0]
+    inv_h = 1.0 / h
+    scale = inv_h
+    for q in range(1, deg + 1):
+        out[row, q] *= scale
+        scale *= inv_h
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _fit_span(cub, ik, period, ref, s_lo, h, deg, tol_t, round_rel, m, dd, out, row):
+    """Fit the motor position along the cubics ``cub`` (:func:`_fit_cubics`) on τ in [s_lo, s_lo + h] by a polynomial of degree ``deg`` (power basis in
+    τ − s_lo, into out[row, :]) and verify it (section comment): FIT_REJECTED, FIT_ROUNDING (accepted by (b)) or
+    FIT_MONOTONE (by (a)). ``ref``: the motor position at
+    the piece's start (the exact search's, on a cyclic motor's branch)."""
+    node_u = FIT_NODE_U
+    check_u = FIT_CHECK_U
+    mag = 0.0
+    for k in range(deg + 1):
+        if k == 0 and s_lo == 0.0:
+            mk = ref
+            g = max(abs(cub[0]), abs(cub[4]), abs(cub[8]))
+            m[0] = mk
+        else:
+            mk, g = _fit_ik_at(cub, ik, period, ref, s_lo + node_u[deg, k] * h)
+            m[k] = mk
+            m[IK_FIT_DEG + 1] = mk          # the last node's: the span's end (what the next piece may start on)
+        if not (math.isfinite(mk) and math.isfinite(g)):
+            return FIT_REJECTED
+        mag = max(mag, abs(mk), g)
+    _fit_newton_to_power(m, node_u, deg, dd, out, row, h)
+    c0, c1, c2, c3, c4, c5 = out[row, 0], out[row, 1], out[row, 2], out[row, 3], out[row, 4], out[row, 5]
+    err = 0.0
+    for q in range(2 * deg):
+        s = check_u[deg, q] * h
+        mk, g = _fit_ik_at(cub, ik, period, ref, s_lo + s)
+        if not (math.isfinite(mk) and math.isfinite(g)):
+            return FIT_REJECTED
+        mag = max(mag, abs(mk), g)
+        err = max(err, abs(mk - (c0 + s * (c1 + s * (c2 + s * (c3 + s * (c4 + s * c5)))))))
+    if err <= round_rel * mag:
+        return FIT_ROUNDING
+    # the speed p' at every node and check point: one sign, and its smallest magnitude
+    v_min = math.inf
+    sg = 0.0
+    for q in range(3 * deg + 1):
+        s = (node_u[deg, q] if q <= deg else check_u[deg, q - deg - 1]) * h
+        d = c1 + s * (2.0 * c2 + s * (3.0 * c3 + s * (4.0 * c4 + s * 5.0 * c5)))
+        if d == 0.0 or (sg != 0.0 and (d > 0.0) != (sg > 0.0)):
+            return FIT_REJECTED
+        sg = 1.0 if d > 0.0 else -1.0
+        v_min = min(v_min, abs(d))
+    return FIT_MONOTONE if err <= 0.5 * tol_t * v_min else FIT_REJECTED
+
+
+@njit(cache=True, inline="always")
+def _fit_still(cub):
+    """True when the cubics ``cub`` do not move (no derivative term): the motor is still."""
+    return (cub[1] == 0.0 and cub[2] == 0.0 and cub[3] == 0.0 and cub[5] == 0.0 and cub[6] == 0.0 and cub[7] == 0.0
+            and cub[9] == 0.0 and cub[10] == 0.0 and cub[11] == 0.0)
+
+
+@njit(cache=True, inline="always")
+def _fit_mode(deg, code):
+    """The stepping mode of a span fitted with degree ``deg`` and accepted as ``code``."""
+    if deg <= 3:
+        return FIT_CUBIC
+    return FIT_QUINTIC_MONOTONE if code == FIT_MONOTONE else FIT_QUINTIC
+
+
+@njit(cache=True, inline="always")
+def _fit_piece_spans(cub, span, ik, period, ref, tol_t, round_rel, m, dd, out, mode, row):
+    """Fit the piece of cubics ``cub`` (duration ``span``) whole, then in 2, 4, … sub-spans (IK_FIT_SPLITS halvings), coefficients and
+    modes written from row ``row`` on: the number of accepted sub-spans, 0 when no level passed whole."""
+    # the whole piece: first the toolhead's own degree (1 cruising, 2 accelerating, 3 with jerk), at which a
+    # linear ik is exact and its steps take the linear kernel's closed forms (a = 0 exactly when cruising), then 5
+    deg = 1
+    if cub[3] != 0.0 or cub[7] != 0.0 or cub[11] != 0.0:
+        deg = 3
+    elif cub[2] != 0.0 or cub[6] != 0.0 or cub[10] != 0.0:
+        deg = 2
+    code = _fit_span(cub, ik, period, ref, 0.0, span, deg, tol_t, round_rel, m, dd, out, row)
+    if code == FIT_REJECTED:
+        deg = IK_FIT_DEG
+        code = _fit_span(cub, ik, period, ref, 0.0, span, deg, tol_t, round_rel, m, dd, out, row)
+    if code != FIT_REJECTED:
+        mode[row] = _fit_mode(deg, code)
+        return 1
+    for lvl in range(1, IK_FIT_SPLITS + 1):
+        n_sub = 1 << lvl
+        ok = True
+        for k in range(n_sub):
+            s_lo = span * k / n_sub
+            s_hi = span if k == n_sub - 1 else span * (k + 1) / n_sub
+            code = _fit_span(cub, ik, period, ref, s_lo, s_hi - s_lo, IK_FIT_DEG, tol_t, round_rel,
+                             m, dd, out, row + k)
+            if code == FIT_REJECTED:
+                ok = False
+                break
+            mode[row + k] = _fit_mode(IK_FIT_DEG, code)
+        if ok:
+            return n_sub
+    return 0
+
+
+@njit(cache=True, inline="always")
+def _fit_same(a, b):
+    """a and b the same float, bit for bit but for NaN (±0 told apart: an ik may take atan2 of them)."""
+    return a == b and (a != 0.0 or math.copysign(1.0, a) == math.copysign(1.0, b))
+
+
+@njit(cache=True, inline="always")
+def _fit_end(cub, s):
+    """x, y, z (mm) of the cubics ``cub`` at τ = s, as :func:`_fit_ik_at` computes them."""
+    return (cub[0] + s * (cub[1] + s * (cub[2] + s * cub[3])), cub[4] + s * (cub[5] + s * (cub[6] + s * cub[7])),
+            cub[8] + s * (cub[9] + s * (cub[10] + s * cub[11])))
+
+
+@njit(cache=True, error_model="numpy")
+def ik_fit_pieces(t0, dt, pc, vc, ac, jc, reset, ik, period, refs, tol_t, round_rel):
+    """The verified polynomial stand-ins of a plug-in motor's pieces (section comment): for pieces with (n, ≥3)
+    x, y, z columns ``pc vc ac jc`` (mm, mm/s, mm/s², mm/s³, the SEGMENT convention) from t0 (s) for dt (s), the
+    bound ik ``ik(x, y, z)`` (mm or rad), a cyclic motor's ``period`` and branch references ``refs``
+    (:func:`ik_branch_refs`), the step-time bound ``tol_t`` (s) and the rounding floor ``round_rel``.
+
+    Returns (t0, dt, coef, mode, src, reset) of the fitted pieces: a piece is one FIT_EXACT row (left to the
+    exact search: coef unused), one FIT_CUBIC / FIT_QUINTIC / FIT_QUINTIC_MONOTONE row, or 2^k rows of its sub-spans (the later ones
+    with RESET_CONTINUE); coef (m, POLY_NCOEF) is the power basis in time from the row's start (mm, mm/s, …);
+    src the original piece's index."""
+    n = t0.shape[0]
+    cap = n << IK_FIT_SPLITS
+    o_t0 = np.empty(cap)
+    o_dt = np.empty(cap)
+    coef = np.empty((cap, POLY_NCOEF))     # every fitted row is written whole; a FIT_EXACT row's is not read
+    mode = np.empty(cap, np.int8)
+    src = np.empty(cap, np.int64)
+    o_reset = np.empty(cap, np.uint8)
+    m = np.empty(IK_FIT_DEG + 2)
+    dd = np.empty(IK_FIT_DEG + 1)
+    row = 0
+    # where the last piece fitted whole ends (x, y, z mm) and the motor there: the next piece's start when it
+    # starts there bit for bit (one ik call less; a NaN matches nothing)
+    ex = ey = ez = em = math.nan
+    for i in range(n):
+        span = dt[i]
+        fitted = 0
+        finite = math.isfinite(span) and math.isfinite(t0[i])
+        for q in range(3):
+            finite = finite and math.isfinite(pc[i, q]) and math.isfinite(vc[i, q]) and math.isfinite(ac[i, q]) \
+                and math.isfinite(jc[i, q])
+        ref = math.nan
+        if finite:
+            cub = _fit_cubics(pc, vc, ac, jc, i)
+            if period > 0.0:
+                ref = refs[i]
+            elif _fit_same(cub[0], ex) and _fit_same(cub[4], ey) and _fit_same(cub[8], ez):
+                ref = em
+            else:
+                ref = ik(cub[0], cub[4], cub[8])
+            ex = math.nan
+            if not math.isfinite(ref):
+                pass
+            elif _fit_still(cub) or not (span > 0.0):
+                coef[row, 0] = ref          # no motion (or no time): the start position, no step
+                for q in range(1, POLY_NCOEF):
+                    coef[row, q] = 0.0
+                mode[row] = FIT_CUBIC
+                fitted = 1
+                ex, ey, ez = _fit_end(cub, span)
+                em = ref
+            else:
+                fitted = _fit_piece_spans(cub, span, ik, period, ref, tol_t, round_rel, m, dd, coef, mode, row)
+                if fitted == 1:
+                    ex, ey, ez = _fit_end(cub, span)
+                    em = m[IK_FIT_DEG + 1]
+        else:
+            ex = math.nan
+        if fitted == 0:
+            o_t0[row] = t0[i]
+            o_dt[row] = span
+            mode[row] = FIT_EXACT
+            src[row] = i
+            o_reset[row] = reset[i]
+            row += 1
+            continue
+        for k in range(fitted):
+            s_lo = span * k / fitted
+            o_t0[row] = t0[i] + s_lo if k else t0[i]
+            o_dt[row] = span - s_lo if k == fitted - 1 else span * (k + 1) / fitted - s_lo
+            src[row] = i
+            o_reset[row] = reset[i] if k == 0 else RESET_CONTINUE
+            row += 1
+    return o_t0[:row], o_dt[:row], coef[:row], mode[:row], src[:row], o_reset[:row]
+
+
+@njit(cache=True, inline="always")
+def _fit_piece(data, i):
+    """:func:`step_pieces`'s ``piece_at`` for fitted pieces: data = (fitted coef, mode, src, and the exact search's
+    data, :func:`_ik_piece`); the piece is (mode, six coefficients — p, v, a, j, 0, 0 of a FIT_CUBIC row for the
+    linear kernel's functions, the power basis of a FIT_QUINTIC one — and the exact search's piece, whose fields
+    are zero but for ik and period unless the row is FIT_EXACT). Floats only: no array reaches the step's calls."""
+    coef, mode, src, ikdata = data
+    md = mode[i]
+    if md == FIT_EXACT:
+        status, p, ikp = _ik_piece(ikdata, src[i])
+        return status, p, (md, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, ikp)
+    ik = ikdata[4]
+    period = ikdata[5]
+    ikp = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, ik, period, 0.0, 0.0, 0.0)
+    c0 = coef[i, 0]
+    c1 = coef[i, 1]
+    c2 = coef[i, 2]
+    c3 = coef[i, 3]
+    c4 = coef[i, 4]
+    c5 = coef[i, 5]
+    status = PIECE_MOVING
+    if c1 == 0.0 and c2 == 0.0 and c3 == 0.0 and c4 == 0.0 and c5 == 0.0:
+        status = PIECE_STILL
+    if md == FIT_CUBIC:
+        return status, c0, (md, c0, c1, 2.0 * c2, 6.0 * c3, 0.0, 0.0, ikp)
+    return status, c0, (md, c0, c1, c2, c3, c4, c5, ikp)
+
+
+@njit(cache=True, inline="always")
+def _quintic_at(piece, s):
+    """Position of a FIT_QUINTIC piece at τ = s (Horner)."""
+    return piece[1] + s * (piece[2] + s * (piece[3] + s * (piece[4] + s * (piece[5] + s * piece[6]))))
+
+
+@njit(cache=True, inline="always")
+def _quintic_speed(piece, s):
+    """Derivative of a FIT_QUINTIC piece at τ = s."""
+    return piece[2] + s * (2.0 * piece[3] + s * (3.0 * piece[4] + s * (4.0 * piece[5] + s * 5.0 * piece[6])))
+
+
+@njit(cache=True, inline="always")
+def _fit_position(piece, s):
+    """Motor position of a fitted (or exact) piece at τ = s."""
+    md = piece[0]
+    if md == FIT_CUBIC:
+        return _pos(piece[1], piece[2], piece[3], piece[4], s)
+    if md == FIT_QUINTIC or md == FIT_QUINTIC_MONOTONE:
+        return _quintic_at(piece, s)
+    return _ik_position(piece[7], s)
+
+
+@njit(cache=True, inline="always")
+def _fit_turning_points(piece, span, bnd):
+    """Where a fitted piece reverses: the velocity roots of a cubic, the derivative roots of a quintic
+    (:func:`critical_points`), the exact search's for a FIT_EXACT piece."""
+    md = piece[0]
+    if md == FIT_CUBIC:
+        return _velocity_roots_at(piece[2], piece[3], piece[4], span, bnd, 1)
+    if md == FIT_QUINTIC_MONOTONE:
+        return 0
+    if md == FIT_QUINTIC:
+        c = np.empty((1, POLY_NCOEF))
+        c[0, 0] = piece[1]
+        c[0, 1] = piece[2]
+        c[0, 2] = piece[3]
+        c[0, 3] = piece[4]
+        c[0, 4] = piece[5]
+        c[0, 5] = piece[6]
+        deriv = np.empty((POLY_NCOEF, POLY_NCOEF))
+        return critical_points(c, 0, span, deriv, bnd[1:])
+    return _ik_turning_points(piece[7], span, bnd)
+
+
+@njit(cache=True, inline="always")
+def _fit_stretch(piece, lo, hi, sigma):
+    """The crossing context of a monotone stretch, nine floats whatever the mode: the linear kernel's
+    (:func:`_linear_stretch`), (last crossing, end, position at both, speed at the start) of a quintic, the exact search's (:func:`_ik_stretch`)."""
+    md = piece[0]
+    if md == FIT_CUBIC:
+        a, b, c, d, e, f = _linear_stretch((piece[1], piece[2], piece[3], piece[4]), lo, hi, sigma)
+        return (a, b, c, d, e, f, 0.0, 0.0, 0.0)
+    if md == FIT_QUINTIC or md == FIT_QUINTIC_MONOTONE:
+        return (lo, hi, _quintic_at(piece, lo), _quintic_at(piece, hi), _quintic_speed(piece, lo), 0.0, 0.0, 0.0,
+                0.0)
+    return _ik_stretch(piece[7], lo, hi, sigma)
+
+
+@njit(cache=True, inline="always")
+def _quintic_crossing(piece, ctx, target):
+    """(τ, new ctx): where the monotone FIT_QUINTIC piece reaches ``target`` in [last crossing, stretch end].
+    ctx = (last crossing, end, position at both, speed near the last crossing, …). Newton's method kept in the
+    bracket, from the last crossing's tangent (no evaluation: the position there is its half-step level, the speed
+    the last Newton step's), done when a step, or the error it leaves by its curvature, is under QUINTIC_DONE_S
+    (quadratic convergence); the nearer end when rounding puts both ends on one side."""
+    left = ctx[0]
+    hi = ctx[1]
+    f_lo = ctx[2] - target
+    f_hi = ctx[3] - target
+    d = ctx[4]
+    if f_lo == 0.0:
+        return left, ctx
+    if f_hi == 0.0 or (f_lo > 0.0) == (f_hi > 0.0):
+        tau = hi if abs(f_hi) <= abs(f_lo) else left
+        return tau, (tau, hi, ctx[2], ctx[3], d, 0.0, 0.0, 0.0, 0.0)
+    rising = f_hi > 0.0
+    lo = left
+    tau = left - f_lo / d if d != 0.0 else -1.0
+    if not (lo < tau < hi):
+        tau = lo + (hi - lo) * (-f_lo) / (f_hi - f_lo)
+    t_prev = left
+    d_prev = d
+    for _ in range(100):
+        f = _quintic_at(piece, tau) - target
+        d = _quintic_speed(piece, tau)
+        if f == 0.0:
+            break
+        if (f > 0.0) == rising:
+            hi = tau
+        else:
+            lo = tau
+        nxt = tau - f / d if d != 0.0 else 0.5 * (lo + hi)
+        if not (lo < nxt < hi):
+            nxt = 0.5 * (lo + hi)
+        step = abs(nxt - tau)
+        # a Newton step δ leaves an error of about |p''/(2p')|·δ² (p'' from the last two speeds): taken at once
+        # when that is under QUINTIC_DONE_S, as it is from the tangent guess at step rates (one evaluation)
+        curve = abs(d - d_prev) / (abs(tau - t_prev) * abs(d)) if tau != t_prev and d != 0.0 else math.inf
+        if step <= QUINTIC_DONE_S or 0.5 * curve * step * step <= QUINTIC_DONE_S \
+                or hi - lo <= 1e-15 * (1.0 + abs(tau)):
+            tau = nxt
+            break
+        t_prev = tau
+        d_prev = d
+        tau = nxt
+    return tau, (tau, ctx[1], target, ctx[3], d, 0.0, 0.0, 0.0, 0.0)
+
+
+@njit(cache=True, inline="always")
+def _fit_crossing(piece, ctx, target, sigma, step_dist):
+    """The next crossing of ``target`` by a fitted (or exact) piece: the linear kernel's for a cubic, bracketed
+    Newton from the last crossing for a quintic, the exact search's guarded one for a FIT_EXACT piece."""
+    md = piece[0]
+    if md == FIT_CUBIC:
+        tau, c = _linear_crossing((piece[1], piece[2], piece[3], piece[4]), (ctx[0], ctx[1], ctx[2], ctx[3],
+                                                                            ctx[4], ctx[5]), target, sigma, step_dist)
+        return tau, (c[0], c[1], c[2], c[3], c[4], c[5], 0.0, 0.0, 0.0)
+    if md == FIT_QUINTIC or md == FIT_QUINTIC_MONOTONE:
+        return _quintic_crossing(piece, ctx, target)
+    return _ik_crossing(piece[7], ctx, target, sigma, step_dist)
+
+
+@njit(cache=True, error_model="numpy")
+def gen_steps_ik_fit(t0, dt, coef, mode, src, reset, pc, vc, ac, jc, ik, period, refs, ik_t0, ik_dt, step_dist,
+                     state, start, out_t, out_dir, out_n):
+    """:func:`gen_steps_ik` on the verified polynomial stand-ins of :func:`ik_fit_pieces` (its t0, dt, coef, mode,
+    src, reset): fitted rows are stepped with no ik call, FIT_EXACT rows by the exact search on the original piece
+    ``src`` of ``pc vc ac jc`` (from ``ik_t0`` for ``ik_dt``, s). Same grid, state and buffer contract; the piece
+    index returned is a fitted row's."""
+    ikdata = (pc, vc, ac, jc, ik, period, refs, ik_t0, ik_dt)
+    return step_pieces(_fit_piece, _fit_position, _fit_turning_points, _fit_stretch, _fit_crossing,
+                       (coef, mode, src, ikdata), IK_CHECK_SAMPLES, t0, dt, reset, step_dist, state, start, out_t,
+                       out_dir, out_n)
