@@ -547,6 +547,18 @@ _PLAN_FIELDS = ("t_start", "duration", "start_v", "cruise_v", "end_v", "accel", 
                 "decel_t", "limit")
 
 
+@njit(cache=True)
+def _nominal_ramp_factor(v0, vn, v1, ta, tc, td, move_d):
+    """The factor k by which a row's ramps (accel ``ta``, decel ``td``; s) shrink when, read as straight, they
+    would peak above the block's nominal speed ``vn`` (mm/s): the interrupt holds the nominal rate once it
+    reaches it (stepper.cpp block_phase_isr: ``NOMORE(acc_step_rate, nominal_rate)``) inside what the block counts
+    as its ramps. The cruise takes the time the ramps give up, so the row keeps its duration and its length
+    ``move_d`` (mm) and peaks at ``vn``: k = (vn·T − d) / ((vn − v0)·ta/2 + (vn − v1)·td/2). Outside (0, 1] (a
+    row that covers more than vn allows: moves merged into its block) the row keeps its straight ramps."""
+    den = (vn - v0) * ta / 2 + (vn - v1) * td / 2
+    return (vn * (ta + tc + td) - move_d) / den if den > 0.0 else -1.0
+
+
 @njit(cache=True, nogil=False)
 def plan_rows_kernel(oi, of, move_d, kind, hz, clock_done, last_v, t_start, duration, start_v, cruise_v, end_v,
                      accel, decel, accel_t, cruise_t, decel_t, limit):
@@ -581,6 +593,14 @@ def plan_rows_kernel(oi, of, move_d, kind, hz, clock_done, last_v, t_start, dura
         if has:
             if vc < 0.0:
                 vc = 0.0
+            vn = oi[r, mk.OI_NOMINAL_RATE] * per_step
+            if vc > vn > 0.0:
+                k = _nominal_ramp_factor(v0, vn, v1, ta, tc, td, move_d[r])
+                if 0.0 < k <= 1.0:
+                    tc += (1.0 - k) * (ta + td)
+                    ta *= k
+                    td *= k
+                    vc = vn
         else:
             vc = 0.0
         accel[r] = (vc - v0) / ta if ta > 0 else 0.0
