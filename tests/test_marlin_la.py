@@ -263,3 +263,22 @@ def test_toolhead_line_by_line_gives_gp_steps_pulses_under_advance(tmp_path):
     assert len(e) > len(e0) and np.any(ed < 0)
     # what the advance pulses add drains again: net E differs by the few steps of advance left in the last blocks
     assert abs(int(ed.sum()) - int(ed0.sum())) <= 5
+
+
+@pytest.mark.parametrize("firmware, says", [("marlin-2.1.2", "Marlin's linear advance"),
+                                            ("generic", "planned as Klipper's pressure advance")])
+def test_m900_says_what_plans_it(tmp_path, firmware, says):
+    """M900 K on the Marlin model is Marlin's own linear advance (its acceleration cap lengthens the moves); on
+    the generic policy it is Klipper's pressure advance, which leaves the motion's time alone."""
+    from dataclasses import replace
+
+    path = tmp_path / "la.gcode"
+    body = "G21\nG90\nM83\nG1 X50 Y0 E10 F6000\nG1 X50 Y50 E10\n"      # 0.2 mm of filament per mm
+    machine = replace(gp.load_machine("marlin"), firmware=firmware)
+    path.write_text("M900 K0.05\n" + body)
+    est = gp.estimate(str(path), machine)
+    assert any(says in w for w in est.parse.warnings), est.parse.warnings
+    with_la = est.total_time_s
+    path.write_text(body)
+    without = gp.estimate(str(path), machine).total_time_s
+    assert (with_la > without) if firmware != "generic" else with_la == without

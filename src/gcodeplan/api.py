@@ -170,7 +170,9 @@ def steps(source, machine=None, kinematics=None, policy: str | None = None, jerk
     step+dir+step filter window (s), e.g. Klipper's 750e-9; None = off. ``ik_search``: a plug-in kinematics'
     motors are stepped by Klipper's own search ("klipper", within ~10 ns of Klipper's steps) or by the step
     engine's guarded search ("exact": about 2x faster, each step within 1 ns of its half-step point; on rotary
-    joints up to ~1.3 µs from Klipper's, whose search stops within 1e-9 rad). All steps are kept in memory:
+    joints up to ~1.3 µs from Klipper's, whose search stops within 1e-9 rad) or from verified polynomial
+    stand-ins of the ik ("fit": no ik call per step, 3-8x faster than "klipper"; every fitted step within 1 ns
+    of its crossing, pieces near a turning point by the exact search). All steps are kept in memory:
     for big files use ``gcodeplan steps`` (streams to disk)."""
     from .stepper.source import StepSink, rails_from
 

@@ -521,8 +521,13 @@ class StateCommands:
             self.error(f"M{mc} {letter} must be >= 0")
         if "linear_advance" not in self.ignored:
             self.ignore("linear_advance")
-            self.warn(f"M{mc} {letter}{k:g}: planned as Klipper's pressure advance (K = {k:g} s, smoothed over "
-                      f"{float(self._limits_rows[0]['pa_smooth_t']):g} s)")
+            if str(getattr(self.machine, "firmware", "")).startswith("marlin"):
+                # the Marlin models run it as Marlin does: its acceleration cap, its advance interrupt
+                self.warn(f"M{mc} {letter}{k:g}: Marlin's linear advance (K = {k:g} s): its acceleration cap "
+                          "and, for steps, its extruder interrupt")
+            else:
+                self.warn(f"M{mc} {letter}{k:g}: planned as Klipper's pressure advance (K = {k:g} s, smoothed "
+                          f"over {float(self._limits_rows[0]['pa_smooth_t']):g} s)")
         self._pressure_advance(k, None, klipper_flush=False)
 
     def _set_input_shaper(self, params: dict[str, str], num) -> None:
