@@ -253,11 +253,10 @@ def test_a_users_plugin_equals_the_builtin_under_the_guarded_search():
         assert len(b[motor][0]) == figures[motor]["n_steps"], motor
 
 
-def test_shaped_plugin_motors_match_klippers_search():
-    """A cartesian machine as a plug-in (x, y, z motors by ik) with input shaping (mzv 45 Hz on X, ei 38 Hz on Y)
-    on the corpus cube's first 800 lines, through a 997-step buffer: the guarded search steps the shaped pieces as
-    they come; every motor has the step count of Klipper's search with the same ik, every step within 10 ns of it
-    (on mm motors Klipper's 1e-9 mm stopping rule is ~1e-11 s)."""
+def shaped_cartesian_plugin_steps(search: str) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """{motor: (times s, dirs)} of a cartesian machine written as a plug-in (x, y, z motors by ik) with input
+    shaping (mzv 45 Hz on X, ei 38 Hz on Y) on the corpus cube's first 800 lines, fed through a 997-step buffer,
+    stepped by ``search`` (StepGenerator.IK_SEARCHES); tests/test_ik_fit.py uses it too."""
     import bench_steps_features as bsf
 
     from gcodeplan.stepper.generate import StepGenerator
@@ -266,20 +265,25 @@ def test_shaped_plugin_motors_match_klippers_search():
     m = bsf._machine("shaped")
     plug = bsf._generic_cartesian_ik()
     pieces, lim = bsf._pieces(path.read_text().splitlines()[:800], m)
+    rails = plug.rails(m)
+    out = [[] for _ in rails]
+    gen = StepGenerator(rails, lambda si, t, d: out[si].append((t.copy(), d.copy())),
+                        settings=m.limits_row(), chunk_steps=997, ik_search=search)
+    for segs, reset, moves, first in pieces:
+        gen.feed(segs, reset, moves=moves, limits=lim, first_move=first)
+    gen.finish()
+    return {r.name: (np.concatenate([c[0] for c in o]), np.concatenate([c[1] for c in o]))
+            for r, o in zip(rails, out)}
 
-    def run(klipper):
-        rails = plug.rails(m)
-        out = [[] for _ in rails]
-        gen = StepGenerator(rails, lambda si, t, d: out[si].append((t.copy(), d.copy())),
-                            settings=m.limits_row(), chunk_steps=997, ik_search="klipper" if klipper else "exact")
-        for segs, reset, moves, first in pieces:
-            gen.feed(segs, reset, moves=moves, limits=lim, first_move=first)
-        gen.finish()
-        return [(np.concatenate([c[0] for c in o]), np.concatenate([c[1] for c in o])) for o in out]
 
-    klipper, guarded = run(True), run(False)
-    assert sum(len(t) for t, _ in guarded) > 100_000
-    for (kt, kd), (gt, gd) in zip(klipper, guarded):
+def test_shaped_plugin_motors_match_klippers_search():
+    """A cartesian machine as a plug-in (x, y, z motors by ik) with input shaping (mzv 45 Hz on X, ei 38 Hz on Y)
+    on the corpus cube's first 800 lines, through a 997-step buffer: the guarded search steps the shaped pieces as
+    they come; every motor has the step count of Klipper's search with the same ik, every step within 10 ns of it
+    (on mm motors Klipper's 1e-9 mm stopping rule is ~1e-11 s)."""
+    klipper, guarded = shaped_cartesian_plugin_steps("klipper"), shaped_cartesian_plugin_steps("exact")
+    assert sum(len(t) for t, _ in guarded.values()) > 100_000
+    for (kt, kd), (gt, gd) in zip(klipper.values(), guarded.values()):
         assert len(gt) == len(kt) and np.array_equal(gd, kd)
         assert np.max(np.abs(gt - kt)) < 10e-9
 

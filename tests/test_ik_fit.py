@@ -404,25 +404,7 @@ def test_shaped_plugin_motors_fit_as_the_exact_search_steps_them():
     give the exact search's step counts and directions, every step within IK_FIT_TOL_S + the exact search's own
     error of it, and within IK_FIT_TOL_S of Klipper's search with the same ik (which stops within 1e-9 mm of the
     half-step point: ~1e-11 s at these speeds; the exact search is up to 2 ns from it here)."""
-    import bench_steps_features as bsf
-
-    from gcodeplan.stepper.generate import StepGenerator
-
-    path = shared_path("gcode", "prusaslicer25_cube20_marlin2.gcode")
-    m = bsf._machine("shaped")
-    plug = bsf._generic_cartesian_ik()
-    pieces, lim = bsf._pieces(path.read_text().splitlines()[:800], m)
-
-    def run(search):
-        rails = plug.rails(m)
-        out = [[] for _ in rails]
-        gen = StepGenerator(rails, lambda si, t, d: out[si].append((t.copy(), d.copy())),
-                            settings=m.limits_row(), chunk_steps=997, ik_search=search)
-        for segs, reset, moves, first in pieces:
-            gen.feed(segs, reset, moves=moves, limits=lim, first_move=first)
-        gen.finish()
-        return {r.name: (np.concatenate([c[0] for c in o]), np.concatenate([c[1] for c in o]))
-                for r, o in zip(rails, out)}
+    from test_ik_engine import shaped_cartesian_plugin_steps as run
 
     exact, fit, klipper = run("exact"), run("fit"), run("klipper")
     assert sum(len(t) for t, _ in fit.values()) > 100_000
