@@ -12,7 +12,6 @@ hand from those rules; the numba scanner and the Python interpreter agree on eve
 """
 from __future__ import annotations
 
-import warnings
 from pathlib import Path
 
 import pytest
@@ -23,16 +22,13 @@ from gcodeplan.gcode.reader import read_moves
 from gcodeplan.machine import Machine
 from gcodeplan.schema import FLAG_RAPID
 from test_grbl_rejects import read_both
+from test_marlin_config import _load
 
 DATA = Path(__file__).parent / "data" / "marlin_build"
 CNC_BUILD = "INCH_MODE_SUPPORT CNC_WORKSPACE_PLANES GCODE_MOTION_MODES"
 
 
-def load(path):
-    with warnings.catch_warnings(record=True) as w:
-        warnings.simplefilter("always")
-        m = gp.load_machine(str(path))
-    return m, [str(x.message) for x in w]
+load = _load            # a machine file read with its warnings (test_marlin_config's reader)
 
 
 def ends(rows):
