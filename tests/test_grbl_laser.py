@@ -207,3 +207,34 @@ def test_two_collinear_lines_with_their_own_power_hand_worked(tmp_path):
     t_spindle, _ = _total(tmp_path, text, replace(m, grbl_laser_mode=0))
     assert t_laser == pytest.approx(200 / 50 + 50 / 500, rel=1e-3)
     assert t_spindle == pytest.approx(2 * (100 / 50 + 50 / 500), rel=1e-3)
+
+
+@pytest.mark.parametrize("laser", [0, 1])
+def test_the_scanner_takes_free_s_words_as_the_interpreter_does(tmp_path, laser):
+    """Under M4 in laser mode and with the spindle off in either mode, an S word on a moving G0/G1 only sets grbl's
+    spindle speed: the numba scanner takes such lines (a raster of S-per-segment lines reads at the scanner's speed)
+    and its rows, stops, spindle-command count and later sync decisions equal the Python interpreter's."""
+    from test_grbl_rejects import read_both
+
+    lines = [p[0] for p in PROGRAM[:-1]]
+    raster = ["M4 S0"] + [f"G1 X{10 + (i % 7) * 0.4:.1f} Y{i * 0.1:.1f} S{(i * 37) % 1000}" for i in range(200)]
+    off = ["M5"] + [f"G1 X{i % 5} S{i * 3}" for i in range(20)] + ["M4", "S5", "G1 X3 S7", "S7", "G1 X1"]
+    text = "\n".join(lines + raster + off + ["M5", "M2"]) + "\n"
+    from gcodeplan.gcode.reader import read_moves
+
+    rows, summary = read_both(tmp_path, text, machine=_machine(laser))
+    _, by_python = read_moves(str(tmp_path / "p.nc"), _machine(laser), force_python=True)
+    assert summary.spindle_commands == by_python.summary.spindle_commands > 200
+    waits = [int(r["line"]) for r in rows if r["kind"] == KIND_WAIT]
+    n0 = len(lines)
+    if laser:
+        # the raster and the spindle-off lines stop nowhere; after M4 the bare "S5" stops, "S7" after the moving
+        # "G1 X3 S7" does not (the scanner's S reached the interpreter)
+        raster_lines = range(n0 + 2, n0 + 202)              # the 200 G1 lines after "M4 S0"
+        off_lines = range(n0 + 203, n0 + 223)               # the 20 G1 lines after "M5"
+        assert not [w for w in waits if w in raster_lines or w in off_lines]
+        assert {n0 + 202, n0 + 223, n0 + 224} <= set(waits)   # M5, M4, the bare S5
+        assert n0 + 225 not in waits and n0 + 226 not in waits
+    else:
+        # spindle mode: every S change under M4 stops (the first raster line keeps S0: 199 stops)
+        assert len([w for w in waits if n0 + 2 <= w < n0 + 202]) == 199

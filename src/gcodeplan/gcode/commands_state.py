@@ -136,9 +136,19 @@ class StateCommands:
         self.grbl_laser = int(getattr(self.machine, "grbl_laser_mode", 0)) != 0
         self.grbl_spindle = 5
         self.grbl_coolant = frozenset()
-        self.grbl_s = 0.0
+        self.grbl_s = 0.0                   # (in the scanner's state: it takes S words too, _grbl_route)
         self.grbl_idle = True
         self._grbl_route()
+
+    @property
+    def grbl_s(self) -> float:
+        """grbl's spindle speed in force (rpm; laser power in laser mode): the scanner's S_GRBL_S, since the scanner
+        sets it on the lines it takes (scan.grbl_free_s)."""
+        return float(self.st[S.S_GRBL_S])
+
+    @grbl_s.setter
+    def grbl_s(self, rpm: float) -> None:
+        self.st[S.S_GRBL_S] = rpm
 
     def _grbl_route(self) -> None:
         """Which lines the Python interpreter must see on grbl (scan.I_TO_PYTHON): every line while the machine
@@ -149,6 +159,10 @@ class StateCommands:
         exclude = getattr(self, "exclude", None)       # (set after the CNC state at start-up)
         excluded = exclude is not None and exclude.active
         self.ist[S.I_TO_PYTHON] = 1 if (grbl_needs or excluded) else 0
+        # an S word on a moving G0/G1 syncs nothing in laser mode under M4, nor with the spindle off: the scanner
+        # takes such lines (their S into grbl_s)
+        self.ist[S.I_GRBL_S_FREE] = 1 if (self.grbl_spindle == 5 or (self.grbl_laser and self.grbl_spindle == 4)) \
+            else 0
 
     def _grbl_line_shape(self, params: dict[str, Word]):
         """(motion mode after the line, axis words move in the motion mode, the line's G codes) from the grbl

@@ -409,7 +409,7 @@ class GcodeReader:
         s.arcs = it.arcs
         s.arc_chords = int(a[S.A_ARC_CHORDS])
         s.canned_cycles = it.canned_cycles
-        s.spindle_commands = it.spindle_commands
+        s.spindle_commands = it.spindle_commands + int(it.ist[S.I_S_WORDS])     # (S words the scanner took)
         s.tool_changes = it.tool_changes
         s.unknown_commands = dict(it.unknown)
         ignored = dict(it.ignored)

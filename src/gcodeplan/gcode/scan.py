@@ -40,7 +40,8 @@ S_MAX_E = 18                        # mm, highest machine E a move reached since
                                     # last went dormant (gcode/objects.py: Klipper's max_position_extruded)
 S_SOFT_LO = 19                      # mm, x y z at 19..21: Marlin's software endstops (min), see I_SOFT_CLAMP
 S_SOFT_HI = 22                      # mm, x y z at 22..24: the same, max
-N_ST = 25
+S_GRBL_S = 25                       # rpm (laser power), grbl's spindle speed in force (gc_state.spindle_speed)
+N_ST = 26
 
 # ------------------------------------------------------------------ int state (ist)
 I_LINE = 0          # number of the last line fully processed (1-based lines)
@@ -73,7 +74,11 @@ I_SOFT_CLAMP = 19   # 1 on a Marlin machine with software endstops on (M211 S1):
 I_AXIS_LINES = 20   # 1 where a line led by an X Y Z E F word repeats the modal G0/G1 (grbl's implicit motion
                     # mode, RS274NGC; the reprap flavor as before); 0 on Marlin (no GCODE_MOTION_MODES, its default) and
                     # Klipper, which answer "Unknown command": the scanner hands such a line to the interpreter
-N_IST = 21
+I_GRBL_S_FREE = 21  # 1 on grbl where an S word on a G0/G1 line with axis words changes nothing but S_GRBL_S:
+                    # laser mode under M4, and either mode with the spindle off (M5): gcode.c syncs no motion
+                    # there (commands_state._grbl_syncs; _grbl_route sets it; laser M3 lines all go to Python)
+I_S_WORDS = 22      # S words the scanner took that way (the parse summary's spindle commands)
+N_IST = 23
 
 DIALECT_KLIPPER = 0   # M204: S, else min(P, T) when both; one accel for every move
 DIALECT_MARLIN = 1    # marlin / reprap: M204 S/P/T/R, accel chosen by the move's kind
@@ -580,6 +585,15 @@ def linear_move(out, n_out, line, code, dialect, st, ist, has, vx, vy, vz, ve, v
 
 
 @njit(cache=True, inline="always")
+def grbl_free_s(ist, has, vs):
+    """True when the S word of a G0/G1 line with these words only sets grbl's spindle speed (I_GRBL_S_FREE: laser
+    mode with M4, or the spindle off): the line moves (an axis word), has no word grbl would refuse with S here
+    (E, P, T, R) and S is not negative (error:4, the interpreter's)."""
+    return (ist[I_GRBL_S_FREE] != 0 and (has & (WORD_X | WORD_Y | WORD_Z)) != 0
+            and (has & (WORD_E | WORD_P | WORD_T | WORD_R)) == 0 and vs >= 0.0)
+
+
+@njit(cache=True, inline="always")
 def set_logical_e(line, dialect, st, has, ve, eset_line, eset_v, eset_n):
     """``G92 E`` alone on a printer (a slicer's "G92 E0" every layer or so): sets the logical E (mm) and
     notes (line, E) for the firmware models (planner/marlin.py), as the interpreter's _g92 notes it.
@@ -790,7 +804,12 @@ def scan_chunk(buf, pos, end, st, ist, out, n_out, feat_raw, feat_len, feat_idx,
         if not ok or (dialect == DIALECT_CNC and eol - line_start > GRBL_LINE_MAX):
             return ST_PYTHON, line_start, n_out
         if letter == LETTER_G and (code == 0 or code == 1):
-            ok, n_out = linear_move(out, n_out, line, code, dialect, st, ist, has, vx, vy, vz, ve, vf)
+            s_free = (has & WORD_S) != 0 and grbl_free_s(ist, has, vs)
+            ok, n_out = linear_move(out, n_out, line, code, dialect, st, ist, has & ~WORD_S if s_free else has,
+                                    vx, vy, vz, ve, vf)
+            if ok and s_free:
+                st[S_GRBL_S] = vs
+                ist[I_S_WORDS] += 1
         elif letter == LETTER_G:
             ok, n_out = modal_g(code, out, n_out, line, dialect, st, ist, has, ve, vs, vp, eset_line, eset_v,
                                 eset_n)
