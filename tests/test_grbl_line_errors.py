@@ -105,16 +105,27 @@ def test_strict_makes_it_an_error_naming_file_line_and_error(tmp_path, line, err
 
 
 def test_a_jog_moves_from_rest_to_rest_and_leaves_the_modes(tmp_path):
-    # line 3 jogs +5 mm in X in G91 at F300 (5 mm/s) from (2, 0); the G91 is the jog's own: line 4's X1 is
-    # still absolute (G90) in the modal G1 at F600 (10 mm/s), from the jog's end (7, 0)
-    a, s = rows_of(tmp_path, "G21 G90\nG1 X2 F600\n$J=G91 X5 F300\nX1\n")
+    # line 4 jogs +5 mm in X in G91 at F300 (5 mm/s) from (2, 0), after line 3's dwell left grbl idle; a second
+    # jog (line 5) follows it (grbl jogs in its JOG state too); the G91 is the jogs' own: line 6's X1 is still
+    # absolute (G90) in the modal G1 at F600 (10 mm/s), from the jogs' end (8, 0)
+    a, s = rows_of(tmp_path, "G21 G90\nG1 X2 F600\nG4 P0\n$J=G91 X5 F300\n$J=G91 X1 F300\nX1\n")
     keep = [(int(r["line"]), int(r["kind"]), float(r["x1"]), float(r["feed_v"]), int(r["exact_stop"]))
             for r in a if r["kind"] != KIND_DWELL]
-    assert keep == [(2, 0, 2.0, 10.0, 0), (3, KIND_WAIT, 2.0, 0.0, 0), (3, 0, 7.0, 5.0, 1), (4, 0, 1.0, 10.0, 0)]
-    assert s.waits == {"$J": 1}
+    assert keep == [(2, 0, 2.0, 10.0, 0), (4, KIND_WAIT, 2.0, 0.0, 0), (4, 0, 7.0, 5.0, 1),
+                    (5, KIND_WAIT, 7.0, 0.0, 0), (5, 0, 8.0, 5.0, 1), (6, 0, 1.0, 10.0, 0)]
+    assert s.waits == {"$J": 2}
     assert [w.split("/")[-1] for w in s.warnings] == [
-        "p.nc:3: $J= jog: timed as a feed move from rest to rest (grbl starts a jog only when idle; its modes "
+        "p.nc:4: $J= jog: timed as a feed move from rest to rest (grbl starts a jog only when idle; its modes "
         "stay as they were)"]
+
+
+def test_a_jog_while_the_program_moves_is_error_8(tmp_path):
+    """system.c runs $J= only when grbl is idle or jogging: after a motion line (the buffer fed, the cycle
+    running) it answers error:8 and nothing of the jog happens: the rows are those of the program without it."""
+    got, s = rows_of(tmp_path, "G21 G90\nG1 X2 F600\n$J=G91 X5 F300\nX1\n")
+    blank, _ = rows_of(tmp_path, "G21 G90\nG1 X2 F600\n\nX1\n", name="q.nc")
+    assert same_rows(got, blank)
+    assert any("p.nc:3" in w and "error:8" in w for w in s.warnings), s.warnings
 
 
 def test_a_jog_in_inches_and_machine_coordinates(tmp_path):

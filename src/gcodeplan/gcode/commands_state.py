@@ -138,6 +138,7 @@ class StateCommands:
         self.grbl_coolant = frozenset()
         self.grbl_s = 0.0                   # (in the scanner's state: it takes S words too, _grbl_route)
         self.grbl_idle = True
+        self.grbl_jogging = False           # after a $J= until the next G-code line (system.c: JOG state)
         self._grbl_route()
 
     @property
@@ -287,6 +288,7 @@ class StateCommands:
         coolant change, G4: mc_dwell) leaves it idle, and so do a probe (mc_probe_cycle waits for it to end)
         and M0 / M2 / M30 after the line's motion (gcode.c step 21: protocol_buffer_synchronize; M1 is ignored);
         any other line leaves it as it was."""
+        self.grbl_jogging = False       # a G-code line: no more jog state (see grbl_line._grbl_jog)
         if probe:
             self.grbl_idle = True
         elif moves:

@@ -216,8 +216,9 @@ class GrblLines:
     def _grbl_jog(self, body: bytes) -> None:
         """``$J=`` words (gcode.c with its jog flag, jog.c): a G1 at F in the jog's own units and distance mode
         (G20 / G21, G90 / G91, G53 only: else error:16; F required: error:22; other words than X Y Z F N:
-        error:36) that leaves the modes as they were. grbl starts a jog only when it is idle (error:8 while it
-        moves), so it is timed from rest to rest, with one warning per file."""
+        error:36) that leaves the modes as they were. grbl starts a jog only when it is idle or jogging
+        (system.c: error:8 while a program's motion runs, as after a motion line with the buffer fed: the line is
+        rejected), so it is timed from rest to rest, with one warning per file."""
         pairs, lex_error, what = lex(body)
         words = [Word(k, float(t), t) for k, t in pairs]
         first, _ = grbl_word_error(words)
@@ -233,6 +234,8 @@ class GrblLines:
                 first = (22, "$J= without F", ())
             elif any(k not in "XYZFN" for k in params):
                 first = (36, "$J= word(s) " + " ".join(k for k in params if k not in "XYZFN") + " unused", ())
+        if first is None and not (self.grbl_idle or self.grbl_jogging):
+            first = (8, "$J= while grbl moves (it jogs only when idle)", ())
         if first is not None:
             self.grbl_reject(*first)
             return
@@ -243,4 +246,5 @@ class GrblLines:
                               "idle; its modes stay as they were)")
         self._exact_feed_row(target, params["F"].value * unit / 60.0, "$J")
         self.grbl_idle = False          # jogging: a $ setting now is error:8 (system.c: JOG is not IDLE)
+        self.grbl_jogging = True        # another $J= may follow (system.c: JOG state); the next G-code line ends it
         self._grbl_route()
