@@ -109,6 +109,22 @@ def _velocity_roots_at(v, a, j, dt, roots, first):
 
 
 @njit(cache=True, inline="always")
+def _newton_in_bracket(tau, f, d, lo, hi, rising):
+    """One step of a bracketed Newton search for the root of a function monotone on [lo, hi] (``rising``: it
+    increases), with value ``f`` and slope ``d`` at ``tau``: the bracket shrinks to the root's side of tau, then
+    the Newton step from tau — or the bracket's middle where that would leave it (or the slope is 0). Returns
+    (lo, hi, next tau). The searches below share it (each keeps its own stopping rule)."""
+    if (f > 0.0) == rising:
+        hi = tau
+    else:
+        lo = tau
+    nxt = tau - f / d if d != 0.0 else 0.5 * (lo + hi)
+    if not (lo < nxt < hi):
+        nxt = 0.5 * (lo + hi)
+    return lo, hi, nxt
+
+
+@njit(cache=True, inline="always")
 def quadratic_crossing(p, v, a, target, sigma, span):
     """τ in [0, span] where p + v·τ + a·τ²/2 = target, travelling in direction sigma (±1).
 
@@ -154,14 +170,8 @@ def cubic_crossing(p, v, a, j, target, lo, hi):
         f = _pos(p, v, a, j, tau) - target
         if f == 0.0:
             return tau
-        if (f > 0.0) == rising:
-            hi = tau
-        else:
-            lo = tau
         d = _vel(v, a, j, tau)
-        nxt = tau - f / d if d != 0.0 else 0.5 * (lo + hi)
-        if not (lo < nxt < hi):
-            nxt = 0.5 * (lo + hi)
+        lo, hi, nxt = _newton_in_bracket(tau, f, d, lo, hi, rising)
         if abs(nxt - tau) <= 1e-15 * (1.0 + abs(tau)) or hi - lo <= 1e-15 * (1.0 + abs(tau)):
             return nxt
         tau = nxt
@@ -780,16 +790,10 @@ def _poly_newton(c, k, deg, target, lo, hi, f_lo, f_hi):
         f = _horner(c, k, deg, tau) - target
         if f == 0.0:
             return tau
-        if (f > 0.0) == rising:
-            hi = tau
-        else:
-            lo = tau
         d = c[k, deg] * deg
         for q in range(deg - 1, 0, -1):
             d = d * tau + c[k, q] * q
-        nxt = tau - f / d if d != 0.0 else 0.5 * (lo + hi)
-        if not (lo < nxt < hi):
-            nxt = 0.5 * (lo + hi)
+        lo, hi, nxt = _newton_in_bracket(tau, f, d, lo, hi, rising)
         if abs(nxt - tau) <= 1e-15 * (1.0 + abs(tau)) or hi - lo <= 1e-15 * (1.0 + abs(tau)):
             return nxt
         tau = nxt
@@ -1015,13 +1019,7 @@ def _carriage_crossing(arm2, tx, ty, px, py, pz, vx, vy, vz, ax, ay, az, jx, jy,
         f = c - target
         if f == 0.0:
             return tau, d
-        if (f > 0.0) == rising:
-            hi = tau
-        else:
-            lo = tau
-        nxt = tau - f / d if d != 0.0 else 0.5 * (lo + hi)
-        if not (lo < nxt < hi):
-            nxt = 0.5 * (lo + hi)
+        lo, hi, nxt = _newton_in_bracket(tau, f, d, lo, hi, rising)
         if abs(nxt - tau) <= NEWTON_DONE_S or hi - lo <= 1e-15 * (1.0 + abs(tau)):
             return nxt, d
         tau = nxt
@@ -2350,13 +2348,7 @@ def _quintic_crossing(piece, ctx, target):
         d = _quintic_speed(piece, tau)
         if f == 0.0:
             break
-        if (f > 0.0) == rising:
-            hi = tau
-        else:
-            lo = tau
-        nxt = tau - f / d if d != 0.0 else 0.5 * (lo + hi)
-        if not (lo < nxt < hi):
-            nxt = 0.5 * (lo + hi)
+        lo, hi, nxt = _newton_in_bracket(tau, f, d, lo, hi, rising)
         step = abs(nxt - tau)
         # a Newton step δ leaves an error of about |p''/(2p')|·δ² (p'' from the last two speeds): taken at once
         # when that is under QUINTIC_DONE_S, as it is from the tangent guess at step rates (one evaluation)
