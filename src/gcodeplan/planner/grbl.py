@@ -34,6 +34,7 @@ from .._jit import njit
 import numpy as np
 
 from ..schema import FLAG_ARC, FLAG_RAPID, KIND_DWELL, KIND_WAIT, LIMIT_ACCEL, LIMIT_AXIS, LIMIT_FEED, LIMIT_NONE
+from .grbl_ideal import check_buffer_blocks, run_ideal
 
 f32 = np.float32
 
@@ -1108,30 +1109,15 @@ def _first_beyond_reach(x1, y1, z1, reach):
     return -1, -1
 
 
-def check_buffer_blocks(buffer_blocks, unbounded_ok: bool = False):
-    """The planner ring's size (slots; one always empty) as an int, or None for an unbounded ring (``None`` or
-    ``math.inf``, only where ``unbounded_ok``); a :class:`~gcodeplan.errors.ConfigError` naming the value
-    otherwise (grbl's ring needs 2 slots for 1 block)."""
-    from ..errors import ConfigError
-
-    if unbounded_ok and (buffer_blocks is None or buffer_blocks == math.inf):
-        return None
-    if isinstance(buffer_blocks, bool) or not isinstance(buffer_blocks, (int, np.integer)) or buffer_blocks < 2:
-        what = "an int of at least 2, or None / math.inf (unbounded, quantised=False only)" if unbounded_ok \
-            else "an int of at least 2"
-        raise ConfigError(f"buffer_blocks: {buffer_blocks!r} is not {what} (grbl's BLOCK_BUFFER_SIZE)")
-    return int(buffer_blocks)
-
-
 def run(moves: np.ndarray, settings: GrblSettings, steps_capacity: int = 0,
-        buffer_blocks: int | None = BLOCK_BUFFER_SIZE, quantised: bool = True) -> GrblRun:
+        buffer_blocks: int | None = BLOCK_BUFFER_SIZE, quantised: bool = True):
     """Run grbl 1.1 on MOVE rows (a whole program; see the module docstring for what is modelled).
     ``steps_capacity``: how many step pulses per axis to keep (0: none). ``buffer_blocks``: the planner ring,
     BLOCK_BUFFER_SIZE (16 by default, 15 usable blocks). ``quantised=False``: the plan in float64 and continuous
-    time, :func:`gcodeplan.planner.grbl_ideal.run_ideal` (there ``buffer_blocks=None`` is unbounded)."""
+    time, :func:`gcodeplan.planner.grbl_ideal.run_ideal` (there ``buffer_blocks=None`` is unbounded; its result
+    has the per-op block outputs too)."""
     if not quantised:
         from ..errors import ConfigError
-        from .grbl_ideal import run_ideal
 
         if steps_capacity:
             raise ConfigError("grbl model: quantised=False has no step pulses (no stepper is simulated)")

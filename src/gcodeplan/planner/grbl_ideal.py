@@ -38,11 +38,12 @@ import numpy as np
 
 from .._jit import njit
 from ..schema import FLAG_RAPID, KIND_DWELL, KIND_WAIT
-from .grbl import MINIMUM_FEED_RATE, SOME_LARGE_VALUE, GrblRun, check_buffer_blocks
-from .marlin_ideal import trapezoid_times
-
-#: mm/s, grbl's MINIMUM_FEED_RATE (1 mm/min)
-MINIMUM_FEED_V = MINIMUM_FEED_RATE / 60.0
+#: mm/s, grbl 1.1h planner.h MINIMUM_FEED_RATE (1 mm/min)
+MINIMUM_FEED_V = 1.0 / 60.0
+#: planner.c SOME_LARGE_VALUE: no limit
+SOME_LARGE_VALUE = 1.0e38
+#: Hz, the ATmega328P's clock: the unit of ``GrblSettings.idle_lock_ticks``
+F_CPU = 16_000_000
 # per-block ring fields (rf[slot, ...]): length mm, acceleration mm/s², nominal mm/s, max entry² and entry²
 # mm²/s², op index
 RF_MM, RF_ACCEL, RF_NOMINAL, RF_MAX_ENTRY_SQR, RF_ENTRY_SQR, RF_OP = range(6)
@@ -154,6 +155,27 @@ def lookahead_passes(rf, g):
 
 
 @njit(cache=True)
+def trapezoid_times(v0_sqr, v1_sqr, nominal, accel, mm, out):
+    """A block's trapezoid in closed form: ``out`` = entry, cruise (or peak) and exit speed (mm/s), accelerating,
+    cruising and braking time (s), from the entry and exit speed² (mm²/s²), nominal speed (mm/s), acceleration
+    (mm/s²) and length (mm); the ramps meet at v² = (v0² + v1²) / 2 + a·d when there is no room to cruise."""
+    v0 = math.sqrt(max(v0_sqr, 0.0))
+    v1 = math.sqrt(max(v1_sqr, 0.0))
+    vc = max(nominal, v0, v1)
+    d_acc = (vc * vc - v0 * v0) / (2.0 * accel)
+    d_dec = (vc * vc - v1 * v1) / (2.0 * accel)
+    tc = 0.0
+    if d_acc + d_dec <= mm:
+        tc = (mm - d_acc - d_dec) / vc
+    else:
+        vc = max(math.sqrt(max((v0 * v0 + v1 * v1) * 0.5 + accel * mm, 0.0)), v0, v1)
+    out[0], out[1], out[2] = v0, vc, v1
+    out[3] = (vc - v0) / accel
+    out[4] = tc
+    out[5] = (vc - v1) / accel
+
+
+@njit(cache=True)
 def run_tail_block(rf, g, out, ph):
     """Run the block at the tail from the clock: after the passes (when blocks came since the last), its
     trapezoid from its entry to the next block's planned entry (0 for the newest) in closed form; the next
@@ -215,6 +237,34 @@ def ideal_run_kernel(is_sync, target, rate_v, rapid, dwell_s, max_v, max_a, junc
             out[j, OT_T_END] = motion_end
 
 
+def check_buffer_blocks(buffer_blocks, unbounded_ok: bool = False):
+    """The planner ring's size (slots; one always empty) as an int, or None for an unbounded ring (``None`` or
+    ``math.inf``, only where ``unbounded_ok``); a :class:`~gcodeplan.errors.ConfigError` naming the value
+    otherwise (grbl's ring needs 2 slots for 1 block)."""
+    from ..errors import ConfigError
+
+    if unbounded_ok and (buffer_blocks is None or buffer_blocks == math.inf):
+        return None
+    if isinstance(buffer_blocks, bool) or not isinstance(buffer_blocks, (int, np.integer)) or buffer_blocks < 2:
+        what = "an int of at least 2, or None / math.inf (unbounded, quantised=False only)" if unbounded_ok \
+            else "an int of at least 2"
+        raise ConfigError(f"buffer_blocks: {buffer_blocks!r} is not {what} (grbl's BLOCK_BUFFER_SIZE)")
+    return int(buffer_blocks)
+
+
+class IdealRun:
+    """What :func:`run_ideal` returns, as :class:`gcodeplan.planner.grbl.GrblRun`: ``row_end_s`` per MOVE row the
+    end of its block (s from the first block's start; NaN for a row without one), ``total_s`` the last block's
+    end, ``steps`` None; ``out`` (per op, the ``OT_*`` columns) and ``rows`` (the MOVE row of each op)."""
+
+    def __init__(self, row_end_s, total_s, out, rows):
+        self.row_end_s = row_end_s
+        self.total_s = total_s
+        self.steps = None
+        self.out = out
+        self.rows = rows
+
+
 def ideal_operations(moves: np.ndarray):
     """MOVE rows → the continuous model's operations, as :func:`gcodeplan.planner.grbl.operations` picks them
     (motion rows are lines, dwells and waits syncs, E-only rows skipped) but with the targets as gcodeplan read
@@ -233,28 +283,22 @@ def ideal_operations(moves: np.ndarray):
     return is_sync, target, rate_v, rapid, dwell_s, rows
 
 
-def run_ideal(moves: np.ndarray, settings, buffer_blocks=16, keep_blocks: bool = False) -> GrblRun:
+def run_ideal(moves: np.ndarray, settings, buffer_blocks=16) -> IdealRun:
     """grbl's plan of MOVE rows without quantisation (see the module docstring). ``settings``: a
-    :class:`gcodeplan.planner.grbl.GrblSettings`, of which the exact (float64) max rates, accelerations,
+    :class:`gcodeplan.planner.grbl.GrblSettings`, of which the exact (float64) max rates, accelerations and
     junction deviation and the idle delay are used; ``buffer_blocks``: the ring's slots (None or math.inf:
-    unbounded). The :class:`~gcodeplan.planner.grbl.GrblRun`'s ``row_end_s``: per MOVE row the end of its block
-    (s from the first block's start; NaN for a row without one), ``total_s`` the last block's end; with
-    ``keep_blocks`` it also has ``out`` (per op, the ``OT_*`` columns) and ``rows`` (the MOVE row of each op)."""
+    unbounded)."""
     n = check_buffer_blocks(buffer_blocks, unbounded_ok=True)
     is_sync, target, rate_v, rapid, dwell_s, rows = ideal_operations(moves)
     if n is None:
         n = int((~is_sync).sum()) + 2              # room for every block: the ring never fills
     rf = np.zeros((n, N_RF))
     out = np.zeros((len(rows), N_OT))
-    idle_s = settings.idle_lock_ticks / 16e6       # ticks of the 16 MHz clock
     ideal_run_kernel(is_sync, target, rate_v, rapid, dwell_s, np.asarray(settings.exact_max_v, np.float64),
                      np.asarray(settings.exact_max_a, np.float64), float(settings.exact_junction_deviation),
-                     float(idle_s), rf, out)
+                     settings.idle_lock_ticks / F_CPU, rf, out)
     row_end = np.full(len(moves), np.nan)
     ran = out[:, OT_HAS] == 1
     row_end[rows[ran]] = out[ran, OT_T_END]
     total = float(out[ran, OT_T_END].max()) if ran.any() else 0.0
-    res = GrblRun(row_end, total, None)
-    if keep_blocks:
-        res.out, res.rows = out, rows
-    return res
+    return IdealRun(row_end, total, out, rows)
