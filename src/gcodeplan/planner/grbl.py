@@ -22,6 +22,10 @@ step, and so of every line and of the whole program, is the one the firmware giv
   arrive as a new LIMITS row: the operations of its rows are planned with those settings (the stream mode's
   ``_feed``; :func:`run` takes one set of settings for the whole program).
 
+:func:`run`'s ``buffer_blocks`` sets the planner ring's size (16 by default, grbl's BLOCK_BUFFER_SIZE; the kernels
+take it from their arrays), and ``quantised=False`` runs grbl's plan in float64 and continuous time instead
+(:mod:`gcodeplan.planner.grbl_ideal` says what stays grbl's and what is turned off).
+
 Floating point follows the C source: ``float`` variables are float32 and ``double`` literals promote an
 expression to float64 before it is stored back into a float (the x86 build grbl-sim runs, the reference).
 Function boundaries follow grbl's so the code can be diffed against a new release.
