@@ -27,7 +27,8 @@ from gcodeplan.schema import FLAG_RAPID, KIND_DWELL, KIND_WAIT
 
 REFERENCE = ["linuxcnc_plasmatest.ngc", "linuxcnc_arcspiral.ngc"]
 # a 90° corner (line 3), a shallow corner, µm moves, a reversal, a rapid Z (its own limits), a feed under
-# MINIMUM_FEED_RATE, an exact reversal (cap 0), a dwell, spindle syncs (M3 / M5), a diagonal 3-axis move
+# MINIMUM_FEED_RATE, an exact reversal (cap 0), a dwell, spindle syncs (M3 / M5), a 0.1 mm move from rest whose
+# exit the forward pass limits, a diagonal 3-axis move
 HAND = """G21 G90 G94
 G1 X10 F3000
 G1 X10 Y10
@@ -46,6 +47,7 @@ G1 X120 Y60 F2000
 G1 X130 Y60.2
 G1 X120 Y60
 M5
+G1 X119.9 Y60
 G1 X0 Y0 Z0 F4000
 """
 
