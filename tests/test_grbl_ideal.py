@@ -53,11 +53,8 @@ G1 X0 Y0 Z0 F4000
 
 
 def _machine():
-    """grbl-sim's settings ($1 = 255: no idle delay at stops); the samples' built-in grbl machine without it."""
-    try:
-        return gp.load_machine(str(shared_path("reference", "grbl", "grbl_settings.txt")))
-    except BaseException:                   # pytest's skip when ../shared is missing
-        return gp.load_machine("grbl")
+    """grbl-sim's settings from its $$ report ($1 = 255: no idle delay at stops); skips without ../shared."""
+    return gp.load_machine(str(shared_path("reference", "grbl", "grbl_settings.txt")))
 
 
 def _moves(path, machine):
