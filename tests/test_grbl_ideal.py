@@ -294,3 +294,18 @@ def test_quantised_against_continuous_on_whole_steps():
         c_steps = G.run(rounded, s, buffer_blocks=n, quantised=False).total_s
         assert q > 1.02 * c
         assert c_steps <= q <= c_steps + path_steps * 8 * 2 / 16e6
+
+
+def test_idle_delay_at_every_stop(tmp_path):
+    """$1 (stepper idle delay) kept: st_go_idle busy-waits it inside the stepper interrupt when the motion stops,
+    so the next motion starts that much later. The hand-made program stops with motion before G4 (line 13) and
+    M5 (line 18); M3 (line 14) finds the steppers idle already: 25 ms · 2 = 50 ms more. grbl's next cycle then
+    starts at Timer1's next compare match (its period from before the stop: at most 65536 · 62.5 ns = 4.1 ms
+    later), so the quantised model gains 50 ms within 2 · 4.1 ms (measured 49.27 ms)."""
+    m = _machine()
+    moves = _moves(_hand(tmp_path), m)
+    s = G.GrblSettings.from_machine(m)
+    base_q, base_c = G.run(moves, s).total_s, G.run(moves, s, quantised=False).total_s
+    s.idle_lock_ticks = 25 * 16000
+    assert G.run(moves, s, quantised=False).total_s - base_c == pytest.approx(0.05, rel=1e-9)
+    assert G.run(moves, s).total_s - base_q == pytest.approx(0.05, abs=2 * 65536 / 16e6)
