@@ -22,6 +22,10 @@ step, and so of every line and of the whole program, is the one the firmware giv
   arrive as a new LIMITS row: the operations of its rows are planned with those settings (the stream mode's
   ``_feed``; :func:`run` takes one set of settings for the whole program).
 
+:func:`run`'s ``buffer_blocks`` sets the planner ring's size (16 by default, grbl's BLOCK_BUFFER_SIZE; the kernels
+take it from their arrays), and ``quantised=False`` runs grbl's plan in float64 and continuous time instead
+(:mod:`gcodeplan.planner.grbl_ideal` says what stays grbl's and what is turned off).
+
 Floating point follows the C source: ``float`` variables are float32 and ``double`` literals promote an
 expression to float64 before it is stored back into a float (the x86 build grbl-sim runs, the reference).
 Function boundaries follow grbl's so the code can be diffed against a new release.
@@ -34,12 +38,14 @@ from .._jit import njit
 import numpy as np
 
 from ..schema import FLAG_ARC, FLAG_RAPID, KIND_DWELL, KIND_WAIT, LIMIT_ACCEL, LIMIT_AXIS, LIMIT_FEED, LIMIT_NONE
+from .grbl_ideal import check_buffer_blocks, run_ideal
 
 f32 = np.float32
 
 # grbl 1.1h config.h / planner.h / stepper.h / cpu_map (ATmega328P, 16 MHz)
 F_CPU = 16_000_000                      # Hz, the tick of every time below
-BLOCK_BUFFER_SIZE = 16                  # planner ring; one slot always empty: 15 usable blocks
+BLOCK_BUFFER_SIZE = 16                  # planner ring; one slot always empty: 15 usable blocks (the default:
+                                        # GrblState's ``buffer_blocks``, the kernels read it as bf.shape[0])
 SEGMENT_BUFFER_SIZE = 6                 # step segment ring; 5 usable segments
 ST_BLOCK_BUFFER_SIZE = SEGMENT_BUFFER_SIZE - 1
 ACCELERATION_TICKS_PER_SECOND = 100
@@ -174,6 +180,10 @@ class GrblSettings:
         self.junction_deviation = f32(junction_deviation_mm)
         self.arc_tolerance = f32(arc_tolerance_mm)
         self.idle_lock_ticks = 0
+        # the values as given, float64 in mm/s, mm/s², mm (the plan without quantisation, grbl_ideal)
+        self.exact_max_v = np.array(max_rate_mm_min, dtype=np.float64) / 60.0
+        self.exact_max_a = np.array(accel_mm_s2, dtype=np.float64)
+        self.exact_junction_deviation = float(junction_deviation_mm)
 
     @classmethod
     def from_machine(cls, m) -> "GrblSettings":
@@ -187,6 +197,9 @@ class GrblSettings:
                 [rate(a.max_velocity) for a in axes],
                 [read_float(_decimal(a.max_accel)) for a in axes],
                 read_float(_decimal(m.junction_deviation)), read_float(_decimal(m.arc_tolerance)))
+        s.exact_max_v = np.array([float(a.max_velocity) for a in axes])
+        s.exact_max_a = np.array([float(a.max_accel) for a in axes])
+        s.exact_junction_deviation = float(m.junction_deviation)
         # $1 (stepper idle delay): st_go_idle busy-waits that long inside the stepper interrupt at every stop,
         # unless it is 255 (keep the motors enabled)
         idle_ms = int(getattr(m, "grbl_idle_lock_ms", 255))
@@ -304,7 +317,7 @@ N_SF = 14
 def _planner_recalculate(si, sf, bf):
     """planner.c planner_recalculate: reverse pass from the newest block back to the planned pointer, then the
     forward pass that moves the planned pointer past every block that can no longer change."""
-    n = BLOCK_BUFFER_SIZE
+    n = bf.shape[0]
     head = si[I_HEAD]
     block_index = _prev(head, n)
     if block_index == si[I_PLANNED]:
@@ -418,7 +431,7 @@ def _plan_buffer_line(si, sf, bf, bsteps, bdir, bop, brapid, target, rate, rapid
     si[I_POS_Y] = target_steps[1]
     si[I_POS_Z] = target_steps[2]
     si[I_HEAD] = si[I_NEXT_HEAD]
-    si[I_NEXT_HEAD] = _next(si[I_HEAD], BLOCK_BUFFER_SIZE)
+    si[I_NEXT_HEAD] = _next(si[I_HEAD], bf.shape[0])
     _planner_recalculate(si, sf, bf)
     return True
 
@@ -464,7 +477,7 @@ def _st_prep_buffer(si, sf, bf, bsteps, bdir, bop, brapid, st_steps, st_sec, st_
             si[I_PL_BLOCK] = -1
             # plan_discard_current_block
             if si[I_HEAD] != si[I_TAIL]:
-                bi = _next(si[I_TAIL], BLOCK_BUFFER_SIZE)
+                bi = _next(si[I_TAIL], bf.shape[0])
                 if si[I_TAIL] == si[I_PLANNED]:
                     si[I_PLANNED] = bi
                 si[I_TAIL] = bi
@@ -508,7 +521,7 @@ def _prep_velocity_profile(si, sf, bf, brapid, pb):
     inv_2_accel = np.float32(0.5 / np.float64(acc))
     si[I_RAMP] = RAMP_ACCEL
     sf[F_ACC_UNTIL] = mm
-    nb = _next(pb, BLOCK_BUFFER_SIZE)
+    nb = _next(pb, bf.shape[0])
     exit2 = np.float32(0.0) if nb == si[I_HEAD] else bf[nb, B_ENTRY2]
     sf[F_EXIT_V] = np.float32(math.sqrt(np.float64(exit2)))
     nominal = _nominal_speed(bf, pb, brapid)
@@ -920,15 +933,16 @@ class GrblState:
     """grbl's globals between two batches of a stream: the planner ring, the segment generator, the segment
     and stepper-block rings, the stepper interrupt and Timer1, the clock (ticks of 62.5 ns)."""
 
-    def __init__(self, settings: "GrblSettings"):
+    def __init__(self, settings: "GrblSettings", buffer_blocks: int = BLOCK_BUFFER_SIZE):
+        n = check_buffer_blocks(buffer_blocks)
         self.settings = settings
         self.si = np.zeros(N_SI, np.int64)
         self.sf = np.zeros(N_SF, np.float32)
-        self.bf = np.zeros((BLOCK_BUFFER_SIZE, N_BF), np.float32)
-        self.bsteps = np.zeros((BLOCK_BUFFER_SIZE, 3), np.int64)
-        self.bdir = np.zeros(BLOCK_BUFFER_SIZE, np.int64)
-        self.bop = np.zeros(BLOCK_BUFFER_SIZE, np.int64)
-        self.brapid = np.zeros(BLOCK_BUFFER_SIZE, np.bool_)
+        self.bf = np.zeros((n, N_BF), np.float32)      # the ring's size is its row count (bf.shape[0])
+        self.bsteps = np.zeros((n, 3), np.int64)
+        self.bdir = np.zeros(n, np.int64)
+        self.bop = np.zeros(n, np.int64)
+        self.brapid = np.zeros(n, np.bool_)
         self.st_steps = np.zeros((ST_BLOCK_BUFFER_SIZE, 3), np.int64)
         self.st_sec = np.zeros(ST_BLOCK_BUFFER_SIZE, np.int64)
         self.st_dir = np.zeros(ST_BLOCK_BUFFER_SIZE, np.int64)
@@ -1099,9 +1113,19 @@ def _first_beyond_reach(x1, y1, z1, reach):
     return -1, -1
 
 
-def run(moves: np.ndarray, settings: GrblSettings, steps_capacity: int = 0) -> GrblRun:
+def run(moves: np.ndarray, settings: GrblSettings, steps_capacity: int = 0,
+        buffer_blocks: int | None = BLOCK_BUFFER_SIZE, quantised: bool = True):
     """Run grbl 1.1 on MOVE rows (a whole program; see the module docstring for what is modelled).
-    ``steps_capacity``: how many step pulses per axis to keep (0: none)."""
+    ``steps_capacity``: how many step pulses per axis to keep (0: none). ``buffer_blocks``: the planner ring,
+    BLOCK_BUFFER_SIZE (16 by default, 15 usable blocks). ``quantised=False``: the plan in float64 and continuous
+    time, :func:`gcodeplan.planner.grbl_ideal.run_ideal` (there ``buffer_blocks=None`` is unbounded; its result
+    has the per-op block outputs too)."""
+    if not quantised:
+        from ..errors import ConfigError
+
+        if steps_capacity:
+            raise ConfigError("grbl model: quantised=False has no step pulses (no stepper is simulated)")
+        return run_ideal(moves, settings, buffer_blocks)
     check_reach(moves, settings)
     op_kind, target, rate, rapid, dwell_ticks, rows = operations(moves)
     op_end = np.full(len(op_kind), -1, np.int64)
@@ -1109,7 +1133,7 @@ def run(moves: np.ndarray, settings: GrblSettings, steps_capacity: int = 0) -> G
     step_t = np.zeros((3, steps_capacity), np.int64)
     step_dir = np.zeros((3, steps_capacity), np.int8)
     n_out = np.zeros(3, np.int64)
-    state = GrblState(settings)
+    state = GrblState(settings, buffer_blocks)
     state.feed(op_kind, target, rate, rapid, dwell_ticks, True, 0, op_end, op_info, step_t, step_dir, n_out)
     t0 = state.t0
     row_end = np.full(len(moves), np.nan)
