@@ -134,9 +134,11 @@ def _rule_zero_or_one(v: Any) -> str | None:
     return None
 
 
-def _rule_power_of_two(v: Any) -> str | None:
+def rule_block_buffer(v: Any) -> str | None:
+    """Marlin's BLOCK_BUFFER_SIZE (machine ``marlin_block_buffer``, Configuration_adv.h): what is wrong with ``v``,
+    or None."""
     if not is_number(v) or not (v >= 2 and v == int(v) and int(v) & (int(v) - 1) == 0 and v <= 1024):
-        return "must be a power of 2 from 2 to 1024 (Marlin's SanityCheck.h wants a power of 2)"
+        return "must be a power of 2 from 2 to 1024 (Marlin builds only with a power of 2: SanityCheck.h)"
     return None
 
 
@@ -253,7 +255,7 @@ FIELDS: tuple[Field, ...] = (
     Field("", "grbl_idle_lock_ms", "grbl_idle_lock_ms", _rule_non_negative, "number", "ms"),
     Field("", "marlin_build", "marlin_build", lambda v: rule_marlin_build(v), "string", ""),
     Field("", "grbl_laser_mode", "grbl_laser_mode", _rule_zero_or_one, "number", ""),
-    Field("", "marlin_block_buffer", "marlin_block_buffer", _rule_power_of_two, "number", "blocks"),
+    Field("", "marlin_block_buffer", "marlin_block_buffer", rule_block_buffer, "number", "blocks"),
     Field("", "acceleration_profile", "acceleration_profile", rule_choice(ACCELERATION_PROFILES), "string", ""),
     Field("toolhead", "max_velocity", "max_velocity", _SPEED, "number", "mm/s"),
     Field("toolhead", "max_accel", "max_accel", _ACCEL, "number", "mm/s²"),

@@ -522,10 +522,13 @@ def _block_buffer(pre: _Pre, main_path: str) -> int:
     planner ring. A value the firmware would not build is an error naming the line."""
     if "BLOCK_BUFFER_SIZE" not in pre.values:
         return 16
+    from .fields import rule_block_buffer
+
     v = _number(pre, "BLOCK_BUFFER_SIZE")
-    if not (v >= 2 and v == int(v) and int(v) & (int(v) - 1) == 0 and v <= 1024):
+    problem = rule_block_buffer(v)
+    if problem:
         f, no = pre.where.get("BLOCK_BUFFER_SIZE", (main_path, None))
-        raise ConfigError(f"BLOCK_BUFFER_SIZE {v:g}: Marlin builds only with a power of 2 (SanityCheck.h)", f, no)
+        raise ConfigError(f"BLOCK_BUFFER_SIZE {v:g}: {problem}", f, no)
     return int(v)
 
 

@@ -37,6 +37,7 @@ import math
 import numpy as np
 
 from .._jit import njit
+from ..profiles.trapezoid import block_trapezoid_kernel
 from ..schema import FLAG_RAPID, KIND_DWELL, KIND_WAIT
 #: mm/s, grbl 1.1h planner.h MINIMUM_FEED_RATE (1 mm/min)
 MINIMUM_FEED_V = 1.0 / 60.0
@@ -155,27 +156,6 @@ def lookahead_passes(rf, g):
 
 
 @njit(cache=True)
-def trapezoid_times(v0_sqr, v1_sqr, nominal, accel, mm, out):
-    """A block's trapezoid in closed form: ``out`` = entry, cruise (or peak) and exit speed (mm/s), accelerating,
-    cruising and braking time (s), from the entry and exit speed² (mm²/s²), nominal speed (mm/s), acceleration
-    (mm/s²) and length (mm); the ramps meet at v² = (v0² + v1²) / 2 + a·d when there is no room to cruise."""
-    v0 = math.sqrt(max(v0_sqr, 0.0))
-    v1 = math.sqrt(max(v1_sqr, 0.0))
-    vc = max(nominal, v0, v1)
-    d_acc = (vc * vc - v0 * v0) / (2.0 * accel)
-    d_dec = (vc * vc - v1 * v1) / (2.0 * accel)
-    tc = 0.0
-    if d_acc + d_dec <= mm:
-        tc = (mm - d_acc - d_dec) / vc
-    else:
-        vc = max(math.sqrt(max((v0 * v0 + v1 * v1) * 0.5 + accel * mm, 0.0)), v0, v1)
-    out[0], out[1], out[2] = v0, vc, v1
-    out[3] = (vc - v0) / accel
-    out[4] = tc
-    out[5] = (vc - v1) / accel
-
-
-@njit(cache=True)
 def run_tail_block(rf, g, out, ph):
     """Run the block at the tail from the clock: after the passes (when blocks came since the last), its
     trapezoid from its entry to the next block's planned entry (0 for the newest) in closed form; the next
@@ -187,7 +167,7 @@ def run_tail_block(rf, g, out, ph):
     t = int(g[G_TAIL])
     nb = (t + 1) % n
     exit_sqr = 0.0 if nb == int(g[G_HEAD]) else rf[nb, RF_ENTRY_SQR]
-    trapezoid_times(rf[t, RF_ENTRY_SQR], exit_sqr, rf[t, RF_NOMINAL], rf[t, RF_ACCEL], rf[t, RF_MM], ph)
+    block_trapezoid_kernel(rf[t, RF_ENTRY_SQR], exit_sqr, rf[t, RF_NOMINAL], rf[t, RF_ACCEL], rf[t, RF_MM], ph)
     op = int(rf[t, RF_OP])
     out[op, OT_HAS] = 1
     out[op, OT_T_PICK] = g[G_CLOCK]

@@ -27,6 +27,7 @@ import math
 import numpy as np
 
 from .._jit import njit
+from ..profiles.trapezoid import block_trapezoid_kernel
 from ..schema import KIND_DWELL, KIND_EXTRUDE_ONLY, KIND_WAIT, LIMIT_ACCEL, LIMIT_FEED, LIMIT_NONE
 from . import marlin_kernels as mk
 
@@ -210,27 +211,6 @@ def lookahead_passes(rf, ri, gi):
 
 
 @njit(cache=True)
-def trapezoid_times(v0_sqr, v1_sqr, nominal, accel, mm, out):
-    """A block's trapezoid in closed form: ``out`` = entry, cruise (or peak) and exit speed (mm/s), accelerating,
-    cruising and braking time (s), from the entry and exit speed² (mm²/s²), nominal speed (mm/s), acceleration
-    (mm/s²) and length (mm). Without room to cruise the ramps meet at v² = (v0² + v1²) / 2 + a·d."""
-    v0 = math.sqrt(max(v0_sqr, 0.0))
-    v1 = math.sqrt(max(v1_sqr, 0.0))
-    vc = max(nominal, v0, v1)
-    d_acc = (vc * vc - v0 * v0) / (2.0 * accel)
-    d_dec = (vc * vc - v1 * v1) / (2.0 * accel)
-    if d_acc + d_dec <= mm:
-        tc = (mm - d_acc - d_dec) / vc
-    else:
-        vc = max(math.sqrt(max((v0 * v0 + v1 * v1) * 0.5 + accel * mm, 0.0)), v0, v1)
-        tc = 0.0
-    out[0], out[1], out[2] = v0, vc, v1
-    out[3] = (vc - v0) / accel
-    out[4] = tc
-    out[5] = (vc - v1) / accel
-
-
-@njit(cache=True)
 def pick_and_run_ideal(rf, ri, gi, gd, out_t, row_base, ph):
     """The stepper: finish the running block, skip sync blocks, take the next one and run its trapezoid from its
     entry to the next block's (the newest: MINIMUM_PLANNER_SPEED), after the look-ahead passes when blocks came
@@ -257,7 +237,7 @@ def pick_and_run_ideal(rf, ri, gi, gd, out_t, row_base, ph):
                 ri[idx, RI_FLAG] |= FLAG_FROZEN
                 break
             idx = mk._next(ri, idx)
-        trapezoid_times(rf[t, RF_ENTRY_SQR], exit_sqr, rf[t, RF_NOMINAL], rf[t, RF_ACCEL], rf[t, RF_MM], ph)
+        block_trapezoid_kernel(rf[t, RF_ENTRY_SQR], exit_sqr, rf[t, RF_NOMINAL], rf[t, RF_ACCEL], rf[t, RF_MM], ph)
         r = ri[t, RI_ROW] - row_base
         out_t[r, OT_HAS] = 1
         out_t[r, OT_T_PICK] = gd[GD_CLOCK]

@@ -67,6 +67,30 @@ def trapezoid_phases_kernel(distance: float, v_max: float, a_max: float, v_start
 
 
 @njit(cache=True)
+def block_trapezoid_kernel(v0_sqr, v1_sqr, nominal, accel, mm, out):
+    """A firmware planner block's trapezoid in closed form, as the firmware models' ideal plans time it
+    (planner/marlin_ideal.py, planner/grbl_ideal.py): ``out`` = entry, cruise (or peak) and exit speed (mm/s),
+    accelerating, cruising and braking time (s), from the entry and exit speed² (mm²/s², as the look-ahead passes
+    keep them), nominal speed (mm/s), acceleration (mm/s², the same both ways) and length (mm). An entry or exit
+    above the nominal speed (a firmware's floor speed) is kept; without room to cruise the ramps meet at
+    v² = (v0² + v1²) / 2 + a·d."""
+    v0 = math.sqrt(max(v0_sqr, 0.0))
+    v1 = math.sqrt(max(v1_sqr, 0.0))
+    vc = max(nominal, v0, v1)
+    d_acc = (vc * vc - v0 * v0) / (2.0 * accel)
+    d_dec = (vc * vc - v1 * v1) / (2.0 * accel)
+    tc = 0.0
+    if d_acc + d_dec <= mm:
+        tc = (mm - d_acc - d_dec) / vc
+    else:
+        vc = max(math.sqrt(max((v0 * v0 + v1 * v1) * 0.5 + accel * mm, 0.0)), v0, v1)
+    out[0], out[1], out[2] = v0, vc, v1
+    out[3] = (vc - v0) / accel
+    out[4] = tc
+    out[5] = (vc - v1) / accel
+
+
+@njit(cache=True)
 def trapezoid_duration_kernel(distance: float, v_max: float, a_max: float, v_start: float, v_end: float,
                               decel: float) -> float:
     """s, duration of the time-optimal trapezoid; NaN if infeasible or an argument is invalid."""

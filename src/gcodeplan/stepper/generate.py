@@ -39,6 +39,12 @@ TRAPQ_KEEP_S = 2.0        # s of trapq history kept for motors whose search has 
 Sink = Callable[[int, np.ndarray, np.ndarray], None]
 
 
+def _unreachable(rail, t_s) -> ConfigError:
+    """The error for a plug-in motor whose inverse kinematics gives no position at time ``t_s`` (s)."""
+    return ConfigError(f"{rail.name}: the kinematics cannot reach the position at t = {float(t_s)!r} s "
+                       f"(its inverse kinematics gives no motor position there)")
+
+
 class StepGenerator:
     """Exact per-stepper step times for a plan fed in SEGMENT batches.
 
@@ -515,8 +521,7 @@ class StepGenerator:
                                                   rail.step_dist, self.states[si], start, self._buf_t[si],
                                                   self._buf_d[si], self._fill[si])
             if need == kernel.PIECE_UNREACHABLE:
-                raise ConfigError(f"{rail.name}: the kinematics cannot reach the position at t = {float(t0[nxt])!r} s "
-                                  f"(its inverse kinematics gives no motor position there)")
+                raise _unreachable(rail, t0[nxt])
             start = self._after_kernel(si, t0, nxt, fill, need, n_pieces)
 
     def _run_ik_fit(self, si, t0, dt, p, v, a, j, reset, fn, period, refs):
@@ -544,8 +549,7 @@ class StepGenerator:
                                                       t0, dt, rail.step_dist, self.states[si], start,
                                                       self._buf_t[si], self._buf_d[si], self._fill[si])
             if need == kernel.PIECE_UNREACHABLE:
-                raise ConfigError(f"{rail.name}: the kinematics cannot reach the position at t = {float(ft0[nxt])!r} s "
-                                  f"(its inverse kinematics gives no motor position there)")
+                raise _unreachable(rail, ft0[nxt])
             start = self._after_kernel(si, ft0, nxt, fill, need, n_fit)
 
     def _run_ik_klipper(self, si, t0, dt, p, v, a, j, reset, reach=(0.0, 0.0), horizon=None):
@@ -583,8 +587,7 @@ class StepGenerator:
         pos = kernel.ik_positions(fn, self._ik_params[si], xyz[0].ravel(), xyz[1].ravel(), xyz[2].ravel())
         if not np.all(np.isfinite(pos)):
             k = int(np.flatnonzero(~np.isfinite(pos))[0]) // (kernel.IK_CHECK_SAMPLES + 1)
-            raise ConfigError(f"{rail.name}: the kinematics cannot reach the position at t = {float(t0[k])!r} s "
-                              f"(its inverse kinematics gives no motor position there)")
+            raise _unreachable(rail, t0[k])
         cuts = [0] + (np.flatnonzero(reset[1:] == kernel.RESET_ANCHOR) + 1).tolist() + [n_pieces]
         for i0, i1 in zip(cuts[:-1], cuts[1:]):
             its = self._enter_its(si, reach, float(t0[i0]), int(reset[i0]))
